@@ -1,0 +1,14 @@
+//! LHM++ streaming human-avatar reconstruction node.
+//!
+//! Data flows one way:
+//! `node` (messages in) → frame store → `model` (reconstruction) → `avatar` → `splat`
+//! (render) → `node` / `transport` / `bag` (publish, record).
+//!
+//! `body`, `model` and `splat` are synchronous and never import `node`, `transport` or `bag`.
+
+pub mod bag;
+pub mod body;
+pub mod config;
+pub mod model;
+pub mod msgs;
+pub mod splat;
