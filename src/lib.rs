@@ -6,6 +6,7 @@
 //!
 //! `body`, `model` and `splat` are synchronous and never import `node`, `transport` or `bag`.
 
+pub mod avatar;
 pub mod bag;
 pub mod body;
 pub mod config;

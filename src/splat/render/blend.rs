@@ -1,0 +1,193 @@
+//! Stage 4, blend: front-to-back alpha compositing of each tile's sorted splats
+//! (3DGS reference semantics).
+//!
+//! Per pixel `p` and splat `i` in depth order: `power = -½ dᵀ Σ⁻¹ d` with `d` = centre − pixel;
+//! `α = min(0.99, opacity · e^power)`; samples with `α < 1/255` are skipped; if
+//! `T · (1 − α) < 1e-4` the pixel is finished and this sample is *not* added; otherwise
+//! `colour += α T c_i`, `T ← T (1 − α)`. A tile stops once all its pixels are finished. The
+//! final pixel is `colour + T · background`. Each splat only visits the pixels of its
+//! `α ≥ 1/255` box, which skips exactly the samples the reference would skip.
+//!
+//! One call handles one 16×16 tile, like one CUDA block; every pixel's arithmetic is a fixed
+//! sequence, so the result does not depend on how tiles are spread over threads.
+
+use super::bin::{TileBins, TileGrid};
+use super::project::{Splat2D, MIN_ALPHA};
+use super::{RenderOptions, TILE};
+use crate::splat::gaussians::Gaussians;
+
+/// Transmittance below which a pixel is finished (3DGS: 1e-4).
+const MIN_TRANSMITTANCE: f32 = 1e-4;
+/// Highest alpha of one sample (3DGS: 0.99).
+const MAX_ALPHA: f32 = 0.99;
+const PIXELS: usize = TILE * TILE;
+
+/// The output rows of one band of tiles (`TILE` image rows, fewer at the bottom edge).
+pub(crate) struct BandOut<'a> {
+    /// RGB, `rows × width × 3`.
+    pub rgb: &'a mut [f32],
+    /// Alpha, `rows × width`.
+    pub alpha: &'a mut [f32],
+    /// Expected depth, `rows × width`.
+    pub depth: &'a mut [f32],
+    /// Features, `rows × width × C` (empty without features).
+    pub features: &'a mut [f32],
+}
+
+/// Everything the blend reads, shared by all bands.
+pub(crate) struct BlendInput<'a> {
+    pub splats: &'a [Splat2D],
+    pub bins: &'a TileBins,
+    pub grid: TileGrid,
+    pub gaussians: &'a Gaussians,
+    pub options: &'a RenderOptions,
+    pub width: usize,
+    pub height: usize,
+    /// Feature channels rendered (0 = none).
+    pub channels: usize,
+    /// Background features (`channels` values).
+    pub background_features: &'a [f32],
+}
+
+/// Per-tile accumulators, reused from tile to tile.
+struct TileScratch {
+    transmittance: [f32; PIXELS],
+    done: [bool; PIXELS],
+    rgb: [[f32; 3]; PIXELS],
+    depth: [f32; PIXELS],
+    features: Vec<f32>,
+}
+
+/// Blends every tile of band `row` (tile row index) into `out`.
+pub(crate) fn blend_band(row: usize, input: &BlendInput, out: BandOut) {
+    let mut scratch = TileScratch {
+        transmittance: [1.0; PIXELS],
+        done: [false; PIXELS],
+        rgb: [[0.0; 3]; PIXELS],
+        depth: [0.0; PIXELS],
+        features: vec![0.0; PIXELS * input.channels],
+    };
+    let BandOut {
+        rgb,
+        alpha,
+        depth,
+        features,
+    } = out;
+    for col in 0..input.grid.cols {
+        blend_tile(col, row, input, &mut scratch);
+        write_tile(col, row, input, &scratch, rgb, alpha, depth, features);
+    }
+}
+
+fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
+    let (x0, y0) = (col * TILE, row * TILE);
+    let tw = TILE.min(input.width - x0);
+    let th = TILE.min(input.height - y0);
+    s.transmittance.fill(1.0);
+    s.done.fill(false);
+    s.rgb.fill([0.0; 3]);
+    s.depth.fill(0.0);
+    s.features.fill(0.0);
+    let c = input.channels;
+    let mut remaining = tw * th;
+    let tile = row * input.grid.cols + col;
+    let (xmax, ymax) = ((x0 + tw - 1) as f32, (y0 + th - 1) as f32);
+    for si in input.bins.tile(tile) {
+        let g = &input.splats[si];
+        let lo_x = (g.mean[0] - g.extent[0]).ceil().max(x0 as f32);
+        let hi_x = (g.mean[0] + g.extent[0]).floor().min(xmax);
+        let lo_y = (g.mean[1] - g.extent[1]).ceil().max(y0 as f32);
+        let hi_y = (g.mean[1] + g.extent[1]).floor().min(ymax);
+        if lo_x > hi_x || lo_y > hi_y {
+            continue;
+        }
+        let [ca, cb, cc] = g.conic;
+        let feats = if c > 0 {
+            input.gaussians.features_of(g.index as usize)
+        } else {
+            &[]
+        };
+        for py in lo_y as usize..=hi_y as usize {
+            let dy = g.mean[1] - py as f32;
+            let row_base = (py - y0) * TILE;
+            for px in lo_x as usize..=hi_x as usize {
+                let p = row_base + (px - x0);
+                if s.done[p] {
+                    continue;
+                }
+                let dx = g.mean[0] - px as f32;
+                let power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
+                if power > 0.0 {
+                    continue;
+                }
+                let alpha = MAX_ALPHA.min(g.opacity * power.exp());
+                if alpha < MIN_ALPHA {
+                    continue;
+                }
+                let t = s.transmittance[p];
+                let next_t = t * (1.0 - alpha);
+                if next_t < MIN_TRANSMITTANCE {
+                    s.done[p] = true;
+                    remaining -= 1;
+                    continue;
+                }
+                let w = alpha * t;
+                let acc = &mut s.rgb[p];
+                acc[0] += g.rgb[0] * w;
+                acc[1] += g.rgb[1] * w;
+                acc[2] += g.rgb[2] * w;
+                s.depth[p] += g.depth * w;
+                if c > 0 {
+                    for (a, f) in s.features[p * c..(p + 1) * c].iter_mut().zip(feats) {
+                        *a += f * w;
+                    }
+                }
+                s.transmittance[p] = next_t;
+            }
+        }
+        if remaining == 0 {
+            break;
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_tile(
+    col: usize,
+    row: usize,
+    input: &BlendInput,
+    s: &TileScratch,
+    rgb: &mut [f32],
+    alpha: &mut [f32],
+    depth: &mut [f32],
+    features: &mut [f32],
+) {
+    let x0 = col * TILE;
+    let tw = TILE.min(input.width - x0);
+    let th = TILE.min(input.height - row * TILE);
+    let bg = input.options.background;
+    let c = input.channels;
+    for ly in 0..th {
+        for lx in 0..tw {
+            let p = ly * TILE + lx;
+            let o = ly * input.width + x0 + lx;
+            let t = s.transmittance[p];
+            for k in 0..3 {
+                rgb[o * 3 + k] = s.rgb[p][k] + t * bg[k];
+            }
+            let a = 1.0 - t;
+            alpha[o] = a;
+            depth[o] = if a > 0.0 { s.depth[p] / a } else { 0.0 };
+            if c > 0 {
+                let dst = &mut features[o * c..(o + 1) * c];
+                for ((d, acc), b) in dst
+                    .iter_mut()
+                    .zip(&s.features[p * c..(p + 1) * c])
+                    .zip(input.background_features)
+                {
+                    *d = acc + t * b;
+                }
+            }
+        }
+    }
+}
