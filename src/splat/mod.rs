@@ -15,6 +15,6 @@ pub use gaussians::{
     rgb_to_sh_dc, sh_coeff_count, sh_dc_to_rgb, GaussianError, Gaussians, MAX_SH_DEGREE, SH_C0,
 };
 pub use ply::{read_ply, read_ply_from, write_ply, write_ply_to, PlyError, PlyGaussians};
-pub use render::{render, RenderOptions, RenderOutput, TILE};
+pub use render::{render, render_timed, RenderOptions, RenderOutput, StageTimes, TILE};
 pub use sh::eval_sh;
 pub use voxel_skinning::{VoxelSkinning, VoxelSkinningError};

@@ -86,11 +86,37 @@ impl RenderOutput {
     }
 }
 
+/// Wall-clock time of each stage of one render, with the work sizes (for benchmarks).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StageTimes {
+    /// Projection and culling (seconds).
+    pub project: f64,
+    /// Tile binning and per-tile depth sort (seconds).
+    pub bin_sort: f64,
+    /// Blending (seconds).
+    pub blend: f64,
+    /// Gaussians that survived culling.
+    pub visible: usize,
+    /// (tile, splat) pairs after binning.
+    pub tile_pairs: usize,
+}
+
 /// Renders Gaussians seen by `camera` (see the module doc for the stages).
 ///
 /// Never produces NaN: Gaussians that are non-finite, degenerate, behind the near plane or off
 /// screen are culled. Panics only if `gaussians` fails [`Gaussians::validate`].
 pub fn render(gaussians: &Gaussians, camera: &Camera, options: &RenderOptions) -> RenderOutput {
+    render_timed(gaussians, camera, options).0
+}
+
+/// [`render`], also returning how long each stage took.
+pub fn render_timed(
+    gaussians: &Gaussians,
+    camera: &Camera,
+    options: &RenderOptions,
+) -> (RenderOutput, StageTimes) {
+    let mut times = StageTimes::default();
+    let clock = std::time::Instant::now();
     let _span = tracing::debug_span!("render", n = gaussians.len()).entered();
     if let Err(e) = gaussians.validate() {
         panic!("render: invalid Gaussians: {e}");
@@ -103,8 +129,12 @@ pub fn render(gaussians: &Gaussians, camera: &Camera, options: &RenderOptions) -
         .into_iter()
         .flatten()
         .collect();
+    times.project = clock.elapsed().as_secs_f64();
+    times.visible = splats.len();
     let grid = bin::TileGrid::new(camera.intrinsics.width, camera.intrinsics.height);
     let bins = bin::bin_and_sort(&splats, grid);
+    times.bin_sort = clock.elapsed().as_secs_f64() - times.project;
+    times.tile_pairs = bins.keys.len();
 
     let channels = if options.render_features {
         gaussians.feature_channels
@@ -123,7 +153,7 @@ pub fn render(gaussians: &Gaussians, camera: &Camera, options: &RenderOptions) -
         features: vec![0.0; width * height * channels],
     };
     if width == 0 || height == 0 {
-        return out;
+        return (out, times);
     }
     let input = BlendInput {
         splats: &splats,
@@ -160,5 +190,6 @@ pub fn render(gaussians: &Gaussians, camera: &Camera, options: &RenderOptions) -
         .enumerate()
         .for_each(|(row, band)| blend::blend_band(row, &input, band));
     drop(_blend);
-    out
+    times.blend = clock.elapsed().as_secs_f64() - times.project - times.bin_sort;
+    (out, times)
 }
