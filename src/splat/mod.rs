@@ -4,6 +4,7 @@
 
 mod camera;
 mod gaussians;
+mod nearest;
 mod ply;
 pub mod render;
 mod sh;
@@ -14,6 +15,7 @@ pub use camera::{Camera, Intrinsics};
 pub use gaussians::{
     rgb_to_sh_dc, sh_coeff_count, sh_dc_to_rgb, GaussianError, Gaussians, MAX_SH_DEGREE, SH_C0,
 };
+pub use nearest::{nearest_vertex_skin, PointGrid};
 pub use ply::{read_ply, read_ply_from, write_ply, write_ply_to, PlyError, PlyGaussians};
 pub use render::{render, render_timed, RenderOptions, RenderOutput, StageTimes, TILE};
 pub use sh::eval_sh;
