@@ -21,6 +21,8 @@ const MIN_TRANSMITTANCE: f32 = 1e-4;
 /// Highest alpha of one sample (3DGS: 0.99).
 const MAX_ALPHA: f32 = 0.99;
 const PIXELS: usize = TILE * TILE;
+/// Pixels added on each side of a row's exact span (guards against rounding).
+const SPAN_MARGIN: f32 = 0.01;
 
 /// The output rows of one band of tiles (`TILE` image rows, fewer at the bottom edge).
 pub(crate) struct BandOut<'a> {
@@ -110,8 +112,21 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
         };
         for py in lo_y as usize..=hi_y as usize {
             let dy = g.mean[1] - py as f32;
+            // Pixels of this row with power ≥ min_power: a dx² + 2 b dy dx + c dy² + 2 min_power ≤ 0.
+            let disc = (cb * dy) * (cb * dy) - ca * (cc * dy * dy + 2.0 * min_power);
+            if !(disc >= 0.0) {
+                continue;
+            }
+            let root = disc.sqrt();
+            let (dx_lo, dx_hi) = ((-cb * dy - root) / ca, (-cb * dy + root) / ca);
+            // px = mean − dx; widen by a little so rounding never drops a pixel.
+            let span_lo = (g.mean[0] - dx_hi - SPAN_MARGIN).ceil().max(lo_x);
+            let span_hi = (g.mean[0] - dx_lo + SPAN_MARGIN).floor().min(hi_x);
+            if span_lo > span_hi {
+                continue;
+            }
             let row_base = (py - y0) * TILE;
-            for px in lo_x as usize..=hi_x as usize {
+            for px in span_lo as usize..=span_hi as usize {
                 let p = row_base + (px - x0);
                 if s.done[p] {
                     continue;
