@@ -170,24 +170,26 @@ fn blend(skin: &SkinWeights, i: usize, matrices: &[Mat4]) -> Mat4 {
     }
 }
 
-/// The rotation closest to `m` (polar decomposition by scaled Newton iteration); exact for
-/// matrices that already are rotations.
+/// The rotation closest to `m` (the orthogonal polar factor), by Björck–Bowie iteration
+/// `R ← R (3I − RᵀR) / 2` after scaling `m` to unit mean squared singular value; exact (one
+/// check, no iteration) for matrices that already are rotations. Returns the identity for
+/// singular or reflecting input.
 pub fn rotation_part(m: Mat3) -> Quat {
-    let mut r = m;
-    for _ in 0..6 {
-        let err = r.transpose() * r - Mat3::IDENTITY;
-        if frobenius(err) < 1e-6 {
-            break;
-        }
-        let inv_t = r.inverse().transpose();
-        if !inv_t.is_finite() {
-            break;
-        }
-        let gamma = (frobenius(inv_t) / frobenius(r)).sqrt();
-        r = (r * gamma + inv_t * (1.0 / gamma)) * 0.5;
-    }
-    if r.determinant() <= 0.0 || !r.is_finite() {
+    let norm = frobenius(m);
+    if !(norm > 0.0) || !norm.is_finite() || !(m.determinant() > 0.0) {
         return Quat::IDENTITY;
+    }
+    let mut r = m;
+    for k in 0..12 {
+        let gram = r.transpose() * r;
+        if frobenius(gram - Mat3::IDENTITY) < 1e-6 {
+            break;
+        }
+        if k == 0 {
+            r *= 3f32.sqrt() / norm;
+            continue;
+        }
+        r = r * (Mat3::IDENTITY * 1.5 - gram * 0.5);
     }
     Quat::from_mat3(&r).normalize()
 }
