@@ -17,62 +17,17 @@ use glam::{Mat3, Vec3};
 use std::path::Path;
 
 /// The 55 SMPL-X joint names in model order.
+#[rustfmt::skip]
 pub const SMPLX_JOINT_NAMES: [&str; 55] = [
-    "pelvis",
-    "left_hip",
-    "right_hip",
-    "spine1",
-    "left_knee",
-    "right_knee",
-    "spine2",
-    "left_ankle",
-    "right_ankle",
-    "spine3",
-    "left_foot",
-    "right_foot",
-    "neck",
-    "left_collar",
-    "right_collar",
-    "head",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_wrist",
-    "right_wrist",
-    "jaw",
-    "left_eye_smplhf",
-    "right_eye_smplhf",
-    "left_index1",
-    "left_index2",
-    "left_index3",
-    "left_middle1",
-    "left_middle2",
-    "left_middle3",
-    "left_pinky1",
-    "left_pinky2",
-    "left_pinky3",
-    "left_ring1",
-    "left_ring2",
-    "left_ring3",
-    "left_thumb1",
-    "left_thumb2",
-    "left_thumb3",
-    "right_index1",
-    "right_index2",
-    "right_index3",
-    "right_middle1",
-    "right_middle2",
-    "right_middle3",
-    "right_pinky1",
-    "right_pinky2",
-    "right_pinky3",
-    "right_ring1",
-    "right_ring2",
-    "right_ring3",
-    "right_thumb1",
-    "right_thumb2",
-    "right_thumb3",
+    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle",
+    "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar", "right_collar",
+    "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+    "right_wrist", "jaw", "left_eye_smplhf", "right_eye_smplhf", "left_index1", "left_index2",
+    "left_index3", "left_middle1", "left_middle2", "left_middle3", "left_pinky1", "left_pinky2",
+    "left_pinky3", "left_ring1", "left_ring2", "left_ring3", "left_thumb1", "left_thumb2",
+    "left_thumb3", "right_index1", "right_index2", "right_index3", "right_middle1",
+    "right_middle2", "right_middle3", "right_pinky1", "right_pinky2", "right_pinky3",
+    "right_ring1", "right_ring2", "right_ring3", "right_thumb1", "right_thumb2", "right_thumb3",
 ];
 
 /// Part names of SMPL-X templates (labels index into this).
@@ -105,23 +60,30 @@ pub fn load_smplx(path: &Path, betas: &[f32]) -> Result<BodyTemplate, BodyError>
     let mut vertices: Vec<Vec3> = rows3(matrix_f32("v_template")?, "v_template", &origin)?;
     let nv = vertices.len();
     if !betas.is_empty() {
-        let dirs = get("shapedirs")?
-            .to_dtype(DType::F32)
-            .and_then(|t| t.to_vec3::<f32>())
-            .map_err(|e| bad("shapedirs", e))?;
-        if dirs.len() != nv || dirs.iter().any(|d| d.len() != 3) {
-            return Err(BodyError::format(&origin, "`shapedirs` is not V×3×B"));
+        let dirs = get("shapedirs")?;
+        let dims = dirs.dims().to_vec();
+        if dims.len() != 3 || dims[0] != nv || dims[1] != 3 {
+            return Err(BodyError::format(
+                &origin,
+                format!("`shapedirs` is {dims:?}, expected [{nv}, 3, B]"),
+            ));
         }
-        let nb = dirs[0][0].len();
-        if betas.len() > nb {
+        if betas.len() > dims[2] {
             return Err(BodyError::format(
                 &origin,
                 format!(
-                    "{} betas given but `shapedirs` has {nb} shape components",
-                    betas.len()
+                    "{} betas given but `shapedirs` has {} shape components",
+                    betas.len(),
+                    dims[2]
                 ),
             ));
         }
+        // Only the components the betas use are converted (SMPL-X ships 400).
+        let dirs = dirs
+            .narrow(2, 0, betas.len())
+            .and_then(|t| t.to_dtype(DType::F32))
+            .and_then(|t| t.to_vec3::<f32>())
+            .map_err(|e| bad("shapedirs", e))?;
         for (v, d) in vertices.iter_mut().zip(&dirs) {
             for (k, beta) in betas.iter().enumerate() {
                 *v += Vec3::new(d[0][k], d[1][k], d[2][k]) * *beta;
