@@ -33,6 +33,19 @@ fn every_walk_frame_gives_finite_vertices_and_preserves_bone_lengths() {
 }
 
 #[test]
+fn walk_keeps_the_lowest_foot_point_on_the_ground() {
+    let t = BodyTemplate::load_default().unwrap();
+    for frame in [0.0f32, 7.5, 13.0, 20.0, 33.0] {
+        let v = t.posed_vertices(&walk_pose(frame)).unwrap();
+        let lowest = v.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+        assert!(
+            lowest.abs() < 2e-3,
+            "frame {frame}: lowest point at y = {lowest}"
+        );
+    }
+}
+
+#[test]
 fn walk_loops_and_moves_the_legs() {
     let t = BodyTemplate::load_default().unwrap();
     let a = walk_pose(3.0);

@@ -5,8 +5,9 @@
 //! (`assets/body/walk.json`: Blender F-curves of `root`, `spine01`–`spine05`, `neck01`, `head`,
 //! `clavicle.L/R`, evaluated as cubic Béziers and converted from Blender bone space into
 //! [`Pose`] rotations with the bones' rest orientations) with the generated FK limb gait of
-//! [`gait`]. The root's forward progression is removed (walking in place); its sway and bob
-//! are kept. The cycle is 40 frames long and loops.
+//! [`gait`]. The root's forward progression is removed (walking in place) and its sway kept;
+//! [`walk_pose`] then grounds each frame (lowest foot vertex at y = 0). The cycle is 40 frames
+//! long and loops.
 
 mod clip;
 pub mod gait;
@@ -41,6 +42,8 @@ struct Embedded {
     template: BodyTemplate,
     walk: KeyframeClip,
     tpose: Pose,
+    /// Vertices labelled `foot.*`, used to keep the walk on the ground.
+    foot_vertices: Vec<usize>,
 }
 
 fn embedded() -> &'static Embedded {
@@ -52,10 +55,12 @@ fn embedded() -> &'static Embedded {
         let tpose: EulerPose =
             serde_json::from_str(TPOSE_JSON).expect("embedded tpose.json is valid");
         let tpose = euler_pose(&template.skeleton, &tpose).expect("tpose bones are rig bones");
+        let foot_vertices = foot_vertices(&template);
         Embedded {
             template,
             walk,
             tpose,
+            foot_vertices,
         }
     })
 }
@@ -92,10 +97,44 @@ pub fn tpose() -> Pose {
     embedded().tpose.clone()
 }
 
-/// Walk-cycle pose at `frame` (any real number; loops every [`WALK_PERIOD_FRAMES`]).
+/// Walk-cycle pose at `frame` (any real number; loops every [`WALK_PERIOD_FRAMES`]) for the
+/// embedded template, grounded: the root is moved vertically so that the lowest foot vertex
+/// touches y = 0 (the clip's own vertical bob is replaced by this contact constraint).
 pub fn walk_pose(frame: f32) -> Pose {
     let e = embedded();
-    walk_pose_with(&e.template.skeleton, &e.walk, frame)
+    let pose = walk_pose_with(&e.template.skeleton, &e.walk, frame);
+    ground(&e.template, &e.foot_vertices, pose)
+}
+
+/// Indices of the vertices whose part name starts with `foot`.
+pub fn foot_vertices(template: &BodyTemplate) -> Vec<usize> {
+    let is_foot: Vec<bool> = template
+        .part_names
+        .iter()
+        .map(|n| n.starts_with("foot"))
+        .collect();
+    (0..template.vertices.len())
+        .filter(|&i| is_foot[template.part_labels[i] as usize])
+        .collect()
+}
+
+/// Shifts `pose` vertically so the lowest of `vertices` (posed) lies at y = 0.
+pub fn ground(template: &BodyTemplate, vertices: &[usize], mut pose: Pose) -> Pose {
+    let m = template.skeleton.skinning_matrices(&pose);
+    let lowest = vertices
+        .iter()
+        .map(|&i| {
+            template
+                .skin
+                .blended(i, &m)
+                .transform_point3(template.vertices[i])
+                .y
+        })
+        .fold(f32::INFINITY, f32::min);
+    if lowest.is_finite() {
+        pose.root_translation.y -= lowest;
+    }
+    pose
 }
 
 /// Walk pose at `frame` for a MakeHuman-named `skeleton` and keyframed torso `clip`
