@@ -1,6 +1,6 @@
 //! Anchor-point sampling on the committed template.
 
-use lhmpp::body::{point_triangle_distance, BodyTemplate};
+use lhmpp::body::{generalized_winding_number, point_triangle_distance, BodyTemplate};
 use std::time::Instant;
 
 #[test]
@@ -85,4 +85,23 @@ fn sampling_160k_points_takes_well_under_a_second() {
     assert_eq!(a.len(), 160_000);
     eprintln!("sample_anchors(160_000) took {elapsed:?}");
     assert!(elapsed.as_secs_f32() < 0.5, "took {elapsed:?}");
+}
+
+/// Normals must point out of the body: a step of 5 mm along the normal leaves the mesh
+/// (generalized winding number < 0.5) and a step against it enters, for nearly all points
+/// (thin parts such as fingers and ears may fail the inward step).
+#[test]
+fn anchor_normals_point_out_of_the_body() {
+    let t = BodyTemplate::load_default().unwrap();
+    let a = t.sample_anchors(120, 11);
+    let mut good = 0;
+    // 90 % must pass.
+    for (p, n) in a.positions.iter().zip(&a.normals) {
+        let out = generalized_winding_number(*p + *n * 0.005, &t.vertices, &t.triangles);
+        let inside = generalized_winding_number(*p - *n * 0.005, &t.vertices, &t.triangles);
+        if out < 0.5 && inside > 0.5 {
+            good += 1;
+        }
+    }
+    assert!(good >= 108, "{good} of 120 normals point outwards");
 }
