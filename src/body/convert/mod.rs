@@ -4,7 +4,7 @@
 //! `walk.json` and `tpose.json` (run by `lhmpp body convert`).
 //!
 //! Steps: keep the faces of OBJ group `body` (quads split into two triangles, vertices
-//! re-indexed in source order, one UV per vertex: the first face corner that names it); place
+//! re-indexed in source order, one UV per vertex: the last face corner that names it); place
 //! every bone head and tail on the full source mesh by the rig's CUBE (centre of a `joint-*`
 //! helper group), VERTEX or MEAN strategy; scale decimetres to metres and move the origin to
 //! the soles, centred between the feet; orient bones from head, tail and roll as Blender does;
@@ -104,9 +104,10 @@ pub fn convert_template(dir: &Path) -> Result<BodyTemplate, BodyError> {
     let mut triangles = Vec::new();
     for f in &body_faces {
         for &(v, t) in &f.corners {
-            let slot = &mut uvs[new_index[v] as usize];
-            if slot.is_none() {
-                *slot = t.map(|t| obj.texcoords[t]);
+            // The last face corner naming a vertex wins (vertices on UV seams have several);
+            // this reproduces the part counts documented with the source assets.
+            if let Some(t) = t {
+                uvs[new_index[v] as usize] = Some(obj.texcoords[t]);
             }
         }
         let c: Vec<u32> = f.corners.iter().map(|c| new_index[c.0]).collect();
