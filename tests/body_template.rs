@@ -117,7 +117,13 @@ fn part_labels_split_the_body_symmetrically() {
     assert_eq!(count("foot.L"), count("foot.R"));
     // Counts measured independently (numpy) on the source files, per the assets' README.
     assert_eq!(
-        [count("body"), count("head"), count("hand.L"), count("foot.L"), count("mouth_cavity")],
+        [
+            count("body"),
+            count("head"),
+            count("hand.L"),
+            count("foot.L"),
+            count("mouth_cavity")
+        ],
         [3831, 3178, 1605, 1074, 403]
     );
 }
