@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 mod body;
+mod bag;
 mod config_cmd;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
@@ -26,6 +27,8 @@ enum Command {
     Config(config_cmd::ConfigArgs),
     /// Body template: summary, posed point clouds, asset conversion.
     Body(body::BodyArgs),
+    /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
+    Bag(bag::BagArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -35,6 +38,7 @@ pub fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
+        Command::Bag(args) => bag::run(args),
     }
 }
 
