@@ -10,6 +10,8 @@ pub mod avatar;
 pub mod bag;
 pub mod body;
 pub mod config;
+pub mod eval;
 pub mod model;
 pub mod msgs;
 pub mod splat;
+pub mod synth;
