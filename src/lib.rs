@@ -11,4 +11,5 @@ pub mod body;
 pub mod config;
 pub mod model;
 pub mod msgs;
+pub mod node;
 pub mod splat;
