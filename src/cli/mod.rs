@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod bag;
 mod config_cmd;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
@@ -23,6 +24,8 @@ struct Cli {
 enum Command {
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
+    /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
+    Bag(bag::BagArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -31,6 +34,7 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Config(args) => config_cmd::run(args),
+        Command::Bag(args) => bag::run(args),
     }
 }
 
