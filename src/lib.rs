@@ -13,5 +13,6 @@ pub mod config;
 pub mod eval;
 pub mod model;
 pub mod msgs;
+pub mod node;
 pub mod splat;
 pub mod synth;
