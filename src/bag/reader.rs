@@ -192,6 +192,12 @@ impl BagReader {
             }
             let opcode = bytes[pos];
             let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().expect("8 bytes"));
+            if len == u64::MAX {
+                // The MCAP writer patches a chunk's length in when the chunk closes.
+                break stop(format!(
+                    "record with opcode 0x{opcode:02X} was still being written (length placeholder)"
+                ));
+            }
             if len > (remaining - 9) as u64 {
                 break stop(format!(
                     "record with opcode 0x{opcode:02X} needs {len} bytes, {} left",
