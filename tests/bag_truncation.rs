@@ -1,7 +1,7 @@
 //! A bag cut short (a recorder killed mid-write) still opens: no panic, every message up to
 //! the last complete chunk comes back intact, and the cut is reported with its byte offset.
 
-use lhmpp::bag::{BagReader, BagWriter, BagWriterOptions};
+use lhmpp::bag::{BagReader, BagStream, BagWriter, BagWriterOptions};
 use lhmpp::msgs::{Image, RosMessage};
 
 const T0: u64 = 1_000_000_000;
@@ -176,4 +176,26 @@ fn a_flush_interval_bounds_what_a_killed_recorder_loses() {
     assert!(bag.truncation().is_some());
     assert_eq!(bag.read_topic::<Image>("/img").unwrap().len(), 5);
     assert_eq!(bag.chunk_count(), 5, "one chunk per flushed write");
+}
+
+#[test]
+fn streaming_a_cut_bag_yields_what_the_reader_yields_and_reports_the_cut() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bytes, boundaries) = chunked_bag(dir.path());
+    let full = dir.path().join("full.mcap");
+    let streamed: Vec<_> = BagStream::open(&full).unwrap().collect();
+    assert_eq!(streamed, BagReader::open(&full).unwrap().messages());
+    assert_eq!(streamed.len(), 40);
+
+    let cut_at = ((boundaries[2] + boundaries[3]) / 2) as usize;
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..cut_at]).unwrap();
+    let mut stream = BagStream::open(&cut).unwrap();
+    let messages: Vec<_> = stream.by_ref().collect();
+    assert_eq!(messages, BagReader::open(&cut).unwrap().messages());
+    assert_eq!(messages.len(), 30);
+    assert_eq!(stream.truncation().unwrap().offset, boundaries[2]);
+    for (i, m) in messages.iter().enumerate() {
+        assert_eq!(Image::decode_cdr(&m.data).unwrap(), image(i as u32));
+    }
 }
