@@ -1,7 +1,7 @@
 //! A bag cut short (a recorder killed mid-write) still opens: no panic, every message up to
 //! the last complete chunk comes back intact, and the cut is reported with its byte offset.
 
-use lhmpp::bag::{BagReader, BagWriter, BagWriterOptions};
+use lhmpp::bag::{BagReader, BagStream, BagWriter, BagWriterOptions};
 use lhmpp::msgs::{Image, RosMessage};
 
 const T0: u64 = 1_000_000_000;
@@ -28,6 +28,7 @@ fn chunked_bag(dir: &std::path::Path) -> (Vec<u8>, Vec<u64>) {
         &path,
         BagWriterOptions {
             chunk_size: 1 << 30,
+            flush_interval: None,
             ..Default::default()
         },
     )
@@ -126,4 +127,75 @@ fn a_corrupted_chunk_stops_the_scan_with_a_clear_reason() {
     assert_eq!(bag.read_topic::<Image>("/img").unwrap().len(), 10);
     let truncation = bag.truncation().unwrap();
     assert!(truncation.reason.contains("chunk"), "{}", truncation.reason);
+}
+
+#[test]
+fn a_recorder_that_dies_without_closing_keeps_everything_it_flushed() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("killed.mcap");
+    let options = BagWriterOptions {
+        flush_interval: None,
+        ..Default::default()
+    };
+    let mut writer = BagWriter::create_with(&path, options).unwrap();
+    for i in 0..25u32 {
+        writer.write("/img", T0 + i as u64, &image(i)).unwrap();
+        if i == 14 {
+            writer.flush().unwrap();
+        }
+    }
+    // Like SIGKILL: no finish, no drop, the open chunk never reaches the file.
+    std::mem::forget(writer);
+    let bag = BagReader::open(&path).unwrap();
+    let truncation = bag.truncation().expect("no footer");
+    assert!(
+        truncation.reason.contains("still being written")
+            || truncation.reason.contains("no footer"),
+        "{}",
+        truncation.reason
+    );
+    let images = bag.read_topic::<Image>("/img").unwrap();
+    assert_eq!(images.len(), 15);
+    assert_eq!(images[14].1, image(14));
+}
+
+#[test]
+fn a_flush_interval_bounds_what_a_killed_recorder_loses() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("interval.mcap");
+    let options = BagWriterOptions {
+        flush_interval: Some(std::time::Duration::ZERO),
+        ..Default::default()
+    };
+    let mut writer = BagWriter::create_with(&path, options).unwrap();
+    for i in 0..5u32 {
+        writer.write("/img", T0 + i as u64, &image(i)).unwrap();
+    }
+    std::mem::forget(writer);
+    let bag = BagReader::open(&path).unwrap();
+    assert!(bag.truncation().is_some());
+    assert_eq!(bag.read_topic::<Image>("/img").unwrap().len(), 5);
+    assert_eq!(bag.chunk_count(), 5, "one chunk per flushed write");
+}
+
+#[test]
+fn streaming_a_cut_bag_yields_what_the_reader_yields_and_reports_the_cut() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bytes, boundaries) = chunked_bag(dir.path());
+    let full = dir.path().join("full.mcap");
+    let streamed: Vec<_> = BagStream::open(&full).unwrap().collect();
+    assert_eq!(streamed, BagReader::open(&full).unwrap().messages());
+    assert_eq!(streamed.len(), 40);
+
+    let cut_at = ((boundaries[2] + boundaries[3]) / 2) as usize;
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..cut_at]).unwrap();
+    let mut stream = BagStream::open(&cut).unwrap();
+    let messages: Vec<_> = stream.by_ref().collect();
+    assert_eq!(messages, BagReader::open(&cut).unwrap().messages());
+    assert_eq!(messages.len(), 30);
+    assert_eq!(stream.truncation().unwrap().offset, boundaries[2]);
+    for (i, m) in messages.iter().enumerate() {
+        assert_eq!(Image::decode_cdr(&m.data).unwrap(), image(i as u32));
+    }
 }

@@ -195,3 +195,31 @@ fn our_msg_files_comment_every_field() {
         }
     }
 }
+
+#[test]
+fn the_interface_package_builds_every_msg_file() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("msg");
+    let cmake = std::fs::read_to_string(root.join("CMakeLists.txt")).unwrap();
+    let package = std::fs::read_to_string(root.join("package.xml")).unwrap();
+    assert!(package.contains("<name>lhmpp_msgs</name>"));
+    assert!(package.contains("<member_of_group>rosidl_interface_packages</member_of_group>"));
+    for entry in std::fs::read_dir(root.join("msg")).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().to_string();
+        assert!(
+            cmake.contains(&format!("\"msg/{name}\"")),
+            "{name} not in CMakeLists.txt"
+        );
+        let (_, text) = lookup(&format!("lhmpp_msgs/{}", name.trim_end_matches(".msg"))).unwrap();
+        for field in parse_msg(text).unwrap().fields {
+            if let BaseType::Nested {
+                package: Some(p), ..
+            } = &field.ty.base
+            {
+                assert!(
+                    package.contains(&format!("<depend>{p}</depend>")),
+                    "{name}: package.xml lacks <depend>{p}</depend>"
+                );
+            }
+        }
+    }
+}

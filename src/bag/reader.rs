@@ -5,10 +5,12 @@
 //! so a bag with no summary or footer reads like a complete one up to the first incomplete
 //! record; that point is reported as a [`Truncation`] and logged as a warning.
 
+use super::scan::RecordScanner;
 use super::{BagError, MESSAGE_ENCODING, PROFILE};
 use crate::msgs::{registry, RosMessage};
 use mcap::records::Record;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -68,6 +70,16 @@ pub struct BagReader {
     truncation: Option<Truncation>,
 }
 
+/// Logs that a bag is incomplete, naming the file and the byte offset.
+pub(super) fn warn_truncated(path: &Path, t: &Truncation, file_size: u64, messages: usize) {
+    tracing::warn!(
+        "bag {} is incomplete: stopped at byte {} of {file_size}: {}; read {messages} messages before it",
+        path.display(),
+        t.offset,
+        t.reason,
+    );
+}
+
 struct ChannelEntry {
     topic: Arc<str>,
     schema_id: u16,
@@ -120,10 +132,6 @@ impl Scan {
     }
 }
 
-/// Opcodes that end the data section.
-const DATA_END: u8 = 0x0F;
-const FOOTER: u8 = 0x02;
-
 impl BagReader {
     /// Opens and scans the bag at `path`: an MCAP file, or a rosbag2 bag directory holding
     /// one. A truncated bag opens with a warning; see [`BagReader::truncation`].
@@ -137,7 +145,7 @@ impl BagReader {
     }
 
     /// The MCAP file of a bag path: the path itself, or the first `.mcap` in a directory.
-    fn mcap_file(path: &Path) -> Result<PathBuf, BagError> {
+    pub(super) fn mcap_file(path: &Path) -> Result<PathBuf, BagError> {
         if !path.is_dir() {
             return Ok(path.to_path_buf());
         }
@@ -169,87 +177,22 @@ impl BagReader {
 
     /// Scans an in-memory bag; `path` names it in messages.
     pub fn from_bytes(path: PathBuf, bytes: &[u8]) -> Result<Self, BagError> {
-        if bytes.len() < mcap::MAGIC.len() || &bytes[..mcap::MAGIC.len()] != mcap::MAGIC {
-            return Err(BagError::NotMcap { path });
-        }
+        let mut scanner = RecordScanner::new(Cursor::new(bytes), bytes.len() as u64)
+            .ok_or_else(|| BagError::NotMcap { path: path.clone() })?;
         let mut scan = Scan::default();
-        let mut compression = BTreeSet::new();
-        let mut chunk_count = 0;
-        let mut pos = mcap::MAGIC.len();
-        let truncation = loop {
-            let stop = |reason: String| {
-                Some(Truncation {
-                    offset: pos as u64,
-                    reason,
-                })
-            };
-            let remaining = bytes.len() - pos;
-            if remaining == 0 {
-                break stop("the file ends before the data section does (no footer)".into());
-            }
-            if remaining < 9 {
-                break stop(format!("incomplete record header ({remaining} bytes)"));
-            }
-            let opcode = bytes[pos];
-            let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().expect("8 bytes"));
-            if len > (remaining - 9) as u64 {
-                break stop(format!(
-                    "record with opcode 0x{opcode:02X} needs {len} bytes, {} left",
-                    remaining - 9
-                ));
-            }
-            let body = &bytes[pos + 9..pos + 9 + len as usize];
-            if opcode == DATA_END || opcode == FOOTER {
-                // Every message is in; a complete file still ends with footer and magic.
-                let end = pos + 9 + len as usize;
-                let tail_complete =
-                    bytes.len() >= end + mcap::MAGIC.len() && bytes.ends_with(mcap::MAGIC);
-                break (!tail_complete).then(|| Truncation {
-                    offset: end as u64,
-                    reason: "the data section is complete but the summary and footer are cut"
-                        .into(),
-                });
-            }
-            let record = match mcap::parse_record(opcode, body) {
-                Ok(record) => record,
-                Err(e) => break stop(format!("malformed record 0x{opcode:02X}: {e}")),
-            };
-            if let Record::Chunk { header, data } = record {
-                let compression_name = header.compression.clone();
-                let records: Result<Vec<Record<'_>>, _> =
-                    mcap::read::ChunkReader::new(header, &data).and_then(|r| r.collect());
-                match records {
-                    Ok(records) => {
-                        records.into_iter().for_each(|r| scan.take(r));
-                        chunk_count += 1;
-                        if !compression_name.is_empty() {
-                            compression.insert(compression_name);
-                        }
-                    }
-                    Err(e) => break stop(format!("unreadable chunk: {e}")),
-                }
-            } else {
-                scan.take(record);
-            }
-            pos += 9 + len as usize;
-        };
-        if let Some(t) = &truncation {
-            tracing::warn!(
-                "bag {} is incomplete: stopped at byte {} of {}: {}; read {} messages before it",
-                path.display(),
-                t.offset,
-                bytes.len(),
-                t.reason,
-                scan.messages.len()
-            );
+        for record in scanner.by_ref() {
+            scan.take(record);
+        }
+        if let Some(t) = &scanner.truncation {
+            warn_truncated(&path, t, bytes.len() as u64, scan.messages.len());
         }
         Ok(Self::assemble(
             path,
             bytes.len() as u64,
             scan,
-            compression,
-            chunk_count,
-            truncation,
+            scanner.compression,
+            scanner.chunk_count,
+            scanner.truncation,
         ))
     }
 

@@ -8,6 +8,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 /// Options of a new bag.
 #[derive(Debug, Clone)]
@@ -18,6 +19,9 @@ pub struct BagWriterOptions {
     pub chunk_size: u64,
     /// ROS distribution written into the `rosbag2` metadata record.
     pub ros_distro: String,
+    /// Close and flush the open chunk when it is older than this at a write, so a killed
+    /// recorder loses at most about this much; `None`: only when the chunk is full.
+    pub flush_interval: Option<Duration>,
 }
 
 impl Default for BagWriterOptions {
@@ -26,6 +30,7 @@ impl Default for BagWriterOptions {
             zstd: true,
             chunk_size: 768 * 1024,
             ros_distro: "jazzy".into(),
+            flush_interval: Some(Duration::from_secs(1)),
         }
     }
 }
@@ -53,6 +58,8 @@ pub struct BagWriter {
     topic_order: Vec<String>,
     schemas: HashMap<String, u16>,
     time_range: Option<(u64, u64)>,
+    flush_interval: Option<Duration>,
+    last_flush: Instant,
 }
 
 impl BagWriter {
@@ -90,6 +97,8 @@ impl BagWriter {
             topic_order: Vec::new(),
             schemas: HashMap::new(),
             time_range: None,
+            flush_interval: options.flush_interval,
+            last_flush: Instant::now(),
         })
     }
 
@@ -235,12 +244,20 @@ impl BagWriter {
             Some((start, end)) => (start.min(time_ns), end.max(time_ns)),
         });
         let result = self.writer()?.write_to_known_channel(&header, cdr);
-        result.map_err(|e| self.mcap_err(e))
+        result.map_err(|e| self.mcap_err(e))?;
+        if self
+            .flush_interval
+            .is_some_and(|interval| self.last_flush.elapsed() >= interval)
+        {
+            self.flush()?;
+        }
+        Ok(())
     }
 
     /// Closes the open chunk and flushes it to disk, so a crash after this loses nothing
     /// written before.
     pub fn flush(&mut self) -> Result<(), BagError> {
+        self.last_flush = Instant::now();
         let result = self.writer()?.flush();
         result.map_err(|e| self.mcap_err(e))
     }

@@ -138,4 +138,21 @@ mod tests {
             "{text}"
         );
     }
+
+    #[test]
+    fn info_of_a_cut_bag_says_where_reading_stopped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cut.mcap");
+        let mut writer = BagWriter::create(&path).unwrap();
+        writer.write("/t", 5, &Time::default()).unwrap();
+        writer.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let bag = BagReader::from_bytes(path.clone(), &bytes[..bytes.len() - 20]).unwrap();
+        let text = info_text(&bag);
+        assert!(
+            text.contains("Incomplete:        read up to byte"),
+            "{text}"
+        );
+        assert!(text.contains("Count: 1"), "{text}");
+    }
 }
