@@ -7,6 +7,7 @@ mod bench;
 mod body;
 mod config_cmd;
 mod render;
+mod synth;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -35,6 +36,8 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
     Render(render::RenderArgs),
+    /// Render a seeded synthetic person into an MCAP bag with ground truth.
+    Synth(synth::SynthArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -47,6 +50,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Bag(args) => bag::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Render(args) => render::run(args),
+        Command::Synth(args) => synth::run(args),
     }
 }
 
