@@ -27,6 +27,27 @@ fn python_readers_decode_every_message_type_with_the_values_written() {
     writer.finish().unwrap();
     assert!(bag.join("metadata.yaml").is_file());
     assert!(bag.join("every_type_0.mcap").is_file());
+    let size = std::fs::metadata(bag.join("every_type_0.mcap"))
+        .unwrap()
+        .len();
+    println!("bag with 3 x 18 messages: {size} bytes");
+
+    let info = Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+        .args(["bag", "info"])
+        .arg(&bag)
+        .output()
+        .unwrap();
+    let info_text = String::from_utf8_lossy(&info.stdout);
+    println!("{info_text}");
+    assert!(
+        info.status.success(),
+        "{}",
+        String::from_utf8_lossy(&info.stderr)
+    );
+    assert!(info_text.contains("Messages:          54"), "{info_text}");
+    assert!(info_text.contains("Compression:       zstd"), "{info_text}");
+    assert_eq!(info_text.matches("Count: 3 |").count(), 18, "{info_text}");
+
     let expected_path = dir.path().join("expected.json");
     std::fs::write(
         &expected_path,

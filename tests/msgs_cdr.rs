@@ -28,8 +28,8 @@ fn transform_stamped() -> TransformStamped {
             rotation: Quaternion {
                 x: 0.0,
                 y: 0.0,
-                z: 0.7071067811865476,
-                w: 0.7071067811865476,
+                z: std::f64::consts::FRAC_1_SQRT_2,
+                w: std::f64::consts::FRAC_1_SQRT_2,
             },
         },
     }

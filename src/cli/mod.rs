@@ -3,7 +3,10 @@
 use clap::{Parser, Subcommand};
 
 mod bag;
+mod bench;
+mod body;
 mod config_cmd;
+mod render;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -24,8 +27,14 @@ struct Cli {
 enum Command {
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
+    /// Body template: summary, posed point clouds, asset conversion.
+    Body(body::BodyArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
     Bag(bag::BagArgs),
+    /// Time pipeline pieces on synthetic data (`bench render`).
+    Bench(bench::BenchArgs),
+    /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
+    Render(render::RenderArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -34,7 +43,10 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Config(args) => config_cmd::run(args),
+        Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),
+        Command::Bench(args) => bench::run(args),
+        Command::Render(args) => render::run(args),
     }
 }
 
