@@ -161,16 +161,31 @@ fn peer_lines(child: &mut Child) -> mpsc::UnboundedReceiver<String> {
     rx
 }
 
-async fn wait_for_frames(rx: &mut QueueReceiver<InputEvent>, n: usize) -> Vec<InputEvent> {
+/// Waits for `n` frames; also returns each one's delay from its header stamp (the peer's
+/// wall clock at publish) to its arrival here, both on this host.
+async fn wait_for_frames(
+    rx: &mut QueueReceiver<InputEvent>,
+    n: usize,
+) -> (Vec<InputEvent>, Vec<Duration>) {
     let mut got = Vec::new();
+    let mut delays = Vec::new();
     while got.len() < n {
         match rx.recv().await {
-            Some(ev @ InputEvent::Frame(_)) => got.push(ev),
+            Some(ev @ InputEvent::Frame(_)) => {
+                if let InputEvent::Frame(f) = &ev {
+                    let now = std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .unwrap()
+                        .as_nanos() as i64;
+                    delays.push(Duration::from_nanos((now - f.stamp_ns).max(0) as u64));
+                }
+                got.push(ev)
+            }
             Some(_) => {}
             None => break,
         }
     }
-    got
+    (got, delays)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -218,7 +233,7 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
     let started = Instant::now();
     let outcome = tokio::time::timeout(WATCHDOG, async {
         // 1. Frames from the peer arrive decoded.
-        let frames = wait_for_frames(&mut rx, 3).await;
+        let (frames, delays) = wait_for_frames(&mut rx, 3).await;
         let first_frame_after = started.elapsed();
         assert_eq!(frames.len(), 3, "input queue closed early");
         frames.iter().for_each(assert_person_frame);
@@ -260,13 +275,17 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
                 _ = tokio::time::sleep(Duration::from_millis(100)) => {}
             }
         };
-        (first_frame_after, result)
+        (first_frame_after, delays, result)
     })
     .await;
     let stats = node.input_stats();
     node.shutdown();
-    let (first_frame_after, result) = outcome.expect("watchdog: interop did not finish in time");
-    eprintln!("first decoded frame after {first_frame_after:?}; peer said: {result}; {stats:?}");
+    let (first_frame_after, delays, result) =
+        outcome.expect("watchdog: interop did not finish in time");
+    eprintln!(
+        "first decoded frame after {first_frame_after:?}; stamp-to-event delays {delays:?}; \
+         peer said: {result}; {stats:?}"
+    );
     assert!(result.starts_with("RESULT ok"), "{result}");
     let topic = "/lhmpp_test/cam0/image_raw";
     assert!(

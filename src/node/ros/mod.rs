@@ -407,3 +407,85 @@ fn advertise<M: RosMessage + Serialize>(
         .map_err(|e| RosError::Create(format!("publisher on {topic}: {e}")))?;
     Ok(OutputPort::new(topic.to_owned(), publisher))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config() -> NodeConfig {
+        let mut cfg = NodeConfig {
+            namespace: "/robot".into(),
+            domain_id: 12,
+            ..NodeConfig::default()
+        };
+        cfg.inputs.image_topics = vec!["front/image_raw".into(), "/abs/cam".into()];
+        cfg.inputs.camera_info_topics = vec!["front/camera_info".into()];
+        cfg.inputs.mask_topic = String::new();
+        cfg.outputs.virtual_cameras = 2;
+        cfg
+    }
+
+    #[test]
+    fn topics_resolve_in_the_namespace_and_follow_remapping() {
+        let remap = BTreeMap::from([
+            (
+                "front/image_raw".to_string(),
+                "/cameras/front/color".to_string(),
+            ),
+            ("avatar".to_string(), "/avatars/person_0".to_string()),
+        ]);
+        let opts = RosNodeOptions::from_config(&config(), remap, None).unwrap();
+        assert_eq!(opts.participant.domain_id, 12);
+        let names = NameResolver::new(&opts.namespace, &opts.node_name)
+            .unwrap()
+            .with_map(&opts.remap)
+            .unwrap();
+        let t = ResolvedTopics::resolve(&opts, &names).unwrap();
+        assert_eq!(t.images, vec!["/cameras/front/color", "/abs/cam"]);
+        assert_eq!(t.camera_infos, vec!["/robot/front/camera_info"]);
+        assert_eq!(t.mask, None);
+        assert_eq!(t.pose.as_deref(), Some("/lhmpp/body_pose"));
+        assert_eq!(t.avatar, "/avatars/person_0");
+        assert_eq!(t.status, "/robot/status");
+        assert_eq!(
+            t.frames,
+            vec![
+                "/robot/render/cam0/image_raw",
+                "/robot/render/cam1/image_raw"
+            ]
+        );
+    }
+
+    #[test]
+    fn domain_minus_one_reads_ros_domain_id() {
+        let cfg = NodeConfig {
+            domain_id: -1,
+            ..config()
+        };
+        let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), Some("42")).unwrap();
+        assert_eq!(opts.participant.domain_id, 42);
+        let e = RosNodeOptions::from_config(&cfg, BTreeMap::new(), Some("x")).unwrap_err();
+        assert!(e.to_string().contains("ROS_DOMAIN_ID"), "{e}");
+    }
+
+    #[test]
+    fn bad_topic_names_fail_before_any_dds_entity_is_created() {
+        let mut cfg = config();
+        cfg.inputs.image_topics = vec!["bad topic".into()];
+        let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None).unwrap();
+        let names = NameResolver::new(&opts.namespace, &opts.node_name).unwrap();
+        let e = ResolvedTopics::resolve(&opts, &names).unwrap_err();
+        assert!(e.to_string().contains("bad topic"), "{e}");
+    }
+
+    #[test]
+    fn message_type_names_split_into_package_and_type() {
+        let t = type_name::<Image>();
+        assert_eq!((t.package_name(), t.type_name()), ("sensor_msgs", "Image"));
+        let t = type_name::<GaussianAvatar>();
+        assert_eq!(
+            (t.package_name(), t.type_name()),
+            ("lhmpp_msgs", "GaussianAvatar")
+        );
+    }
+}
