@@ -1,7 +1,8 @@
 //! Interop with an independent DDS implementation: a `RosNode` (ros2-client / RustDDS) and a
 //! PyPI `cyclonedds` peer (tests/python/dds_peer.py) on loopback.
 //!
-//! The peer publishes sensor_msgs/Image frames of a synthetic person (and one malformed frame);
+//! The peer publishes sensor_msgs/Image frames of a synthetic person (and malformed ones), and
+//! the same frames as PNG sensor_msgs/CompressedImage;
 //! the node must decode them into `InputEvent::Frame`s and survive the bad one. The node
 //! publishes a GaussianAvatar and a rendered rgb8 Image; the peer checks their layout and
 //! prints `RESULT ok ...`. Bounded by a watchdog; loopback only (RustDDS restricted to
@@ -166,10 +167,16 @@ fn peer_lines(child: &mut Child) -> mpsc::UnboundedReceiver<String> {
 async fn wait_for_frames(
     rx: &mut QueueReceiver<InputEvent>,
     n: usize,
+    topics: &[String],
 ) -> (Vec<InputEvent>, Vec<Duration>) {
     let mut got = Vec::new();
     let mut delays = Vec::new();
-    while got.len() < n {
+    let from = |got: &Vec<InputEvent>, topic: &String| {
+        got.iter()
+            .filter(|e| matches!(e, InputEvent::Frame(f) if &f.topic == topic))
+            .count()
+    };
+    while topics.iter().any(|t| from(&got, t) < n) {
         match rx.recv().await {
             Some(ev @ InputEvent::Frame(_)) => {
                 if let InputEvent::Frame(f) = &ev {
@@ -198,6 +205,7 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
         ..NodeConfig::default()
     };
     cfg.inputs.image_topics = vec!["cam0/image_raw".into()];
+    cfg.inputs.compressed_image_topics = vec!["cam1/image_raw/compressed".into()];
     cfg.inputs.pose_topic = String::new();
     cfg.outputs.virtual_cameras = 1;
     let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None)
@@ -211,6 +219,7 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
         .arg(&script)
         .args(["--domain", &domain.to_string()])
         .args(["--image-topic", &node.topics().images[0]])
+        .args(["--compressed-topic", &node.topics().compressed_images[0]])
         .args(["--avatar-topic", &node.topics().avatar])
         .args(["--render-topic", &node.topics().frames[0]])
         .args([
@@ -232,10 +241,14 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
 
     let started = Instant::now();
     let outcome = tokio::time::timeout(WATCHDOG, async {
-        // 1. Frames from the peer arrive decoded.
-        let (frames, delays) = wait_for_frames(&mut rx, 3).await;
+        // 1. Frames from the peer arrive decoded, raw and PNG-compressed.
+        let cameras = [
+            node.topics().images[0].clone(),
+            node.topics().compressed_images[0].clone(),
+        ];
+        let (frames, delays) = wait_for_frames(&mut rx, 3, &cameras).await;
         let first_frame_after = started.elapsed();
-        assert_eq!(frames.len(), 3, "input queue closed early");
+        assert!(frames.len() >= 6, "input queue closed early");
         frames.iter().for_each(assert_person_frame);
         // The peer's malformed frames are counted, not fatal.
         let topic = node.topics().images[0].clone();

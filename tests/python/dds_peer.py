@@ -1,7 +1,8 @@
 """Independent DDS peer for tests/node_interop.rs, built on the PyPI `cyclonedds` package.
 
 It plays a camera and a consumer at once:
-  * publishes sensor_msgs/Image frames of a synthetic person on --image-topic (best effort,
+  * publishes sensor_msgs/Image frames of a synthetic person on --image-topic and the same
+    frames PNG-compressed as sensor_msgs/CompressedImage on --compressed-topic (best effort,
     keep last 5, like a camera driver's sensor-data QoS), every fifth one preceded by a frame
     with an inconsistent `step` that the node must reject and survive;
   * subscribes to the node's GaussianAvatar (--avatar-topic) and rendered Image
@@ -12,9 +13,10 @@ after --timeout seconds. ROS topic names map to DDS as `rt/<name without leading
 """
 
 import argparse
-import math
+import struct
 import sys
 import time
+import zlib
 from dataclasses import dataclass
 
 from cyclonedds.core import Policy, Qos
@@ -50,6 +52,24 @@ class Image(IdlStruct, typename="sensor_msgs::msg::dds_::Image_"):
     is_bigendian: uint8
     step: uint32
     data: sequence[uint8]
+
+
+@dataclass
+class CompressedImage(IdlStruct, typename="sensor_msgs::msg::dds_::CompressedImage_"):
+    header: Header
+    format: str
+    data: sequence[uint8]
+
+
+def png_rgb8(width, height, rgb):
+    """A minimal PNG (8-bit RGB, no filter) of `rgb` bytes, written with zlib only."""
+    def chunk(kind, body):
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+    rows = b"".join(b"\x00" + rgb[y * width * 3:(y + 1) * width * 3] for y in range(height))
+    return (b"\x89PNG\r\n\x1a\n"
+            + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
 
 
 @dataclass
@@ -198,6 +218,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--domain", type=int, required=True)
     ap.add_argument("--image-topic", required=True)
+    ap.add_argument("--compressed-topic", required=True)
     ap.add_argument("--avatar-topic", required=True)
     ap.add_argument("--render-topic", required=True)
     ap.add_argument("--width", type=int, default=64)
@@ -213,6 +234,8 @@ def main():
     camera_qos = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(5))
     image_topic = Topic(dp, dds(args.image_topic), Image)
     writer = DataWriter(dp, image_topic, qos=camera_qos)
+    compressed_writer = DataWriter(
+        dp, Topic(dp, dds(args.compressed_topic), CompressedImage), qos=camera_qos)
 
     render_qos = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(2))
     render_reader = DataReader(dp, Topic(dp, dds(args.render_topic), Image), qos=render_qos)
@@ -244,6 +267,11 @@ def main():
             step=args.width * 3, data=person_frame(args.width, args.height, sent),
         )
         writer.write(frame)
+        compressed_writer.write(CompressedImage(
+            header=Header(stamp=stamp_now(), frame_id=f"frame_{sent}"),
+            format="rgb8; png compressed rgb8",
+            data=png_rgb8(args.width, args.height, person_frame(args.width, args.height, sent)),
+        ))
         sent += 1
         for msg in render_reader.take(N=10):
             if not isinstance(msg, Image):
