@@ -261,16 +261,17 @@ def main():
                 step=args.width * 3 - 1, data=person_frame(args.width, args.height, 0),
             )
             writer.write(bad)
-        frame = Image(
+        # Pixels first, stamp last: the stamp-to-arrival delay then measures transport.
+        pixels = person_frame(args.width, args.height, sent)
+        png = png_rgb8(args.width, args.height, pixels)
+        writer.write(Image(
             header=Header(stamp=stamp_now(), frame_id=f"frame_{sent}"),
             height=args.height, width=args.width, encoding="rgb8", is_bigendian=0,
-            step=args.width * 3, data=person_frame(args.width, args.height, sent),
-        )
-        writer.write(frame)
+            step=args.width * 3, data=pixels,
+        ))
         compressed_writer.write(CompressedImage(
             header=Header(stamp=stamp_now(), frame_id=f"frame_{sent}"),
-            format="rgb8; png compressed rgb8",
-            data=png_rgb8(args.width, args.height, person_frame(args.width, args.height, sent)),
+            format="rgb8; png compressed rgb8", data=png,
         ))
         sent += 1
         for msg in render_reader.take(N=10):
