@@ -4,7 +4,7 @@
 
 use super::person::{SynthError, SyntheticPerson};
 use super::scene::{Rig, RigCamera};
-use crate::bag::BagWriter;
+use crate::bag::{BagWriter, BagWriterOptions};
 use crate::body::{motion, Pose};
 use crate::msgs::{
     BodyPose, CameraInfo, Header, Image, TFMessage, Time, Transform, TransformStamped,
@@ -198,7 +198,12 @@ pub fn write_synthetic_bag(
         person.template.height(),
     );
     let pose = synth_pose(options);
-    let mut bag = BagWriter::create(path)?;
+    // No time-based flushing: the same seed must give the same bytes.
+    let options_bag = BagWriterOptions {
+        flush_interval: None,
+        ..BagWriterOptions::default()
+    };
+    let mut bag = BagWriter::create_with(path, options_bag)?;
     let ns = START_NS;
     let all: Vec<&RigCamera> = rig.inputs.iter().chain(&rig.heldout).collect();
     bag.write(
