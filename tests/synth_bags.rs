@@ -75,11 +75,11 @@ fn synthetic_bag_carries_views_calibration_poses_and_heldout_masks() {
             person > 96 * 96 / 20 && person < 96 * 96 / 2,
             "{cam}: {person} mask pixels"
         );
-        // Where the mask is empty the image is the white background.
+        // Where the mask is empty (alpha < 0.5) at least half of the white background shows.
         for (i, m) in mask.data.iter().enumerate() {
-            if *m == 0 && i % 7 == 0 {
+            if *m == 0 {
                 let px = &image.data[3 * i..3 * i + 3];
-                assert!(px.iter().all(|c| *c >= 200), "{cam}: pixel {i} = {px:?}");
+                assert!(px.iter().all(|c| *c >= 127), "{cam}: pixel {i} = {px:?}");
             }
         }
     }
