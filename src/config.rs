@@ -280,7 +280,10 @@ impl NodeConfig {
             message,
         };
         if !(-1..=232).contains(&self.domain_id) {
-            return Err(bad("domain_id", format!("{} is not in -1..=232", self.domain_id)));
+            return Err(bad(
+                "domain_id",
+                format!("{} is not in -1..=232", self.domain_id),
+            ));
         }
         if self.person_id.is_empty() {
             return Err(bad("person_id", "must not be empty".into()));
@@ -294,7 +297,10 @@ impl NodeConfig {
         if !["sensor_data", "reliable"].contains(&self.inputs.image_qos.as_str()) {
             return Err(bad(
                 "inputs.image_qos",
-                format!("`{}` is not `sensor_data` or `reliable`", self.inputs.image_qos),
+                format!(
+                    "`{}` is not `sensor_data` or `reliable`",
+                    self.inputs.image_qos
+                ),
             ));
         }
         if !(1..=64).contains(&self.frame_store.max_views) {
@@ -312,7 +318,10 @@ impl NodeConfig {
         if !["tiny", "s", "m", "l", "lhmpp-700m"].contains(&self.model.preset.as_str()) {
             return Err(bad(
                 "model.preset",
-                format!("`{}` is not one of tiny, s, m, l, lhmpp-700m", self.model.preset),
+                format!(
+                    "`{}` is not one of tiny, s, m, l, lhmpp-700m",
+                    self.model.preset
+                ),
             ));
         }
         let device_ok = self.model.device == "cpu"
@@ -433,9 +442,12 @@ mod tests {
 
     #[test]
     fn invalid_value_names_key_and_file() {
-        let e = load("lhmpp:\n  ros__parameters:\n    model:\n      device: tpu\n", &[])
-            .unwrap_err()
-            .to_string();
+        let e = load(
+            "lhmpp:\n  ros__parameters:\n    model:\n      device: tpu\n",
+            &[],
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("model.device") && e.contains(FILE), "{e}");
         let e = load(
             "lhmpp:\n  ros__parameters:\n    frame_store:\n      max_views: banana\n",

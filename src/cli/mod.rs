@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 mod config_cmd;
+mod model;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -23,6 +24,8 @@ struct Cli {
 enum Command {
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
+    /// Create seeded model checkpoints and print parameter counts.
+    Model(model::ModelArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -31,6 +34,7 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Config(args) => config_cmd::run(args),
+        Command::Model(args) => model::run(args),
     }
 }
 
