@@ -18,7 +18,10 @@ fn cloud(n: usize, seed: u64) -> Result<(Tensor, Tensor)> {
 fn tiny() -> Result<(PointBackbone, VarMap)> {
     let vm = VarMap::new();
     let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
-    let b = PointBackbone::new(&PointBackboneConfig::tiny(), vb.pp("transformer").pp("point_backbone"))?;
+    let b = PointBackbone::new(
+        &PointBackboneConfig::tiny(),
+        vb.pp("transformer").pp("point_backbone"),
+    )?;
     Ok((b, vm))
 }
 
@@ -63,7 +66,11 @@ fn the_same_cloud_gives_the_same_features() -> Result<()> {
     let (coords, normals) = cloud(3_000, 4)?;
     let a = bb.forward(&coords, &normals)?;
     let b = bb.forward(&coords, &normals)?;
-    let d = (a.feat() - b.feat())?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+    let d = (a.feat() - b.feat())?
+        .abs()?
+        .flatten_all()?
+        .max(0)?
+        .to_scalar::<f32>()?;
     assert_eq!(d, 0.0);
     Ok(())
 }
@@ -89,7 +96,11 @@ fn replaced_features_flow_into_the_next_stage() -> Result<()> {
     let base = bb.encoder_stage(1, s.clone())?;
     let zeroed = s.clone().with_feat(s.feat().zeros_like()?);
     let changed = bb.encoder_stage(1, zeroed)?;
-    let d = (base.feat() - changed.feat())?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+    let d = (base.feat() - changed.feat())?
+        .abs()?
+        .flatten_all()?
+        .max(0)?
+        .to_scalar::<f32>()?;
     assert!(d > 1e-4);
     Ok(())
 }

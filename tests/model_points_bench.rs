@@ -40,11 +40,18 @@ fn time_point_backbone_stages() -> Result<()> {
             let total = Instant::now();
             let t = Instant::now();
             let mut s = bb.embed(&coords, &normals)?;
-            let mut line = format!("{preset} N={n}: embed {:.0} ms", t.elapsed().as_secs_f64() * 1e3);
+            let mut line = format!(
+                "{preset} N={n}: embed {:.0} ms",
+                t.elapsed().as_secs_f64() * 1e3
+            );
             for l in 0..cfg.num_levels() {
                 let t = Instant::now();
                 s = bb.encoder_stage(l, s)?;
-                line += &format!(", enc{l} ({} pts) {:.0} ms", s.len(), t.elapsed().as_secs_f64() * 1e3);
+                line += &format!(
+                    ", enc{l} ({} pts) {:.0} ms",
+                    s.len(),
+                    t.elapsed().as_secs_f64() * 1e3
+                );
             }
             for l in (0..cfg.num_levels() - 1).rev() {
                 let t = Instant::now();

@@ -18,8 +18,19 @@ const KEYS: &str = include_str!("fixtures/lhmpp_700m_point_dpt_keys.txt");
 struct Recorder(Arc<Mutex<BTreeMap<String, Vec<usize>>>>);
 
 impl SimpleBackend for Recorder {
-    fn get(&self, s: Shape, name: &str, _: candle_nn::Init, dtype: DType, dev: &Device) -> Result<Tensor> {
-        let previous = self.0.lock().unwrap().insert(name.to_string(), s.dims().to_vec());
+    fn get(
+        &self,
+        s: Shape,
+        name: &str,
+        _: candle_nn::Init,
+        dtype: DType,
+        dev: &Device,
+    ) -> Result<Tensor> {
+        let previous = self
+            .0
+            .lock()
+            .unwrap()
+            .insert(name.to_string(), s.dims().to_vec());
         assert!(previous.is_none(), "{name} requested twice");
         Tensor::zeros((), dtype, dev)?.broadcast_as(s)
     }
@@ -65,7 +76,10 @@ fn diff(ours: &BTreeMap<String, Vec<usize>>, theirs: &BTreeMap<String, Vec<usize
 fn point_backbone_700m_asks_for_the_official_keys_and_shapes() -> Result<()> {
     let rec = Recorder::default();
     let vb = VarBuilder::from_backend(Box::new(rec.clone()), DType::F32, Device::Cpu);
-    PointBackbone::new(&PointBackboneConfig::lhmpp_700m(), vb.pp("transformer").pp("point_backbone"))?;
+    PointBackbone::new(
+        &PointBackboneConfig::lhmpp_700m(),
+        vb.pp("transformer").pp("point_backbone"),
+    )?;
     let ours = rec.0.lock().unwrap().clone();
     let theirs = official("transformer.point_backbone.");
     assert_eq!(theirs.len(), 544);

@@ -180,7 +180,12 @@ impl FusionBlock {
     }
 
     /// `x` (+ `res1(skip)`) → `res2` → bilinear to `size` (or ×2) → `out_conv`.
-    fn forward(&self, x: &Tensor, skip: Option<&Tensor>, size: Option<(usize, usize)>) -> Result<Tensor> {
+    fn forward(
+        &self,
+        x: &Tensor,
+        skip: Option<&Tensor>,
+        size: Option<(usize, usize)>,
+    ) -> Result<Tensor> {
         let mut out = x.clone();
         if let (Some(res1), Some(skip)) = (&self.res1, skip) {
             out = (out + res1.forward(skip)?)?;
@@ -188,7 +193,8 @@ impl FusionBlock {
         let out = self.res2.forward(&out)?;
         let (_, _, h, w) = out.dims4()?;
         let (th, tw) = size.unwrap_or((2 * h, 2 * w));
-        self.out_conv.forward(&out.upsample_bilinear2d(th, tw, true)?)
+        self.out_conv
+            .forward(&out.upsample_bilinear2d(th, tw, true)?)
     }
 }
 
@@ -237,7 +243,13 @@ impl DptHead {
                 stride: k,
                 ..Default::default()
             };
-            Ok(Resize::Up(conv_transpose2d(oc[i], oc[i], k, cfg, rl.pp(i))?))
+            Ok(Resize::Up(conv_transpose2d(
+                oc[i],
+                oc[i],
+                k,
+                cfg,
+                rl.pp(i),
+            )?))
         };
         let down = Conv2dConfig {
             padding: 1,
@@ -275,7 +287,13 @@ impl DptHead {
     }
 
     /// Four token groups `[B, hh·ww, dim_in]` → logits `[B, 4, H, W]` for an image of (H, W).
-    fn forward(&self, groups: &[Tensor], hh: usize, ww: usize, image: (usize, usize)) -> Result<Tensor> {
+    fn forward(
+        &self,
+        groups: &[Tensor],
+        hh: usize,
+        ww: usize,
+        image: (usize, usize),
+    ) -> Result<Tensor> {
         let (h_img, w_img) = image;
         let aspect = w_img as f64 / h_img as f64;
         let device = groups[0].device();
@@ -325,7 +343,11 @@ impl NeuralRenderer {
         let p = cfg.patch_size;
         Ok(Self {
             cfg: cfg.clone(),
-            patchify: linear_no_bias(p * p * cfg.in_channels, cfg.embed_dim, vb.pp("patchify").pp("1"))?,
+            patchify: linear_no_bias(
+                p * p * cfg.in_channels,
+                cfg.embed_dim,
+                vb.pp("patchify").pp("1"),
+            )?,
             head: DptHead::new(cfg, vb.pp("dense_predictor"))?,
         })
     }
@@ -346,7 +368,12 @@ impl NeuralRenderer {
     pub fn forward(&self, features: &Tensor) -> Result<(Tensor, Tensor)> {
         let dims = features.dims().to_vec();
         let p = self.cfg.patch_size;
-        let ok = dims.len() == 4 && dims[1] == self.cfg.in_channels && dims[2] % p == 0 && dims[3] % p == 0 && dims[2] > 0 && dims[3] > 0;
+        let ok = dims.len() == 4
+            && dims[1] == self.cfg.in_channels
+            && dims[2] % p == 0
+            && dims[3] % p == 0
+            && dims[2] > 0
+            && dims[3] > 0;
         if !ok {
             return Err(candle_core::Error::wrap(DptError::BadInput {
                 dims,
@@ -388,12 +415,22 @@ mod tests {
             let v = t.flatten_all()?.to_vec1::<f32>()?;
             assert!(v.iter().all(|x| (0.0..=1.0).contains(x)));
             // not a constant image: the features reach the output
-            let (lo, hi) = v.iter().fold((1f32, 0f32), |(l, h), &x| (l.min(x), h.max(x)));
+            let (lo, hi) = v
+                .iter()
+                .fold((1f32, 0f32), |(l, h), &x| (l.min(x), h.max(x)));
             assert!(hi - lo > 1e-4, "flat output {lo}..{hi}");
         }
         let (rgb2, mask2) = r.forward(&feats)?;
-        let d = (rgb - rgb2)?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?
-            + (mask - mask2)?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+        let d = (rgb - rgb2)?
+            .abs()?
+            .flatten_all()?
+            .max(0)?
+            .to_scalar::<f32>()?
+            + (mask - mask2)?
+                .abs()?
+                .flatten_all()?
+                .max(0)?
+                .to_scalar::<f32>()?;
         assert_eq!(d, 0.0, "two runs differ");
         Ok(())
     }
@@ -447,7 +484,10 @@ mod tests {
     #[test]
     fn bilinear_resize_aligns_corners() -> Result<()> {
         let t = Tensor::new(&[[[[0f32, 2.0], [4.0, 6.0]]]], &Device::Cpu)?;
-        let u = t.upsample_bilinear2d(3, 3, true)?.flatten_all()?.to_vec1::<f32>()?;
+        let u = t
+            .upsample_bilinear2d(3, 3, true)?
+            .flatten_all()?
+            .to_vec1::<f32>()?;
         assert_eq!(u, vec![0.0, 1.0, 2.0, 2.0, 3.0, 4.0, 4.0, 5.0, 6.0]);
         Ok(())
     }

@@ -26,8 +26,8 @@ pub fn attention(q: &Tensor, k: &Tensor, v: &Tensor) -> Result<Tensor> {
         let len = chunk.min(lq - start);
         let qc = q.narrow(1, start, len)?.contiguous()?;
         let scores = qc.matmul(&kt)?;
-        let probs = candle_nn::ops::softmax_last_dim(&scores.to_dtype(DType::F32)?)?
-            .to_dtype(v.dtype())?;
+        let probs =
+            candle_nn::ops::softmax_last_dim(&scores.to_dtype(DType::F32)?)?.to_dtype(v.dtype())?;
         outs.push(probs.matmul(&v)?);
         start += len;
     }
@@ -53,7 +53,11 @@ mod tests {
         let got = attention(&q, &k, &v)?;
         let s = (q.matmul(&k.t()?)? * 0.5)?;
         let want = candle_nn::ops::softmax_last_dim(&s)?.matmul(&v)?;
-        let diff = (got - want)?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+        let diff = (got - want)?
+            .abs()?
+            .flatten_all()?
+            .max(0)?
+            .to_scalar::<f32>()?;
         assert!(diff < 1e-5, "{diff}");
         Ok(())
     }

@@ -39,7 +39,12 @@ pub struct SerializedAttention {
 
 impl SerializedAttention {
     /// `attn.qkv` (C → 3C, bias) and `attn.proj` (C → C).
-    pub fn new(channels: usize, num_heads: usize, patch_size: usize, vb: VarBuilder) -> Result<Self> {
+    pub fn new(
+        channels: usize,
+        num_heads: usize,
+        patch_size: usize,
+        vb: VarBuilder,
+    ) -> Result<Self> {
         Ok(Self {
             qkv: linear(channels, 3 * channels, vb.pp("qkv"))?,
             proj: linear(channels, channels, vb.pp("proj"))?,
@@ -122,7 +127,12 @@ impl PtBlock {
     }
 
     /// `x [M, C]` → `[M, C]` on the level described by `orders` and `neighbours`.
-    pub fn forward(&self, x: &Tensor, orders: &[Serialized], neighbours: &NeighbourMap) -> Result<Tensor> {
+    pub fn forward(
+        &self,
+        x: &Tensor,
+        orders: &[Serialized],
+        neighbours: &NeighbourMap,
+    ) -> Result<Tensor> {
         let cpe = self.cpe_conv.forward(x, neighbours)?;
         let cpe = self.cpe_norm.forward(&self.cpe_linear.forward(&cpe)?)?;
         let x = (x + cpe)?;
@@ -205,6 +215,9 @@ mod tests {
         assert_eq!(patch_padding(3, 4), vec![0, 1, 2]);
         assert_eq!(patch_padding(8, 4), (0..8).collect::<Vec<_>>());
         // n = 10, k = 4: n_pad 12, last patch = slots 8, 9 then 6, 7 of the previous patch
-        assert_eq!(patch_padding(10, 4), vec![0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 6, 7]);
+        assert_eq!(
+            patch_padding(10, 4),
+            vec![0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 6, 7]
+        );
     }
 }

@@ -171,7 +171,10 @@ impl PointBackboneConfig {
 
     /// Channels of the decoder output (the per-point feature size, 128 for the 700M model).
     pub fn out_channels(&self) -> usize {
-        self.dec_channels.first().copied().unwrap_or(self.enc_channels[0])
+        self.dec_channels
+            .first()
+            .copied()
+            .unwrap_or(self.enc_channels[0])
     }
 }
 

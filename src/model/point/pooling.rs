@@ -104,8 +104,14 @@ impl GridUnpooling {
 
     /// Child features `[clusters, c_in]` and parent features `[M, c_skip]` → `[M, c_out]`.
     pub fn forward(&self, child: &Tensor, parent: &Tensor, cluster: &Tensor) -> Result<Tensor> {
-        let skip = self.skip_norm.forward(&self.skip.forward(parent)?)?.gelu_erf()?;
-        let up = self.proj_norm.forward(&self.proj.forward(child)?)?.gelu_erf()?;
+        let skip = self
+            .skip_norm
+            .forward(&self.skip.forward(parent)?)?
+            .gelu_erf()?;
+        let up = self
+            .proj_norm
+            .forward(&self.proj.forward(child)?)?
+            .gelu_erf()?;
         skip + up.index_select(cluster, 0)?
     }
 }
@@ -122,7 +128,16 @@ mod tests {
         let c = pool_cells(&grid, 2);
         assert_eq!(c.cells, vec![[0, 0, 0], [1, 0, 0]]);
         let idx = PoolingIndex::new(&c, &dev)?;
-        let x = Tensor::new(&[[1f32, -5.0], [4.0, 0.0], [2.0, 2.0], [-1.0, 7.0], [0.0, 3.0]], &dev)?;
+        let x = Tensor::new(
+            &[
+                [1f32, -5.0],
+                [4.0, 0.0],
+                [2.0, 2.0],
+                [-1.0, 7.0],
+                [0.0, 3.0],
+            ],
+            &dev,
+        )?;
         assert_eq!(
             idx.segment_max(&x)?.to_vec2::<f32>()?,
             vec![vec![4.0, 3.0], vec![2.0, 7.0]]

@@ -187,7 +187,10 @@ mod tests {
             // the first octant of the curve, still one connected Hilbert path.
             let depth = serialization_depth(&grid);
             assert_eq!(depth, k + 1);
-            for kind in [SerializationOrder::Hilbert, SerializationOrder::HilbertTrans] {
+            for kind in [
+                SerializationOrder::Hilbert,
+                SerializationOrder::HilbertTrans,
+            ] {
                 let s = serialize(&grid, kind, depth);
                 for w in s.order.windows(2) {
                     let (a, b) = (grid[w[0] as usize], grid[w[1] as usize]);
@@ -206,7 +209,11 @@ mod tests {
         let random_step = mean_step(&grid, &random);
         for s in serialize_all(&grid, &SerializationOrder::official()) {
             let step = mean_step(&grid, &s.order);
-            assert!(step < random_step / 5.0, "{:?}: {step} vs random {random_step}", s.kind);
+            assert!(
+                step < random_step / 5.0,
+                "{:?}: {step} vs random {random_step}",
+                s.kind
+            );
         }
     }
 

@@ -41,7 +41,11 @@ impl NeighbourMap {
             .map(|(i, &g)| (pack_cell(g), i as u32))
             .collect();
         let lookup = |g: [u32; 3], k: usize| -> Option<u32> {
-            let o = [(k / 9) as i64 - 1, ((k / 3) % 3) as i64 - 1, (k % 3) as i64 - 1];
+            let o = [
+                (k / 9) as i64 - 1,
+                ((k / 3) % 3) as i64 - 1,
+                (k % 3) as i64 - 1,
+            ];
             let mut n = [0u32; 3];
             for d in 0..3 {
                 let v = i64::from(g[d]) + o[d];
@@ -158,7 +162,13 @@ impl SubMConv3d {
 
 /// Dense reference (tests only): `[M, c_in]` on a grid, by explicit loops.
 #[cfg(test)]
-fn dense_reference(grid: &[[u32; 3]], x: &[Vec<f32>], w: &[f32], b: &[f32], c_in: usize) -> Vec<Vec<f32>> {
+fn dense_reference(
+    grid: &[[u32; 3]],
+    x: &[Vec<f32>],
+    w: &[f32],
+    b: &[f32],
+    c_in: usize,
+) -> Vec<Vec<f32>> {
     let c_out = b.len();
     let n = grid.iter().map(|g| g[0].max(g[1]).max(g[2])).max().unwrap() as usize + 3;
     let mut dense = vec![vec![0f32; c_in]; n * n * n];
@@ -172,7 +182,11 @@ fn dense_reference(grid: &[[u32; 3]], x: &[Vec<f32>], w: &[f32], b: &[f32], c_in
             for dx in -1..=1i64 {
                 for dy in -1..=1i64 {
                     for dz in -1..=1i64 {
-                        let v = &dense[at([g[0] as i64 + 1 + dx, g[1] as i64 + 1 + dy, g[2] as i64 + 1 + dz])];
+                        let v = &dense[at([
+                            g[0] as i64 + 1 + dx,
+                            g[1] as i64 + 1 + dy,
+                            g[2] as i64 + 1 + dz,
+                        ])];
                         let k = kernel_index(dx as i32, dy as i32, dz as i32);
                         for (co, oc) in o.iter_mut().enumerate().take(c_out) {
                             for (ci, vi) in v.iter().enumerate() {
@@ -210,7 +224,9 @@ mod tests {
         let x: Vec<Vec<f32>> = (0..grid.len())
             .map(|_| (0..c_in).map(|_| rng.gen_range(-1.0..1.0)).collect())
             .collect();
-        let w: Vec<f32> = (0..c_out * 27 * c_in).map(|_| rng.gen_range(-1.0..1.0)).collect();
+        let w: Vec<f32> = (0..c_out * 27 * c_in)
+            .map(|_| rng.gen_range(-1.0..1.0))
+            .collect();
         let b: Vec<f32> = (0..c_out).map(|_| rng.gen_range(-1.0..1.0)).collect();
         let conv = SubMConv3d::from_weights(
             &Tensor::from_vec(w.clone(), (c_out, 3, 3, 3, c_in), &dev)?,
