@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod bench;
 mod config_cmd;
 mod model;
 
@@ -26,6 +27,8 @@ enum Command {
     Config(config_cmd::ConfigArgs),
     /// Create seeded model checkpoints and print parameter counts.
     Model(model::ModelArgs),
+    /// Latency benchmarks (`bench model`).
+    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -35,6 +38,7 @@ pub fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Config(args) => config_cmd::run(args),
         Command::Model(args) => model::run(args),
+        Command::Bench(args) => bench::run(args),
     }
 }
 

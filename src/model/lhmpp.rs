@@ -1,18 +1,20 @@
-//! The top-level LHM++ network: per-view image encoding and (after the point backbone lands)
-//! the encoder–decoder Point-Image Transformer feeding the Gaussian head.
+//! The top-level LHM++ network: per-view image encoding, the encoder–decoder Point-Image
+//! Transformer (reference §1.3(e)) and the Gaussian head.
 //!
 //! Checkpoint layout: `encoder.model.*`, `transformer.image_backbone.*`,
 //! `transformer.pi_transformer_{enc,dec}.*`, `transformer.outnorm`, `motion_embed_mlp.*`,
-//! `renderer.*`.
+//! `renderer.*`, `transformer.point_backbone.*`, `neural_renderer.*`.
 
 use candle_core::{Module, Result, Tensor};
 use candle_nn::{LayerNorm, VarBuilder};
 
 use super::config::LhmppConfig;
+use super::dpt::NeuralRenderer;
 use super::encoder::DinoEncoder;
 use super::frame_block::{ImageBackbone, SPECIAL_TOKENS};
-use super::gs_head::GsHead;
+use super::gs_head::{GaussianOutput, GsHead};
 use super::joint_block::{JointBlock, MotionEmbed};
+use super::point::{PointBackbone, PointState};
 use super::token_merge::TokenMerge;
 
 /// DINOv2 output of one view (cacheable per frame).
@@ -37,6 +39,8 @@ pub struct Lhmpp {
     outnorm: LayerNorm,
     motion_embed: MotionEmbed,
     gs_head: GsHead,
+    point_backbone: PointBackbone,
+    neural_renderer: NeuralRenderer,
 }
 
 impl Lhmpp {
@@ -78,6 +82,8 @@ impl Lhmpp {
                 vb.pp("motion_embed_mlp"),
             )?,
             gs_head: GsHead::new(&cfg.gs_head, vb.pp("renderer"))?,
+            point_backbone: PointBackbone::new(&cfg.point_backbone, t.pp("point_backbone"))?,
+            neural_renderer: NeuralRenderer::new(&cfg.neural_renderer, vb.pp("neural_renderer"))?,
         })
     }
 
@@ -148,6 +154,90 @@ impl Lhmpp {
     pub fn pit_decoder(&self) -> &[JointBlock] {
         &self.pit_dec
     }
+
+    /// The DPT neural renderer (`neural_renderer.*`).
+    pub fn neural_renderer(&self) -> &NeuralRenderer {
+        &self.neural_renderer
+    }
+
+    /// Runs the encoder–decoder PIT (reference §1.3(e)) and returns the final per-point
+    /// features `[N, q]` for the input points (after `outnorm`, gathered back through the
+    /// 1 cm GridSample inverse).
+    pub fn fuse(&self, anchors: &Tensor, normals: &Tensor, views: &[ViewTokens]) -> Result<Tensor> {
+        let grid = views.first().map(|v| v.grid).ok_or_else(|| {
+            candle_core::Error::Msg("reconstruction needs at least one view".into())
+        })?;
+        let ratio = self.cfg.transformer.merge_ratio;
+        let temb = self.conditioning(views)?;
+        let mut tokens = self.image_tokens(views)?;
+        let rope = self
+            .image_backbone
+            .rope(grid.0, grid.1, tokens.dtype(), tokens.device())?;
+        let mut state = self.point_backbone.embed(anchors, normals)?;
+        state = self.point_backbone.encoder_stage(0, state)?;
+        let mut metric = None;
+        for (i, block) in self.pit_enc.iter().enumerate() {
+            state = self.point_backbone.encoder_stage(i + 1, state)?;
+            let (t, k) = self.image_backbone.block(i, &tokens, &rope)?;
+            let (s, t) = self.point_step(block, state, &t, &k, &temb, grid, ratio)?;
+            state = s;
+            tokens = t;
+            metric = Some(k);
+        }
+        let metric =
+            metric.ok_or_else(|| candle_core::Error::Msg("no encoder PIT level".into()))?;
+        let levels = self.pit_dec.len();
+        for (j, block) in self.pit_dec.iter().enumerate() {
+            state = self.point_backbone.decoder_stage(levels - 1 - j, state)?;
+            let (s, t) = self.point_step(block, state, &tokens, &metric, &temb, grid, ratio)?;
+            state = s;
+            tokens = t;
+        }
+        let feat = self.outnorm.forward(state.feat())?;
+        state.to_input_points(&feat)
+    }
+
+    /// Puts the points in Hilbert order, runs [`multi_modal_step`], and restores their order
+    /// (the block's output replaces the point features).
+    #[allow(clippy::too_many_arguments)]
+    fn point_step(
+        &self,
+        block: &JointBlock,
+        state: PointState,
+        tokens: &Tensor,
+        metric: &Tensor,
+        temb: &Tensor,
+        grid: (usize, usize),
+        ratio: f64,
+    ) -> Result<(PointState, Tensor)> {
+        let order = state.hilbert_order()?;
+        let inverse = inverse_permutation(&order)?;
+        let points = state.feat().index_select(&order, 0)?;
+        let (points, tokens) = multi_modal_step(block, tokens, metric, &points, temb, grid, ratio)?;
+        let feat = points.index_select(&inverse, 0)?;
+        Ok((state.with_feat(feat), tokens))
+    }
+
+    /// Full reconstruction: PIT fusion then the Gaussian head.
+    pub fn reconstruct(
+        &self,
+        anchors: &Tensor,
+        normals: &Tensor,
+        views: &[ViewTokens],
+    ) -> Result<GaussianOutput> {
+        let feat = self.fuse(anchors, normals, views)?;
+        self.gs_head.forward(&feat, anchors)
+    }
+}
+
+/// The inverse of a u32 permutation.
+fn inverse_permutation(order: &Tensor) -> Result<Tensor> {
+    let o = order.to_vec1::<u32>()?;
+    let mut inv = vec![0u32; o.len()];
+    for (i, &j) in o.iter().enumerate() {
+        inv[j as usize] = i as u32;
+    }
+    Tensor::from_vec(inv, o.len(), order.device())
 }
 
 /// One multi-modal step (`multi_modality_layer`): strip the special tokens, ToMe-merge the
