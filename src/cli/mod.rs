@@ -6,14 +6,13 @@ mod bag;
 mod bench;
 mod body;
 mod config_cmd;
+mod model;
 mod render;
 mod synth;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
-/// Working today: `config` (validate and print launch configs).
-/// Planned (see README status table): run, record, replay, bag, synth, eval, model, render,
-/// shm-echo, bench.
+/// See the README's status table for what each subcommand does today.
 #[derive(Parser, Debug)]
 #[command(name = "lhmpp", version, about, long_about)]
 struct Cli {
@@ -32,12 +31,14 @@ enum Command {
     Body(body::BodyArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
     Bag(bag::BagArgs),
-    /// Time pipeline pieces on synthetic data (`bench render`).
+    /// Benchmarks that print tables (`bench render`, `bench model`).
     Bench(bench::BenchArgs),
     /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
     Render(render::RenderArgs),
     /// Render a seeded synthetic person into an MCAP bag with ground truth.
     Synth(synth::SynthArgs),
+    /// Create seeded model checkpoints and print parameter counts.
+    Model(model::ModelArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -51,6 +52,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),
+        Command::Model(args) => model::run(args),
     }
 }
 

@@ -1,11 +1,11 @@
-//! `lhmpp bench`: timing of the CPU pipeline pieces on seeded synthetic scenes.
+//! `lhmpp bench render`: CPU splatting and LBS posing on seeded synthetic scenes.
 //!
 //! `lhmpp bench render --sizes 592,1176 --counts 40000,160000 --threads 2` renders a body-like
 //! Gaussian cloud (seed 42) at every size × count and prints the median frame time and FPS,
 //! then the median LBS posing time of each count.
 
 use anyhow::{Context, Result};
-use clap::{Args, Subcommand};
+use clap::Args;
 use glam::{Mat4, Quat, Vec3};
 use lhmpp::avatar::Avatar;
 use lhmpp::body::SkinWeights;
@@ -13,19 +13,6 @@ use lhmpp::splat::synthetic::body_cloud;
 use lhmpp::splat::{render, Camera, Intrinsics, RenderOptions};
 use rand::{Rng, SeedableRng};
 use std::time::{Duration, Instant};
-
-/// Benchmarks.
-#[derive(Args, Debug)]
-pub struct BenchArgs {
-    #[command(subcommand)]
-    what: BenchCommand,
-}
-
-#[derive(Subcommand, Debug)]
-enum BenchCommand {
-    /// CPU splatting (frames per second) and Gaussian LBS posing.
-    Render(RenderBenchArgs),
-}
 
 /// Options of `lhmpp bench render`.
 #[derive(Args, Debug)]
@@ -47,13 +34,6 @@ pub struct RenderBenchArgs {
     features: usize,
 }
 
-/// Runs a benchmark.
-pub fn run(args: BenchArgs) -> Result<()> {
-    match args.what {
-        BenchCommand::Render(a) => bench_render(a),
-    }
-}
-
 /// Times `f` (after one warm-up call) until `seconds` have passed and at least 5 runs; median.
 fn median_time(seconds: f64, mut f: impl FnMut()) -> Duration {
     f();
@@ -68,7 +48,7 @@ fn median_time(seconds: f64, mut f: impl FnMut()) -> Duration {
     times[times.len() / 2]
 }
 
-fn bench_render(a: RenderBenchArgs) -> Result<()> {
+pub fn run(a: RenderBenchArgs) -> Result<()> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(a.threads)
         .build()
