@@ -194,7 +194,7 @@ pub fn rotation_part(m: Mat3) -> Quat {
             r *= 3f32.sqrt() / norm;
             continue;
         }
-        r = r * (Mat3::IDENTITY * 1.5 - gram * 0.5);
+        r *= Mat3::IDENTITY * 1.5 - gram * 0.5;
     }
     Quat::from_mat3(&r).normalize()
 }
