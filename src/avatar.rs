@@ -74,12 +74,16 @@ impl Avatar {
         let mut bones_needed = 0;
         for (row, (w, b)) in skin.weights.iter().zip(&skin.bones).enumerate() {
             let sum: f32 = w.iter().sum();
-            if !(sum > 0.0) || !sum.is_finite() || w.iter().any(|v| !(*v >= 0.0)) {
+            if sum.is_nan()
+                || sum <= 0.0
+                || !sum.is_finite()
+                || w.iter().any(|v| v.is_nan() || *v < 0.0)
+            {
                 return Err(AvatarError::BadWeights { row, weights: *w });
             }
-            for k in 0..MAX_INFLUENCES {
-                if w[k] > 0.0 {
-                    bones_needed = bones_needed.max(b[k] as usize + 1);
+            for (&bone, &weight) in b.iter().zip(w) {
+                if weight > 0.0 {
+                    bones_needed = bones_needed.max(bone as usize + 1);
                 }
             }
         }
@@ -157,10 +161,10 @@ fn blend(skin: &SkinWeights, i: usize, matrices: &[Mat4]) -> Mat4 {
     let (b, w) = (&skin.bones[i], &skin.weights[i]);
     let mut m = matrices[b[0] as usize] * w[0];
     let mut sum = w[0];
-    for k in 1..MAX_INFLUENCES {
-        if w[k] != 0.0 {
-            m += matrices[b[k] as usize] * w[k];
-            sum += w[k];
+    for (&bone, &weight) in b.iter().zip(w).skip(1) {
+        if weight != 0.0 {
+            m += matrices[bone as usize] * weight;
+            sum += weight;
         }
     }
     if sum == 1.0 {
@@ -176,7 +180,8 @@ fn blend(skin: &SkinWeights, i: usize, matrices: &[Mat4]) -> Mat4 {
 /// singular or reflecting input.
 pub fn rotation_part(m: Mat3) -> Quat {
     let norm = frobenius(m);
-    if !(norm > 0.0) || !norm.is_finite() || !(m.determinant() > 0.0) {
+    let det = m.determinant();
+    if norm.is_nan() || norm <= 0.0 || !norm.is_finite() || det.is_nan() || det <= 0.0 {
         return Quat::IDENTITY;
     }
     let mut r = m;
@@ -189,7 +194,7 @@ pub fn rotation_part(m: Mat3) -> Quat {
             r *= 3f32.sqrt() / norm;
             continue;
         }
-        r = r * (Mat3::IDENTITY * 1.5 - gram * 0.5);
+        r *= Mat3::IDENTITY * 1.5 - gram * 0.5;
     }
     Quat::from_mat3(&r).normalize()
 }

@@ -451,12 +451,10 @@ pub fn read_ply_from<R: BufRead>(mut r: R, path: &Path) -> Result<PlyGaussians, 
         let logit = get(opacity) as f64;
         g.opacities.push((1.0 / (1.0 + (-logit).exp())) as f32);
         g.sh.push([get(dc[0]), get(dc[1]), get(dc[2])]);
-        for j in 0..k - 1 {
-            g.sh.push([
-                get(rest[j]),
-                get(rest[k - 1 + j]),
-                get(rest[2 * (k - 1) + j]),
-            ]);
+        let (red, green_blue) = rest.split_at(k - 1);
+        let (green, blue) = green_blue.split_at(k - 1);
+        for ((r, g_), b) in red.iter().zip(green).zip(blue) {
+            g.sh.push([get(*r), get(*g_), get(*b)]);
         }
         g.features.extend(feat.iter().map(|c| get(*c)));
         if let (Some(s), Some((bones, weights))) = (skin.as_mut(), skin_cols.as_ref()) {

@@ -62,12 +62,12 @@ struct Accumulator {
 
 impl Accumulator {
     fn add(&mut self, row: &Row, scale: f32) {
-        for k in 0..MAX_INFLUENCES {
-            let w = row.1[k] * scale;
+        for (&bone, &weight) in row.0.iter().zip(&row.1) {
+            let w = weight * scale;
             if w > 0.0 {
-                match self.entries.iter_mut().find(|e| e.0 == row.0[k]) {
+                match self.entries.iter_mut().find(|e| e.0 == bone) {
                     Some(e) => e.1 += w,
-                    None => self.entries.push((row.0[k], w)),
+                    None => self.entries.push((bone, w)),
                 }
             }
         }
@@ -117,7 +117,7 @@ impl VoxelSkinning {
             .iter()
             .try_fold(1usize, |a, d| a.checked_mul(*d))
             .unwrap_or(usize::MAX);
-        if !(voxel_size > 0.0) || nodes > MAX_NODES {
+        if voxel_size.is_nan() || voxel_size <= 0.0 || nodes > MAX_NODES {
             return Err(VoxelSkinningError::Grid {
                 voxel_size,
                 nodes,
@@ -300,9 +300,9 @@ mod tests {
 
     fn dense(row: &Row) -> [f32; 3] {
         let mut d = [0.0; 3];
-        for k in 0..MAX_INFLUENCES {
-            if row.1[k] > 0.0 {
-                d[row.0[k] as usize] += row.1[k];
+        for (&bone, &w) in row.0.iter().zip(&row.1) {
+            if w > 0.0 {
+                d[bone as usize] += w;
             }
         }
         d
@@ -318,8 +318,8 @@ mod tests {
         for (i, p) in pts.iter().enumerate().step_by(7) {
             let got = dense(&vol.lookup(*p));
             let want = dense(&(skin.bones[i], skin.weights[i]));
-            for k in 0..3 {
-                max_err = max_err.max((got[k] - want[k]).abs());
+            for (g, w) in got.iter().zip(want) {
+                max_err = max_err.max((g - w).abs());
             }
         }
         assert!(

@@ -76,8 +76,10 @@ pub(crate) fn bin_and_sort(splats: &[Splat2D], grid: TileGrid) -> TileBins {
                 }
             }
         }
-        for t in 0..n_tiles {
-            offsets[t + 1] += offsets[t];
+        let mut running = 0;
+        for o in offsets.iter_mut() {
+            running += *o;
+            *o = running;
         }
         let mut cursor = offsets.clone();
         keys = vec![0u64; offsets[n_tiles]];
@@ -96,8 +98,8 @@ pub(crate) fn bin_and_sort(splats: &[Splat2D], grid: TileGrid) -> TileBins {
         let _span = tracing::trace_span!("sort", pairs = keys.len()).entered();
         let mut slices = Vec::with_capacity(n_tiles);
         let mut rest = keys.as_mut_slice();
-        for t in 0..n_tiles {
-            let (head, tail) = rest.split_at_mut(offsets[t + 1] - offsets[t]);
+        for range in offsets.windows(2) {
+            let (head, tail) = rest.split_at_mut(range[1] - range[0]);
             slices.push(head);
             rest = tail;
         }

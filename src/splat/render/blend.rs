@@ -114,7 +114,7 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
             let dy = g.mean[1] - py as f32;
             // Pixels of this row with power ≥ min_power: a dx² + 2 b dy dx + c dy² + 2 min_power ≤ 0.
             let disc = (cb * dy) * (cb * dy) - ca * (cc * dy * dy + 2.0 * min_power);
-            if !(disc >= 0.0) {
+            if disc.is_nan() || disc < 0.0 {
                 continue;
             }
             let root = disc.sqrt();
@@ -208,8 +208,12 @@ fn write_tile(
             let p = ly * TILE + lx;
             let o = ly * input.width + x0 + lx;
             let t = s.transmittance[p];
-            for k in 0..3 {
-                rgb[o * 3 + k] = s.rgb[p][k] + t * bg[k];
+            for ((d, acc), b) in rgb[o * 3..o * 3 + 3]
+                .iter_mut()
+                .zip(s.rgb[p])
+                .zip(bg.to_array())
+            {
+                *d = acc + t * b;
             }
             let a = 1.0 - t;
             alpha[o] = a;

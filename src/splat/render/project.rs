@@ -60,19 +60,19 @@ pub(crate) fn project(
         .into_par_iter()
         .map(|i| {
             let opacity = gaussians.opacities[i];
-            if !(opacity >= MIN_ALPHA) {
+            if opacity.is_nan() || opacity < MIN_ALPHA {
                 return None;
             }
             let opacity = opacity.min(1.0);
             let pos = gaussians.positions[i];
             let p = view.transform_point3(pos);
-            if !(p.z > options.near && p.z < options.far) {
+            if p.z.is_nan() || p.z <= options.near || p.z >= options.far {
                 return None;
             }
             let scale = gaussians.scales[i];
             let q = gaussians.rotations[i];
             let qlen = q.length();
-            if !(qlen > 1e-12) || !scale.is_finite() || !pos.is_finite() {
+            if qlen.is_nan() || qlen <= 1e-12 || !scale.is_finite() || !pos.is_finite() {
                 return None;
             }
             let m = Mat3::from_quat(q / qlen) * Mat3::from_diagonal(scale);
@@ -88,7 +88,7 @@ pub(crate) fn project(
             let b = j1.dot(s_j0);
             let c = j1.dot(sigma_cam * j1) + options.low_pass;
             let det = a * c - b * b;
-            if !(det > 0.0) || !det.is_finite() {
+            if det.is_nan() || det <= 0.0 || !det.is_finite() {
                 return None;
             }
             let inv_det = 1.0 / det;
