@@ -37,3 +37,6 @@ pub use skeleton::Skeleton;
 pub use skin::{SkinWeights, MAX_INFLUENCES};
 pub use smplx::{load_smplx, SMPLX_JOINT_NAMES};
 pub use template::{BodyTemplate, DEFAULT_ASSET};
+
+/// Body-model id of avatars bound to the embedded MakeHuman template (PLY comments, messages).
+pub const MAKEHUMAN_MODEL_ID: &str = "makehuman-cc0";

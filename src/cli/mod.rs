@@ -8,6 +8,7 @@ mod body;
 mod config_cmd;
 mod model;
 mod render;
+mod run;
 mod synth;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
@@ -25,6 +26,8 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Run the node: live ROS 2 topics, or replay a bag (`run --config launch_configs/demo.yaml`).
+    Run(run::RunArgs),
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
     /// Body template: summary, posed point clouds, asset conversion.
@@ -46,6 +49,7 @@ pub fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     init_logging(&cli.log);
     match cli.command {
+        Command::Run(args) => run::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),

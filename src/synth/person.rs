@@ -3,14 +3,11 @@
 
 use super::outfit::Outfit;
 use crate::avatar::Avatar;
-use crate::body::{BodyError, BodyTemplate};
+use crate::body::{BodyError, BodyTemplate, MAKEHUMAN_MODEL_ID};
 use crate::splat::Gaussians;
 use glam::{Quat, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-
-/// Body model id of avatars bound to the MakeHuman template.
-pub const BODY_MODEL: &str = "makehuman-cc0";
 
 /// One synthetic person and its ground-truth avatar.
 #[derive(Debug, Clone)]
@@ -100,7 +97,7 @@ impl SyntheticPerson {
             vec![0.98; n],
             &colors,
         )?;
-        let avatar = Avatar::new(gaussians, anchors.skin, BODY_MODEL)?;
+        let avatar = Avatar::new(gaussians, anchors.skin, MAKEHUMAN_MODEL_ID)?;
         Ok(Self {
             template,
             outfit,

@@ -11,7 +11,7 @@
 //! reports also go to `/rosout` (and always to `tracing`).
 
 mod context;
-mod inputs;
+pub(crate) mod inputs;
 mod outputs;
 mod sink;
 
@@ -164,6 +164,13 @@ pub struct ResolvedTopics {
 }
 
 impl ResolvedTopics {
+    /// Resolves every configured topic against the namespace and remapping of `opts`
+    /// (what the node subscribes to and publishes on; bag replay uses the same names).
+    pub fn from_options(opts: &RosNodeOptions) -> Result<Self, RosError> {
+        let names = NameResolver::new(&opts.namespace, &opts.node_name)?.with_map(&opts.remap)?;
+        Self::resolve(opts, &names)
+    }
+
     fn resolve(opts: &RosNodeOptions, names: &NameResolver) -> Result<Self, RosError> {
         let all = |v: &[String]| {
             v.iter()

@@ -1,0 +1,421 @@
+//! The node's processing pipeline, synchronous and driven by [`InputEvent`]s and a clock:
+//! decode → preprocess → frame store → scheduler → reconstruction → avatar → render → outputs.
+//! Live topics and bag replay feed it the same events, so both share this code path.
+
+pub mod outputs;
+pub mod reconstructor;
+pub mod render;
+
+use crate::avatar::Avatar;
+use crate::body::Pose;
+use crate::config::NodeConfig;
+use crate::msgs::ReconstructionStatus;
+use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
+use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::node::ros::{CameraFrame, InputEvent};
+use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
+use image::GrayImage;
+use outputs::{avatar_message, frame_message, status_message, FileOutputs};
+use reconstructor::{ReconstructError, Reconstructor};
+use render::{display_pose, render_frames, VirtualCameras};
+use std::collections::VecDeque;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Side of the thumbnail grid used as the frame-store embedding (cheap, no network pass).
+const EMBEDDING_GRID: u32 = 12;
+/// Masks kept to pair with frames by stamp.
+const MASKS_KEPT: usize = 16;
+/// Latencies kept for the summary.
+const LATENCIES_KEPT: usize = 256;
+
+/// Where the pipeline publishes (ROS 2, shared memory); implemented by the node's endpoints.
+pub trait Publisher {
+    /// Publishes a new avatar revision.
+    fn avatar(&self, msg: crate::msgs::GaussianAvatar);
+    /// Publishes the reconstruction status.
+    fn status(&self, msg: ReconstructionStatus);
+    /// Publishes a rendered frame of virtual camera `camera`.
+    fn frame(&self, camera: usize, msg: crate::msgs::Image);
+}
+
+/// Counters of one run, printed at the end and used by tests.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PipelineStats {
+    /// Camera frames received.
+    pub frames: u64,
+    /// Frames rejected (preprocessing failed).
+    pub rejected: u64,
+    /// Frames dropped as near-duplicates of held views.
+    pub duplicates: u64,
+    /// Reconstructions run.
+    pub reconstructions: u64,
+    /// Reconstructions that failed.
+    pub failures: u64,
+    /// Latest latencies (last frame arrival → avatar published), milliseconds.
+    pub latencies_ms: VecDeque<f64>,
+    /// Reconstruction run times, milliseconds (same window).
+    pub run_times_ms: VecDeque<f64>,
+    /// Rendered frames produced.
+    pub rendered_frames: u64,
+}
+
+/// The latest avatar and what it was built from.
+struct Current {
+    revision: u64,
+    avatar: Avatar,
+}
+
+/// The node's pipeline for one configured person.
+pub struct Pipeline {
+    person: String,
+    recon: Reconstructor,
+    store: FrameStore,
+    scheduler: Scheduler,
+    preprocess: PreprocessConfig,
+    masks: VecDeque<(i64, Arc<GrayImage>)>,
+    pose: Option<Pose>,
+    next_frame_id: u64,
+    current: Option<Current>,
+    files: Option<FileOutputs>,
+    publisher: Option<Box<dyn Publisher>>,
+    cameras: VirtualCameras,
+    render_period: Option<Duration>,
+    next_render: Duration,
+    stats: PipelineStats,
+}
+
+/// Errors that stop the pipeline from starting.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// The network or body template could not be set up.
+    #[error(transparent)]
+    Reconstruct(#[from] ReconstructError),
+    /// The output directory is unusable.
+    #[error(transparent)]
+    Output(#[from] outputs::OutputError),
+}
+
+impl Pipeline {
+    /// Sets up the network, the frame store and the outputs from the node config.
+    pub fn new(
+        config: &NodeConfig,
+        publisher: Option<Box<dyn Publisher>>,
+    ) -> Result<Self, PipelineError> {
+        let recon = Reconstructor::new(&config.model, config.frame_store.max_views)?;
+        let (h, w) = recon.input_size();
+        let files = (!config.outputs.dir.is_empty())
+            .then(|| FileOutputs::new(Path::new(&config.outputs.dir)))
+            .transpose()?;
+        let cameras = VirtualCameras::ring(
+            config.outputs.virtual_cameras,
+            config.outputs.render_size,
+            recon.template().height(),
+        );
+        let render_period = (config.outputs.render_rate_hz > 0.0)
+            .then(|| Duration::from_secs_f64(1.0 / config.outputs.render_rate_hz));
+        tracing::info!(
+            preset = %config.model.preset,
+            weights = recon.weights(),
+            points = config.model.num_points,
+            input = %format!("{h}x{w}"),
+            "reconstruction network ready"
+        );
+        Ok(Self {
+            person: config.person_id.clone(),
+            recon,
+            store: FrameStore::new((&config.frame_store).into()),
+            scheduler: Scheduler::new(SchedulerConfig::from_debounce_ms(
+                config.frame_store.debounce_ms,
+            )),
+            preprocess: PreprocessConfig {
+                out_height: h,
+                out_width: w,
+                ..PreprocessConfig::default()
+            },
+            masks: VecDeque::new(),
+            pose: None,
+            next_frame_id: 1,
+            current: None,
+            files,
+            publisher,
+            cameras,
+            render_period,
+            next_render: Duration::ZERO,
+            stats: PipelineStats::default(),
+        })
+    }
+
+    /// Run counters so far.
+    pub fn stats(&self) -> &PipelineStats {
+        &self.stats
+    }
+
+    /// Views currently held for the person.
+    pub fn views_held(&self) -> usize {
+        self.store.len(&self.person)
+    }
+
+    /// Latest avatar revision (0 before the first).
+    pub fn revision(&self) -> u64 {
+        self.current.as_ref().map_or(0, |c| c.revision)
+    }
+
+    /// The latest avatar.
+    pub fn avatar(&self) -> Option<&Avatar> {
+        self.current.as_ref().map(|c| &c.avatar)
+    }
+
+    /// Views the network has encoded (each held view once, thanks to the token cache).
+    pub fn encoded_views(&self) -> usize {
+        self.recon.encode_count()
+    }
+
+    /// True when no reconstruction is pending or running.
+    pub fn idle(&self) -> bool {
+        self.scheduler.next_deadline().is_none() && self.scheduler.in_flight(&self.person).is_none()
+    }
+
+    /// When the next scheduled work is due (reconstruction debounce or frame rendering).
+    pub fn next_deadline(&self) -> Option<Duration> {
+        let render = self
+            .render_period
+            .filter(|_| self.current.is_some() && self.publisher.is_some())
+            .map(|_| self.next_render);
+        match (self.scheduler.next_deadline(), render) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Feeds one input event; `now` is the node clock.
+    pub fn handle(&mut self, event: InputEvent, now: Duration) {
+        match event {
+            InputEvent::Frame(frame) => self.on_frame(frame, now),
+            InputEvent::Mask(mask) => {
+                self.masks.push_back((mask.stamp_ns, mask.mask));
+                while self.masks.len() > MASKS_KEPT {
+                    self.masks.pop_front();
+                }
+            }
+            InputEvent::CameraInfo { .. } => {}
+            InputEvent::BodyPose { topic, pose, .. } => match pose.to_pose() {
+                Ok(p) => match self.recon.template().skeleton.check_pose(&p) {
+                    Ok(()) => self.pose = Some(p),
+                    Err(e) => tracing::warn!(%topic, "body pose rejected: {e}"),
+                },
+                Err(e) => tracing::warn!(%topic, "body pose rejected: {e}"),
+            },
+        }
+    }
+
+    fn on_frame(&mut self, frame: CameraFrame, now: Duration) {
+        self.stats.frames += 1;
+        let mask = self
+            .masks
+            .iter()
+            .rev()
+            .find(|(stamp, m)| {
+                *stamp == frame.stamp_ns && m.dimensions() == frame.image.dimensions()
+            })
+            .map(|(_, m)| m.clone());
+        let subject = mask.as_deref().map_or(Subject::FullFrame, Subject::Mask);
+        let image = match preprocess(&frame.image, subject, &self.preprocess) {
+            Ok(image) => Arc::new(image),
+            Err(e) => {
+                self.stats.rejected += 1;
+                tracing::warn!(topic = %frame.topic, "frame rejected: {e}");
+                return;
+            }
+        };
+        let frame_id = self.next_frame_id;
+        self.next_frame_id += 1;
+        let view = View {
+            frame_id,
+            camera: frame.topic.clone(),
+            stamp_ns: frame.stamp_ns,
+            arrival: frame.arrival,
+            embedding: thumbnail_embedding(&image, EMBEDDING_GRID),
+            image,
+        };
+        let outcome = self.store.insert(&self.person, view);
+        match outcome {
+            InsertOutcome::Dropped { .. } => self.stats.duplicates += 1,
+            InsertOutcome::AddedEvicting { evicted } => self.recon.forget(evicted),
+            InsertOutcome::Replaced { replaced, .. } => self.recon.forget(replaced),
+            InsertOutcome::Added => {}
+        }
+        if outcome.changed() {
+            self.scheduler.view_set_changed(
+                &self.person,
+                self.store.version(&self.person),
+                frame.arrival,
+                now,
+            );
+        }
+    }
+
+    /// Runs whatever is due at `now`: reconstructions whose debounce expired, frame rendering.
+    pub fn step(&mut self, now: Duration, clock: impl Fn() -> Duration) {
+        for job in self.scheduler.poll(now) {
+            self.run_job(job, &clock);
+        }
+        if let (Some(period), Some(_)) = (self.render_period, &self.publisher) {
+            if self.current.is_some() && now >= self.next_render {
+                self.publish_frames(now);
+                self.next_render = now + period;
+            }
+        }
+    }
+
+    fn run_job(&mut self, job: Job, clock: &impl Fn() -> Duration) {
+        let Some(set) = self.store.snapshot(&job.person) else {
+            let _ = self.scheduler.failed(&job.person, job.revision);
+            return;
+        };
+        self.publish_status(
+            job.revision.saturating_sub(1),
+            0.0,
+            ReconstructionStatus::STATE_RECONSTRUCTING,
+            "reconstructing",
+        );
+        let views: Vec<(u64, &crate::node::preprocess::Preprocessed)> = set
+            .views
+            .iter()
+            .map(|v| (v.frame_id, v.image.as_ref()))
+            .collect();
+        let result = self.recon.reconstruct(&views);
+        match result {
+            Ok(avatar) => {
+                let stamp = set.views.iter().map(|v| v.stamp_ns).max().unwrap_or(0);
+                self.publish_avatar(&job, &avatar, set.views.len(), stamp);
+                self.current = Some(Current {
+                    revision: job.revision,
+                    avatar,
+                });
+                match self.scheduler.finished(&job.person, job.revision, clock()) {
+                    Ok(done) => {
+                        let latency = done.latency.as_secs_f64() * 1e3;
+                        let run = done.run_time.as_secs_f64() * 1e3;
+                        push_bounded(&mut self.stats.latencies_ms, latency);
+                        push_bounded(&mut self.stats.run_times_ms, run);
+                        self.stats.reconstructions += 1;
+                        tracing::info!(
+                            person = %job.person,
+                            revision = job.revision,
+                            views = set.views.len(),
+                            latency_ms = format!("{latency:.0}"),
+                            run_ms = format!("{run:.0}"),
+                            "avatar published"
+                        );
+                        self.publish_status(
+                            job.revision,
+                            latency,
+                            ReconstructionStatus::STATE_IDLE,
+                            "avatar published",
+                        );
+                    }
+                    Err(e) => tracing::error!("scheduler: {e}"),
+                }
+            }
+            Err(e) => {
+                self.stats.failures += 1;
+                tracing::error!(person = %job.person, revision = job.revision, "reconstruction failed: {e}");
+                let _ = self.scheduler.failed(&job.person, job.revision);
+                self.publish_status(
+                    job.revision,
+                    0.0,
+                    ReconstructionStatus::STATE_ERROR,
+                    e.to_string(),
+                );
+            }
+        }
+    }
+
+    fn publish_avatar(&mut self, job: &Job, avatar: &Avatar, views: usize, stamp: i64) {
+        if let Some(files) = &self.files {
+            match files.write_avatar(&job.person, job.revision, avatar) {
+                Ok(path) => tracing::info!("wrote {}", path.display()),
+                Err(e) => tracing::error!("avatar file: {e}"),
+            }
+        }
+        if let Some(p) = &self.publisher {
+            match avatar_message(
+                avatar,
+                self.recon.template(),
+                &job.person,
+                job.revision,
+                views,
+                stamp,
+            ) {
+                Ok(msg) => p.avatar(msg),
+                Err(e) => tracing::error!("avatar message: {e}"),
+            }
+        }
+    }
+
+    fn publish_status(
+        &self,
+        revision: u64,
+        latency_ms: f64,
+        state: u8,
+        message: impl Into<String>,
+    ) {
+        if let Some(p) = &self.publisher {
+            p.status(status_message(
+                &self.person,
+                self.views_held(),
+                revision,
+                latency_ms,
+                state,
+                message,
+                0,
+            ));
+        }
+    }
+
+    fn publish_frames(&mut self, now: Duration) {
+        let (Some(current), Some(p)) = (&self.current, &self.publisher) else {
+            return;
+        };
+        let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
+        let frames = render_frames(&current.avatar, self.recon.template(), &pose, &self.cameras);
+        for (i, f) in frames.iter().enumerate() {
+            p.frame(
+                i,
+                frame_message(f, now.as_nanos() as i64, &format!("lhmpp_virtual_cam{i}")),
+            );
+        }
+        self.stats.rendered_frames += frames.len() as u64;
+    }
+
+    /// Writes a short animation of the latest avatar walking (the built-in walk cycle) from
+    /// every virtual camera as PNGs: `frames/<person>_cam<i>_<f>.png`.
+    pub fn write_animation(&mut self, frames: usize) -> usize {
+        let (Some(current), Some(files)) = (&self.current, &self.files) else {
+            return 0;
+        };
+        let mut written = 0;
+        for f in 0..frames {
+            let pose = display_pose(None, f as f32 / 24.0);
+            let images =
+                render_frames(&current.avatar, self.recon.template(), &pose, &self.cameras);
+            for (c, image) in images.iter().enumerate() {
+                match files.write_frame(&format!("{}_cam{c}_{f:03}", self.person), image) {
+                    Ok(_) => written += 1,
+                    Err(e) => tracing::error!("frame file: {e}"),
+                }
+            }
+        }
+        self.stats.rendered_frames += written as u64;
+        written
+    }
+}
+
+fn push_bounded(q: &mut VecDeque<f64>, v: f64) {
+    q.push_back(v);
+    while q.len() > LATENCIES_KEPT {
+        q.pop_front();
+    }
+}

@@ -1,0 +1,152 @@
+//! Where results go: avatar PLY files and PNG frames under the output directory, and the
+//! ROS 2 messages (GaussianAvatar, rendered Image, ReconstructionStatus) built from them.
+
+use crate::avatar::Avatar;
+use crate::body::BodyTemplate;
+use crate::msgs::{
+    GaussianAvatar, GaussianCloud, GaussianColors, Header, Image, Point, ReconstructionStatus, Time,
+};
+use crate::splat::{sh_dc_to_rgb, write_ply, PlyError};
+use image::RgbImage;
+use std::path::{Path, PathBuf};
+
+/// A file output failed; names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// Writing a PLY failed.
+    #[error(transparent)]
+    Ply(#[from] PlyError),
+    /// Writing a PNG or creating a directory failed.
+    #[error("{path}: {message}")]
+    File {
+        /// File or directory.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// A message could not be built.
+    #[error("message: {0}")]
+    Message(#[from] crate::msgs::MsgError),
+}
+
+/// Writes avatars and frames under one directory (`out/` by default).
+#[derive(Debug, Clone)]
+pub struct FileOutputs {
+    dir: PathBuf,
+}
+
+impl FileOutputs {
+    /// Creates `dir` and `dir/frames`.
+    pub fn new(dir: &Path) -> Result<Self, OutputError> {
+        for d in [dir.to_path_buf(), dir.join("frames")] {
+            std::fs::create_dir_all(&d).map_err(|e| OutputError::File {
+                path: d.clone(),
+                message: e.to_string(),
+            })?;
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+        })
+    }
+
+    /// Writes `avatar_<person>_rev<N>.ply` and `avatar_<person>.ply` (the latest); returns the
+    /// latest's path.
+    pub fn write_avatar(
+        &self,
+        person: &str,
+        revision: u64,
+        avatar: &Avatar,
+    ) -> Result<PathBuf, OutputError> {
+        let versioned = self.dir.join(format!("avatar_{person}_rev{revision}.ply"));
+        write_ply(
+            &versioned,
+            &avatar.canonical,
+            Some(&avatar.skin),
+            Some(&avatar.body_model),
+        )?;
+        let latest = self.dir.join(format!("avatar_{person}.ply"));
+        std::fs::copy(&versioned, &latest).map_err(|e| OutputError::File {
+            path: latest.clone(),
+            message: e.to_string(),
+        })?;
+        Ok(latest)
+    }
+
+    /// Writes `frames/<name>.png`.
+    pub fn write_frame(&self, name: &str, image: &RgbImage) -> Result<PathBuf, OutputError> {
+        let path = self.dir.join("frames").join(format!("{name}.png"));
+        image.save(&path).map_err(|e| OutputError::File {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
+        Ok(path)
+    }
+}
+
+/// The GaussianAvatar message of `avatar` (canonical Gaussians, skinning, skeleton).
+pub fn avatar_message(
+    avatar: &Avatar,
+    template: &BodyTemplate,
+    person: &str,
+    revision: u64,
+    views_used: usize,
+    stamp_ns: i64,
+) -> Result<GaussianAvatar, OutputError> {
+    let g = &avatar.canonical;
+    let colors = (0..g.len())
+        .map(|i| sh_dc_to_rgb(g.sh_of(i)[0]).to_array())
+        .collect();
+    let cloud = GaussianCloud {
+        positions: g.positions.iter().map(|p| p.to_array()).collect(),
+        scales: g.scales.iter().map(|s| s.to_array()).collect(),
+        rotations: g.rotations.iter().map(|q| [q.w, q.x, q.y, q.z]).collect(),
+        opacities: g.opacities.clone(),
+        colors: GaussianColors::Rgb(colors),
+        skin: avatar.skin.clone(),
+    };
+    let header = Header::new(Time::from_nanos(stamp_ns), "lhmpp_canonical");
+    let skeleton = &template.skeleton;
+    Ok(GaussianAvatar {
+        gaussians: cloud.to_point_cloud(header.clone())?,
+        header,
+        person_id: person.to_owned(),
+        revision: revision as u32,
+        views_used: views_used as u32,
+        body_model: avatar.body_model.clone(),
+        shape_params: Vec::new(),
+        sh_degree: 0,
+        bone_names: skeleton.bone_names.clone(),
+        bone_parents: skeleton
+            .parents
+            .iter()
+            .map(|p| p.map_or(-1, |i| i as i32))
+            .collect(),
+        bone_rest_positions: skeleton.joints.iter().map(|j| Point::from(*j)).collect(),
+    })
+}
+
+/// A ReconstructionStatus message.
+pub fn status_message(
+    person: &str,
+    views_held: usize,
+    revision: u64,
+    latency_ms: f64,
+    state: u8,
+    message: impl Into<String>,
+    stamp_ns: i64,
+) -> ReconstructionStatus {
+    ReconstructionStatus {
+        header: Header::new(Time::from_nanos(stamp_ns), "lhmpp_canonical"),
+        person_id: person.to_owned(),
+        views_held: views_held as u32,
+        revision: revision as u32,
+        last_latency_ms: latency_ms,
+        state,
+        message: message.into(),
+    }
+}
+
+/// An rgb8 Image message of a rendered frame.
+pub fn frame_message(image: &RgbImage, stamp_ns: i64, frame_id: &str) -> Image {
+    crate::node::ros::rgb8_image(image, stamp_ns, frame_id)
+}

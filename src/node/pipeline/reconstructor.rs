@@ -1,0 +1,218 @@
+//! The reconstruction step of the node: owns the network, the per-view token cache and the
+//! anchor points on the body template, and turns a set of held views into an [`Avatar`].
+
+use crate::avatar::Avatar;
+use crate::body::{AnchorPoints, BodyTemplate};
+use crate::config::ModelConfig;
+use crate::model::cache::ViewTokenCache;
+use crate::model::checkpoint::{load_var_builder, seeded_var_builder};
+use crate::model::{Lhmpp, LhmppConfig};
+use crate::node::preprocess::Preprocessed;
+use crate::splat::Gaussians;
+use candle_core::{DType, Device, Tensor};
+use glam::{Quat, Vec3};
+use std::path::Path;
+
+/// Seed of the embedded default weights (random until a trained checkpoint ships).
+pub const DEFAULT_WEIGHTS_SEED: u64 = 1;
+
+/// A reconstruction problem, naming the input that caused it.
+#[derive(Debug, thiserror::Error)]
+pub enum ReconstructError {
+    /// The model preset or checkpoint is unusable.
+    #[error("model: {0}")]
+    Model(String),
+    /// The body template failed to load.
+    #[error(transparent)]
+    Body(#[from] crate::body::BodyError),
+    /// A tensor operation failed.
+    #[error("network: {0}")]
+    Candle(#[from] candle_core::Error),
+    /// The predicted Gaussians are inconsistent.
+    #[error(transparent)]
+    Avatar(#[from] crate::avatar::AvatarError),
+    /// The predicted Gaussians are inconsistent.
+    #[error(transparent)]
+    Gaussians(#[from] crate::splat::GaussianError),
+    /// A view needed for the reconstruction is no longer available.
+    #[error("view {0} is not in the token cache and has no image")]
+    MissingView(u64),
+    /// No view to reconstruct from.
+    #[error("no views")]
+    NoViews,
+}
+
+/// Picks the compute device named in the config.
+pub fn select_device(name: &str) -> Result<Device, ReconstructError> {
+    if name == "cpu" {
+        return Ok(Device::Cpu);
+    }
+    let index = match name.strip_prefix("cuda") {
+        Some("") => 0,
+        Some(rest) => rest
+            .strip_prefix(':')
+            .and_then(|n| n.parse().ok())
+            .ok_or_else(|| ReconstructError::Model(format!("unknown device `{name}`")))?,
+        None => return Err(ReconstructError::Model(format!("unknown device `{name}`"))),
+    };
+    if !candle_core::utils::cuda_is_available() {
+        return Err(ReconstructError::Model(format!(
+            "device `{name}`: this binary was built without the `cuda` feature (see scripts/build-cuda)"
+        )));
+    }
+    Device::new_cuda(index).map_err(|e| ReconstructError::Model(format!("device `{name}`: {e}")))
+}
+
+fn parse_dtype(name: &str) -> Result<DType, ReconstructError> {
+    match name {
+        "f32" => Ok(DType::F32),
+        "f16" => Ok(DType::F16),
+        "bf16" => Ok(DType::BF16),
+        other => Err(ReconstructError::Model(format!("unknown dtype `{other}`"))),
+    }
+}
+
+/// Network + token cache + anchor points.
+pub struct Reconstructor {
+    model: Lhmpp,
+    cfg: LhmppConfig,
+    device: Device,
+    cache: ViewTokenCache,
+    template: BodyTemplate,
+    anchors: AnchorPoints,
+    anchor_positions: Tensor,
+    anchor_normals: Tensor,
+    weights: String,
+}
+
+impl Reconstructor {
+    /// Builds the network (checkpoint or embedded default), samples the anchors on the template.
+    /// `max_views` bounds the token cache.
+    pub fn new(config: &ModelConfig, max_views: usize) -> Result<Self, ReconstructError> {
+        let cfg = LhmppConfig::preset(&config.preset)
+            .map_err(|e| ReconstructError::Model(e.to_string()))?;
+        let device = select_device(&config.device)?;
+        let dtype = parse_dtype(&config.dtype)?;
+        let (vb, weights) = if config.checkpoint.is_empty() {
+            (
+                seeded_var_builder(DEFAULT_WEIGHTS_SEED, dtype, &device),
+                format!("embedded default (seeded random weights, seed {DEFAULT_WEIGHTS_SEED})"),
+            )
+        } else {
+            let path = Path::new(&config.checkpoint);
+            let vb = load_var_builder(path, &cfg, dtype, &device)
+                .map_err(|e| ReconstructError::Model(e.to_string()))?;
+            (vb, path.display().to_string())
+        };
+        let model = Lhmpp::new(&cfg, vb)?;
+        let template = BodyTemplate::load_default()?;
+        let anchors = template.sample_anchors(config.num_points, config.seed);
+        let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+        let n = anchors.len();
+        let anchor_positions =
+            Tensor::from_vec(flat(&anchors.positions), (n, 3), &device)?.to_dtype(dtype)?;
+        let anchor_normals =
+            Tensor::from_vec(flat(&anchors.normals), (n, 3), &device)?.to_dtype(dtype)?;
+        Ok(Self {
+            model,
+            cfg,
+            device,
+            cache: ViewTokenCache::new(max_views + 4),
+            template,
+            anchors,
+            anchor_positions,
+            anchor_normals,
+            weights,
+        })
+    }
+
+    /// Encoder input size (height, width) that preprocessing must produce.
+    pub fn input_size(&self) -> (u32, u32) {
+        (self.cfg.image_height as u32, self.cfg.image_width as u32)
+    }
+
+    /// Where the weights came from (for logs).
+    pub fn weights(&self) -> &str {
+        &self.weights
+    }
+
+    /// The body template the avatars are bound to.
+    pub fn template(&self) -> &BodyTemplate {
+        &self.template
+    }
+
+    /// Views encoded so far (cache misses), for logs and tests of token reuse.
+    pub fn encode_count(&self) -> usize {
+        self.cache.encode_count()
+    }
+
+    fn image_tensor(&self, image: &Preprocessed) -> Result<Tensor, ReconstructError> {
+        let t = Tensor::from_vec(
+            image.chw.clone(),
+            (3, image.height as usize, image.width as usize),
+            &self.device,
+        )?;
+        Ok(t.to_dtype(self.anchor_positions.dtype())?)
+    }
+
+    /// Encodes a view once (cached by `frame_id`) and returns its embedding for the frame
+    /// store: the mean image token, L2-normalised.
+    pub fn encode(
+        &mut self,
+        frame_id: u64,
+        image: &Preprocessed,
+    ) -> Result<Vec<f32>, ReconstructError> {
+        let t = self.image_tensor(image)?;
+        let tokens = self.cache.get_or_encode(&self.model, frame_id, &t)?;
+        let mean = tokens
+            .patch_tokens
+            .mean(0)?
+            .to_dtype(DType::F32)?
+            .to_vec1::<f32>()?;
+        let norm = mean.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
+        Ok(mean.into_iter().map(|v| v / norm).collect())
+    }
+
+    /// Forgets a view that left the frame store.
+    pub fn forget(&mut self, frame_id: u64) {
+        self.cache.remove(frame_id);
+    }
+
+    /// Reconstructs the avatar from the given views (tokens reused from the cache; a view
+    /// evicted from it is encoded again from its image).
+    pub fn reconstruct(
+        &mut self,
+        views: &[(u64, &Preprocessed)],
+    ) -> Result<Avatar, ReconstructError> {
+        if views.is_empty() {
+            return Err(ReconstructError::NoViews);
+        }
+        let mut tokens = Vec::with_capacity(views.len());
+        for (id, image) in views {
+            let t = self.image_tensor(image)?;
+            tokens.push(self.cache.get_or_encode(&self.model, *id, &t)?);
+        }
+        let out = self
+            .model
+            .reconstruct(&self.anchor_positions, &self.anchor_normals, &tokens)?;
+        let a = out.to_cpu_arrays()?;
+        let n = a.opacities.len();
+        let v3 = |v: &[f32], i: usize| Vec3::new(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
+        let positions = (0..n).map(|i| v3(&a.positions, i)).collect();
+        let scales = (0..n).map(|i| v3(&a.scales, i)).collect();
+        let rotations = (0..n)
+            .map(|i| {
+                let r = &a.rotations[4 * i..4 * i + 4];
+                Quat::from_xyzw(r[1], r[2], r[3], r[0]).normalize()
+            })
+            .collect();
+        let colors: Vec<Vec3> = (0..n).map(|i| v3(&a.colors, i)).collect();
+        let gaussians = Gaussians::from_rgb(positions, scales, rotations, a.opacities, &colors)?
+            .with_features(a.feature_dim, a.features)?;
+        Ok(Avatar::new(
+            gaussians,
+            self.anchors.skin.clone(),
+            crate::body::MAKEHUMAN_MODEL_ID,
+        )?)
+    }
+}

@@ -1,0 +1,250 @@
+//! Running the node: wires an input source (live ROS 2 subscriptions or a bag replay) and the
+//! ROS 2 publishers to the synchronous [`Pipeline`] on the calling thread, until the bag ends
+//! (`replay.exit_when_done`) or SIGINT/SIGTERM. The tokio runtime hosts only the DDS endpoint
+//! and the signal handlers.
+
+use super::pipeline::{Pipeline, PipelineError, PipelineStats, Publisher};
+use super::replay::{BagReplay, Replayed};
+use super::ros::{InputEvent, ResolvedTopics, RosError, RosNode, RosNodeOptions};
+use crate::config::NodeConfig;
+use crate::msgs::{GaussianAvatar, Image, ReconstructionStatus};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Frames of the walk animation written at the end of a replay (24 fps → 1 s).
+const ANIMATION_FRAMES: usize = 24;
+/// Wake-up period of the live loop when nothing is scheduled.
+const IDLE_WAIT: Duration = Duration::from_millis(200);
+
+/// Why the node could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The pipeline could not start.
+    #[error(transparent)]
+    Pipeline(#[from] PipelineError),
+    /// The ROS 2 endpoint could not start.
+    #[error("ROS 2: {0}")]
+    Ros(#[from] RosError),
+    /// The bag could not be opened.
+    #[error(transparent)]
+    Bag(#[from] crate::bag::BagError),
+    /// The async runtime could not start.
+    #[error("tokio runtime: {0}")]
+    Runtime(#[from] std::io::Error),
+}
+
+/// What a run did.
+#[derive(Debug, Clone)]
+pub struct RunSummary {
+    /// Pipeline counters.
+    pub stats: PipelineStats,
+    /// Views held at the end.
+    pub views_held: usize,
+    /// Latest avatar revision.
+    pub revision: u64,
+    /// Views the network encoded.
+    pub encoded_views: usize,
+    /// Animation frames written at the end of a replay.
+    pub animation_frames: usize,
+    /// Wall time.
+    pub wall: Duration,
+}
+
+/// Publishes pipeline outputs on the ROS 2 endpoint; failures are logged, never fatal.
+struct RosPublisher(Arc<RosNode>);
+
+impl Publisher for RosPublisher {
+    fn avatar(&self, msg: GaussianAvatar) {
+        if let Err(e) = self.0.publish_avatar(msg) {
+            tracing::warn!("{e}");
+        }
+    }
+    fn status(&self, msg: ReconstructionStatus) {
+        if let Err(e) = self.0.publish_status(msg) {
+            tracing::warn!("{e}");
+        }
+    }
+    fn frame(&self, camera: usize, msg: Image) {
+        if let Err(e) = self.0.publish_frame(camera, msg) {
+            tracing::warn!("{e}");
+        }
+    }
+}
+
+/// Runs the node with `config`; `remap` holds command-line topic remappings.
+pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSummary, RunError> {
+    let started = Instant::now();
+    let clock = move || started.elapsed();
+    let options = RosNodeOptions::from_config(
+        config,
+        remap,
+        std::env::var("ROS_DOMAIN_ID").ok().as_deref(),
+    )?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let (wake_tx, wake_rx) = sync_channel::<InputEvent>(64);
+    {
+        let stop = stop.clone();
+        runtime.spawn(async move {
+            wait_for_signal().await;
+            tracing::info!("shutdown requested");
+            stop.store(true, Ordering::SeqCst);
+        });
+    }
+    let live = config.replay.bag.is_empty();
+    let ros = if config.outputs.ros || live {
+        let _guard = runtime.enter();
+        let (node, mut queue) = RosNode::start(&options)?;
+        tracing::info!(domain = node.domain_id(), topics = ?node.topics(), "ROS 2 endpoint up");
+        if live {
+            let tx = wake_tx.clone();
+            runtime.spawn(async move {
+                while let Some(event) = queue.recv().await {
+                    if tx.try_send(event).is_err() {
+                        tracing::debug!("pipeline busy: input event dropped");
+                    }
+                }
+            });
+        }
+        Some(Arc::new(node))
+    } else {
+        None
+    };
+    drop(wake_tx);
+    let publisher = ros
+        .clone()
+        .map(|n| Box::new(RosPublisher(n)) as Box<dyn Publisher>);
+    let mut pipeline = Pipeline::new(config, publisher)?;
+    let mut animation_frames = 0;
+    if live {
+        run_live(&mut pipeline, &wake_rx, &stop, &clock);
+    } else {
+        let topics = ResolvedTopics::from_options(&options)?;
+        let mut replay = BagReplay::open(
+            Path::new(&config.replay.bag),
+            topics,
+            config.inputs.max_image_side,
+        )?;
+        tracing::info!(bag = %config.replay.bag, messages = replay.len(), "replaying");
+        run_replay(
+            &mut pipeline,
+            &mut replay,
+            config.replay.rate,
+            &stop,
+            &clock,
+        );
+        if !stop.load(Ordering::SeqCst) && config.replay.exit_when_done {
+            animation_frames = pipeline.write_animation(ANIMATION_FRAMES);
+        } else if !config.replay.exit_when_done {
+            run_live(&mut pipeline, &wake_rx, &stop, &clock);
+        }
+    }
+    let summary = RunSummary {
+        stats: pipeline.stats().clone(),
+        views_held: pipeline.views_held(),
+        revision: pipeline.revision(),
+        encoded_views: pipeline.encoded_views(),
+        animation_frames,
+        wall: started.elapsed(),
+    };
+    drop(pipeline);
+    if let Some(node) = ros {
+        match Arc::try_unwrap(node) {
+            Ok(node) => node.shutdown(),
+            Err(_) => tracing::warn!("ROS 2 endpoint still shared at shutdown"),
+        }
+    }
+    runtime.shutdown_timeout(Duration::from_secs(2));
+    Ok(summary)
+}
+
+async fn wait_for_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}
+
+/// Feeds live events until a stop is requested; runs due work in between.
+fn run_live(
+    pipeline: &mut Pipeline,
+    events: &Receiver<InputEvent>,
+    stop: &AtomicBool,
+    clock: &impl Fn() -> Duration,
+) {
+    while !stop.load(Ordering::SeqCst) {
+        let now = clock();
+        let wait = pipeline
+            .next_deadline()
+            .map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT));
+        match events.recv_timeout(wait) {
+            Ok(event) => pipeline.handle(event, clock()),
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => std::thread::sleep(wait),
+        }
+        pipeline.step(clock(), clock);
+    }
+}
+
+/// Plays the bag into the pipeline (paced by `rate`, or as fast as consumed when 0), then
+/// waits for the last reconstruction.
+fn run_replay(
+    pipeline: &mut Pipeline,
+    replay: &mut BagReplay,
+    rate: f64,
+    stop: &AtomicBool,
+    clock: &impl Fn() -> Duration,
+) {
+    let begin = clock();
+    while let Some((offset, item)) = replay.next(clock) {
+        if stop.load(Ordering::SeqCst) {
+            return;
+        }
+        if rate > 0.0 {
+            let due = begin + offset.div_f64(rate);
+            while clock() < due && !stop.load(Ordering::SeqCst) {
+                pipeline.step(clock(), clock);
+                let now = clock();
+                let until = pipeline.next_deadline().map_or(due, |d| d.min(due));
+                std::thread::sleep(until.saturating_sub(now).min(IDLE_WAIT));
+            }
+        }
+        match item {
+            Replayed::Event(event) => pipeline.handle(event, clock()),
+            Replayed::Rejected { topic, reason } => {
+                tracing::warn!(%topic, "bag message rejected: {reason}")
+            }
+        }
+        pipeline.step(clock(), clock);
+    }
+    // The bag is over: let the debounce expire and the last reconstruction run.
+    while !pipeline.idle() && !stop.load(Ordering::SeqCst) {
+        let now = clock();
+        if let Some(d) = pipeline.next_deadline() {
+            std::thread::sleep(d.saturating_sub(now).min(IDLE_WAIT));
+        }
+        pipeline.step(clock(), clock);
+    }
+}
