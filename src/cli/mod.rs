@@ -6,6 +6,7 @@ mod bag;
 mod bench;
 mod body;
 mod config_cmd;
+mod eval;
 mod model;
 mod render;
 mod run;
@@ -26,6 +27,8 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Score reconstructions on held-out views of synthetic bags (PSNR, SSIM, mask IoU).
+    Eval(eval::EvalArgs),
     /// Run the node: live ROS 2 topics, or replay a bag (`run --config launch_configs/demo.yaml`).
     Run(run::RunArgs),
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
@@ -50,6 +53,7 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Run(args) => run::run(args),
+        Command::Eval(args) => eval::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),

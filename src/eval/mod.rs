@@ -1,3 +1,4 @@
 //! Reconstruction quality: image metrics and the held-out-view evaluation behind `lhmpp eval`.
 
+pub mod heldout;
 pub mod metrics;

@@ -1,0 +1,255 @@
+//! Held-out-view evaluation of a synthetic bag (`lhmpp eval`): reconstruct from the input views,
+//! pose the avatar with the ground-truth body pose, render the held-out cameras and score the
+//! renders against the held-out images and masks.
+
+use super::metrics::{mask_iou, psnr, ssim, ImageRef};
+use crate::bag::{BagError, BagReader};
+use crate::body::Pose;
+use crate::config::ModelConfig;
+use crate::msgs::{BodyPose, CameraInfo, Image, TFMessage};
+use crate::node::image_decode::{decode_raw, RawImage};
+use crate::node::pipeline::reconstructor::{ReconstructError, Reconstructor};
+use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::splat::{render, Camera, RenderOptions};
+use crate::synth::capture::{image_topic, info_topic, mask_topic, POSE_TOPIC, TF_STATIC_TOPIC};
+use glam::{Affine3A, Quat, Vec3};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// An evaluation problem, naming the bag and what is missing.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// The bag could not be read.
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    /// The bag lacks ground truth the evaluation needs.
+    #[error("{path}: {message}")]
+    MissingGroundTruth {
+        /// The bag.
+        path: String,
+        /// What is missing.
+        message: String,
+    },
+    /// The reconstruction failed.
+    #[error(transparent)]
+    Reconstruct(#[from] ReconstructError),
+}
+
+/// Scores of one held-out view.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewScore {
+    /// Held-out camera name.
+    pub camera: String,
+    /// PSNR (dB).
+    pub psnr: f64,
+    /// SSIM.
+    pub ssim: f64,
+    /// Mask IoU (render alpha ≥ 0.5 against the ground-truth mask).
+    pub iou: f64,
+}
+
+/// Scores of one reconstruction (a number of input views) over all held-out views.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalRow {
+    /// Input views used.
+    pub views: usize,
+    /// Per held-out view.
+    pub per_view: Vec<ViewScore>,
+}
+
+impl EvalRow {
+    /// Mean PSNR, SSIM and IoU over the held-out views.
+    pub fn means(&self) -> (f64, f64, f64) {
+        let n = self.per_view.len().max(1) as f64;
+        let s = self.per_view.iter().fold((0.0, 0.0, 0.0), |a, v| {
+            (a.0 + v.psnr, a.1 + v.ssim, a.2 + v.iou)
+        });
+        (s.0 / n, s.1 / n, s.2 / n)
+    }
+}
+
+struct HeldoutView {
+    name: String,
+    camera: Camera,
+    rgb: Vec<f32>,
+    mask: Vec<f32>,
+}
+
+/// Ground truth read from a synthetic bag.
+struct GroundTruth {
+    inputs: Vec<(String, image::RgbImage)>,
+    heldout: Vec<HeldoutView>,
+    pose: Pose,
+}
+
+fn first<'a>(bag: &'a BagReader, topic: &str) -> Option<&'a crate::bag::BagMessage> {
+    bag.messages().iter().find(|m| &*m.topic == topic)
+}
+
+fn decode_image(bag: &BagReader, topic: &str) -> Result<Option<image::RgbImage>, EvalError> {
+    let Some(m) = first(bag, topic) else {
+        return Ok(None);
+    };
+    let msg: Image = bag.decode(m)?;
+    let raw = RawImage {
+        width: msg.width,
+        height: msg.height,
+        encoding: &msg.encoding,
+        step: msg.step,
+        data: &msg.data,
+    };
+    decode_raw(topic, &raw, 1 << 14)
+        .map(Some)
+        .map_err(|e| EvalError::MissingGroundTruth {
+            path: bag.path().display().to_string(),
+            message: e.to_string(),
+        })
+}
+
+fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
+    let missing = |message: String| EvalError::MissingGroundTruth {
+        path: bag.path().display().to_string(),
+        message,
+    };
+    let mut names: Vec<String> = bag
+        .topics()
+        .iter()
+        .filter_map(|t| t.name.strip_suffix("/image_raw"))
+        .map(|n| n.trim_start_matches('/').to_owned())
+        .collect();
+    names.sort_by_key(|n| {
+        let digits: String = n.chars().filter(|c| c.is_ascii_digit()).collect();
+        (n.starts_with("heldout"), digits.parse::<u32>().unwrap_or(0))
+    });
+    let tf: TFMessage = bag.decode(
+        first(bag, TF_STATIC_TOPIC).ok_or_else(|| missing(format!("no {TF_STATIC_TOPIC}")))?,
+    )?;
+    let poses: BTreeMap<String, Affine3A> = tf
+        .transforms
+        .iter()
+        .map(|t| {
+            let q: Quat = t.transform.rotation.into();
+            let p: Vec3 = t.transform.translation.into();
+            (
+                t.child_frame_id.clone(),
+                Affine3A::from_rotation_translation(q, p),
+            )
+        })
+        .collect();
+    let body: BodyPose =
+        bag.decode(first(bag, POSE_TOPIC).ok_or_else(|| missing(format!("no {POSE_TOPIC}")))?)?;
+    let pose = body
+        .to_pose()
+        .map_err(|e| missing(format!("{POSE_TOPIC}: {e}")))?;
+    let mut inputs = Vec::new();
+    let mut heldout = Vec::new();
+    for name in names {
+        let rgb = decode_image(bag, &image_topic(&name))?
+            .ok_or_else(|| missing(format!("no {}", image_topic(&name))))?;
+        if !name.starts_with("heldout") {
+            inputs.push((name, rgb));
+            continue;
+        }
+        let info: CameraInfo = bag.decode(
+            first(bag, &info_topic(&name))
+                .ok_or_else(|| missing(format!("no {}", info_topic(&name))))?,
+        )?;
+        let frame = crate::synth::capture::optical_frame(&name);
+        let world_from_camera = *poses
+            .get(&frame)
+            .ok_or_else(|| missing(format!("no transform to {frame} in {TF_STATIC_TOPIC}")))?;
+        let mask_msg: Image = bag.decode(
+            first(bag, &mask_topic(&name))
+                .ok_or_else(|| missing(format!("no {}", mask_topic(&name))))?,
+        )?;
+        if mask_msg.encoding != "mono8" || mask_msg.data.len() != rgb.as_raw().len() / 3 {
+            return Err(missing(format!(
+                "{}: expected a mono8 mask of the image size",
+                mask_topic(&name)
+            )));
+        }
+        let mask: Vec<f32> = mask_msg.data.iter().map(|v| *v as f32 / 255.0).collect();
+        heldout.push(HeldoutView {
+            camera: Camera::from_camera_info(info.k, info.width, info.height, world_from_camera),
+            rgb: rgb.as_raw().iter().map(|v| *v as f32 / 255.0).collect(),
+            mask,
+            name,
+        });
+    }
+    if inputs.is_empty() || heldout.is_empty() {
+        return Err(missing(
+            "needs input views (/camN/image_raw) and held-out views (/heldoutN/...), as made by `lhmpp synth`".into(),
+        ));
+    }
+    Ok(GroundTruth {
+        inputs,
+        heldout,
+        pose,
+    })
+}
+
+/// Reconstructs from the first `k` input views for each `k` in `view_counts` (clamped to the
+/// views in the bag) and scores the held-out views.
+pub fn evaluate_bag(
+    path: &Path,
+    model: &ModelConfig,
+    view_counts: &[usize],
+) -> Result<Vec<EvalRow>, EvalError> {
+    let bag = BagReader::open(path)?;
+    let gt = read_ground_truth(&bag)?;
+    let mut recon = Reconstructor::new(model, gt.inputs.len())?;
+    let (h, w) = recon.input_size();
+    let pre = PreprocessConfig {
+        out_height: h,
+        out_width: w,
+        ..PreprocessConfig::default()
+    };
+    let images = gt
+        .inputs
+        .iter()
+        .map(|(name, rgb)| {
+            preprocess(rgb, Subject::FullFrame, &pre).map_err(|e| EvalError::MissingGroundTruth {
+                path: path.display().to_string(),
+                message: format!("{name}: {e}"),
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let matrices = recon.template().skeleton.skinning_matrices(&gt.pose);
+    let options = RenderOptions {
+        background: Vec3::ONE,
+        ..RenderOptions::default()
+    };
+    let mut rows = Vec::new();
+    let mut counts: Vec<usize> = view_counts
+        .iter()
+        .map(|k| (*k).clamp(1, images.len()))
+        .collect();
+    counts.dedup();
+    for k in counts {
+        let views: Vec<_> = images
+            .iter()
+            .take(k)
+            .enumerate()
+            .map(|(i, im)| (i as u64 + 1, im))
+            .collect();
+        let avatar = recon.reconstruct(&views)?;
+        let posed = avatar.animate(&matrices);
+        let per_view = gt
+            .heldout
+            .iter()
+            .map(|v| {
+                let out = render(&posed, &v.camera, &options);
+                let rgb: Vec<f32> = out.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect();
+                let (w, h) = (out.width as usize, out.height as usize);
+                ViewScore {
+                    camera: v.name.clone(),
+                    psnr: psnr(ImageRef::new(&rgb, w, h, 3), ImageRef::new(&v.rgb, w, h, 3)),
+                    ssim: ssim(ImageRef::new(&rgb, w, h, 3), ImageRef::new(&v.rgb, w, h, 3)),
+                    iou: mask_iou(&out.alpha, &v.mask),
+                }
+            })
+            .collect();
+        rows.push(EvalRow { views: k, per_view });
+    }
+    Ok(rows)
+}
