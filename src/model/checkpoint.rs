@@ -148,9 +148,12 @@ impl SimpleBackend for SeededInit {
     }
 }
 
+/// Name → (shape, init hint) of every tensor the network requests.
+type Recorded = BTreeMap<String, (Vec<usize>, Init)>;
+
 /// Backend that records every requested name, shape and init hint; returns zero-cost zeros.
 struct Recorder {
-    seen: Arc<Mutex<BTreeMap<String, (Vec<usize>, Init)>>>,
+    seen: Arc<Mutex<Recorded>>,
 }
 
 impl SimpleBackend for Recorder {
@@ -178,7 +181,7 @@ impl SimpleBackend for Recorder {
 }
 
 /// Builds the network for `cfg` against a [`Recorder`].
-fn record(cfg: &LhmppConfig) -> Result<BTreeMap<String, (Vec<usize>, Init)>, CheckpointError> {
+fn record(cfg: &LhmppConfig) -> Result<Recorded, CheckpointError> {
     cfg.validate()?;
     let seen = Arc::new(Mutex::new(BTreeMap::new()));
     let vb = VarBuilder::from_backend(
