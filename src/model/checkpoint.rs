@@ -343,6 +343,17 @@ pub fn load_var_builder(
     Ok(VarBuilder::from_tensors(tensors, dtype, device))
 }
 
+/// Loads a validated checkpoint into a ready network (see [`load_var_builder`]).
+pub fn load(
+    path: &Path,
+    cfg: &LhmppConfig,
+    dtype: DType,
+    device: &Device,
+) -> Result<super::Lhmpp, CheckpointError> {
+    let vb = load_var_builder(path, cfg, dtype, device)?;
+    Ok(super::Lhmpp::new(cfg, vb)?)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
