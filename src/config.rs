@@ -264,9 +264,9 @@ impl NodeConfig {
             apply_override(&mut params, item)?;
         }
         let config: NodeConfig =
-            serde_yaml_ng::from_value(params).map_err(|e| ConfigError::Parse {
+            serde_path_to_error::deserialize(params).map_err(|e| ConfigError::Parse {
                 path: origin.to_path_buf(),
-                message: e.to_string(),
+                message: format!("parameter `{}`: {}", e.path(), e.inner()),
             })?;
         config.validate(origin)?;
         Ok(config)

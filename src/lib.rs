@@ -6,9 +6,13 @@
 //!
 //! `body`, `model` and `splat` are synchronous and never import `node`, `transport` or `bag`.
 
+pub mod avatar;
 pub mod bag;
 pub mod body;
 pub mod config;
+pub mod eval;
 pub mod model;
 pub mod msgs;
+pub mod node;
 pub mod splat;
+pub mod synth;

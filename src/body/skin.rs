@@ -29,11 +29,17 @@ impl SkinWeights {
     /// The blended skinning matrix of element `i` given per-bone skinning matrices.
     #[inline]
     pub fn blended(&self, i: usize, matrices: &[Mat4]) -> Mat4 {
+        // Σ w_k M_k written as M_0 + Σ w_k (M_k − M_0) (equal since Σ w_k = 1): bones that
+        // share one matrix (e.g. all at rest) give exactly that matrix, not a rounded blend.
         let (b, w) = (&self.bones[i], &self.weights[i]);
-        let mut m = matrices[b[0] as usize] * w[0];
+        let m0 = matrices[b[0] as usize];
+        let mut m = m0;
         for k in 1..MAX_INFLUENCES {
             if w[k] != 0.0 {
-                m += matrices[b[k] as usize] * w[k];
+                let mk = matrices[b[k] as usize];
+                if mk != m0 {
+                    m += (mk - m0) * w[k];
+                }
             }
         }
         m

@@ -2,15 +2,17 @@
 
 use clap::{Parser, Subcommand};
 
+mod bag;
 mod bench;
+mod body;
 mod config_cmd;
 mod model;
+mod render;
+mod synth;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
-/// Working today: `config` (validate and print launch configs).
-/// Planned (see README status table): run, record, replay, bag, synth, eval, model, render,
-/// shm-echo, bench.
+/// See the README's status table for what each subcommand does today.
 #[derive(Parser, Debug)]
 #[command(name = "lhmpp", version, about, long_about)]
 struct Cli {
@@ -25,10 +27,18 @@ struct Cli {
 enum Command {
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
+    /// Body template: summary, posed point clouds, asset conversion.
+    Body(body::BodyArgs),
+    /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
+    Bag(bag::BagArgs),
+    /// Benchmarks that print tables (`bench render`, `bench model`).
+    Bench(bench::BenchArgs),
+    /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
+    Render(render::RenderArgs),
+    /// Render a seeded synthetic person into an MCAP bag with ground truth.
+    Synth(synth::SynthArgs),
     /// Create seeded model checkpoints and print parameter counts.
     Model(model::ModelArgs),
-    /// Latency benchmarks (`bench model`).
-    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -37,8 +47,12 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Config(args) => config_cmd::run(args),
-        Command::Model(args) => model::run(args),
+        Command::Body(args) => body::run(args),
+        Command::Bag(args) => bag::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Render(args) => render::run(args),
+        Command::Synth(args) => synth::run(args),
+        Command::Model(args) => model::run(args),
     }
 }
 

@@ -1,2 +1,22 @@
-//! Gaussian avatars: the Gaussian set, linear-blend-skinning animation, the splatting
-//! rasteriser (CPU; CUDA behind the `cuda` feature) and 3DGS-layout PLY import/export.
+//! Gaussian avatars' rendering side: the Gaussian set, the camera, the CPU splatting
+//! rasteriser and 3DGS-layout PLY import/export. Synchronous; the CUDA rasteriser is meant to
+//! mirror the stages of [`render`].
+
+mod camera;
+mod gaussians;
+mod nearest;
+mod ply;
+pub mod render;
+mod sh;
+pub mod synthetic;
+mod voxel_skinning;
+
+pub use camera::{Camera, Intrinsics};
+pub use gaussians::{
+    rgb_to_sh_dc, sh_coeff_count, sh_dc_to_rgb, GaussianError, Gaussians, MAX_SH_DEGREE, SH_C0,
+};
+pub use nearest::{nearest_vertex_skin, PointGrid};
+pub use ply::{read_ply, read_ply_from, write_ply, write_ply_to, PlyError, PlyGaussians};
+pub use render::{render, render_timed, RenderOptions, RenderOutput, StageTimes, TILE};
+pub use sh::eval_sh;
+pub use voxel_skinning::{VoxelSkinning, VoxelSkinningError};

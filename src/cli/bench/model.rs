@@ -1,31 +1,18 @@
-//! `lhmpp bench`: latency tables for the network on synthetic inputs.
+//! `lhmpp bench model`: latency tables for the network on synthetic inputs.
 
 use std::time::Instant;
 
 use anyhow::Context;
 use candle_core::{DType, Device, Tensor};
-use clap::{Args, Subcommand};
+use clap::Args;
 
 use lhmpp::model::cache::ViewTokenCache;
 use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::{Lhmpp, LhmppConfig};
 
-/// Arguments of `lhmpp bench`.
-#[derive(Args, Debug)]
-pub struct BenchArgs {
-    #[command(subcommand)]
-    command: BenchCommand,
-}
-
-#[derive(Subcommand, Debug)]
-enum BenchCommand {
-    /// Time image encoding, PIT fusion, the Gaussian head, end to end, and an incremental update.
-    Model(ModelBenchArgs),
-}
-
 /// Arguments of `lhmpp bench model`.
 #[derive(Args, Debug)]
-struct ModelBenchArgs {
+pub struct ModelBenchArgs {
     /// Preset: tiny, s, m, l, lhmpp-700m (seeded random weights).
     #[arg(long, default_value = "tiny")]
     config: String,
@@ -44,13 +31,6 @@ struct ModelBenchArgs {
     /// Timed runs per measurement (the median is printed); one warm-up run precedes them.
     #[arg(long, default_value_t = 3)]
     runs: usize,
-}
-
-/// Runs `lhmpp bench`.
-pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    match args.command {
-        BenchCommand::Model(a) => bench_model(a),
-    }
 }
 
 fn median_ms(runs: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::Result<f64> {
@@ -86,7 +66,7 @@ fn synthetic_points(n: usize, dev: &Device) -> anyhow::Result<(Tensor, Tensor)> 
     ))
 }
 
-fn bench_model(a: ModelBenchArgs) -> anyhow::Result<()> {
+pub fn run(a: ModelBenchArgs) -> anyhow::Result<()> {
     if a.threads > 0 {
         std::env::set_var("RAYON_NUM_THREADS", a.threads.to_string());
         rayon::ThreadPoolBuilder::new()

@@ -1,0 +1,158 @@
+//! `lhmpp bag ...`: inspect MCAP bags (`info`, like `ros2 bag info`).
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use lhmpp::bag::BagReader;
+use std::path::PathBuf;
+
+/// Arguments of `lhmpp bag`.
+#[derive(Args, Debug)]
+pub struct BagArgs {
+    #[command(subcommand)]
+    command: BagCommand,
+}
+
+#[derive(Subcommand, Debug)]
+enum BagCommand {
+    /// Print a bag's topics, types, message counts, duration, size and compression.
+    Info {
+        /// The MCAP bag file.
+        bag: PathBuf,
+    },
+}
+
+/// Runs a `bag` subcommand.
+pub fn run(args: BagArgs) -> Result<()> {
+    match args.command {
+        BagCommand::Info { bag } => {
+            let reader = BagReader::open(&bag)?;
+            print!("{}", info_text(&reader));
+            Ok(())
+        }
+    }
+}
+
+fn human_size(bytes: u64) -> String {
+    const UNITS: [&str; 4] = ["B", "KiB", "MiB", "GiB"];
+    let mut value = bytes as f64;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < UNITS.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{bytes} B")
+    } else {
+        format!("{value:.1} {}", UNITS[unit])
+    }
+}
+
+fn seconds(ns: u64) -> String {
+    format!("{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
+}
+
+/// The report `ros2 bag info` would print, in the same shape.
+fn info_text(bag: &BagReader) -> String {
+    let mut out = String::new();
+    let mut line = |key: &str, value: String| out.push_str(&format!("{key:<19}{value}\n"));
+    line("Files:", bag.path().display().to_string());
+    line(
+        "Bag size:",
+        format!(
+            "{} ({} bytes)",
+            human_size(bag.file_size()),
+            bag.file_size()
+        ),
+    );
+    line("Storage id:", "mcap".into());
+    line("Profile:", bag.profile().to_string());
+    let (duration, start, end) = match bag.time_range() {
+        Some((start, end)) => (seconds(end - start) + "s", seconds(start), seconds(end)),
+        None => ("0s".into(), "-".into(), "-".into()),
+    };
+    line("Duration:", duration);
+    line("Start:", start);
+    line("End:", end);
+    line("Messages:", bag.messages().len().to_string());
+    let compression = bag.compression();
+    line(
+        "Compression:",
+        if compression.is_empty() {
+            "none".into()
+        } else {
+            format!("{} ({} chunks)", compression.join(", "), bag.chunk_count())
+        },
+    );
+    if let Some(t) = bag.truncation() {
+        line(
+            "Incomplete:",
+            format!("read up to byte {}: {}", t.offset, t.reason),
+        );
+    }
+    let topics = bag.topics();
+    let name_width = topics.iter().map(|t| t.name.len()).max().unwrap_or(0);
+    let type_width = topics.iter().map(|t| t.type_name.len()).max().unwrap_or(0);
+    for (i, t) in topics.iter().enumerate() {
+        let key = if i == 0 { "Topic information:" } else { "" };
+        line(
+            key,
+            format!(
+                "Topic: {:<name_width$} | Type: {:<type_width$} | Count: {} | Serialization Format: {}",
+                t.name, t.type_name, t.message_count, t.message_encoding
+            ),
+        );
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lhmpp::bag::BagWriter;
+    use lhmpp::msgs::Time;
+
+    #[test]
+    fn info_lists_topics_counts_duration_and_compression() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("info.mcap");
+        let mut writer = BagWriter::create(&path).unwrap();
+        for i in 0..3u64 {
+            writer
+                .write(
+                    "/clock_like",
+                    1_000_000_000 + i * 500_000_000,
+                    &Time::default(),
+                )
+                .unwrap();
+        }
+        writer.finish().unwrap();
+        let text = info_text(&BagReader::open(&path).unwrap());
+        assert!(text.contains("Duration:          1.000000000s"), "{text}");
+        assert!(text.contains("Messages:          3"), "{text}");
+        assert!(
+            text.contains("Compression:       zstd (1 chunks)"),
+            "{text}"
+        );
+        assert!(
+            text.contains("Topic: /clock_like | Type: builtin_interfaces/msg/Time | Count: 3 | Serialization Format: cdr"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn info_of_a_cut_bag_says_where_reading_stopped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cut.mcap");
+        let mut writer = BagWriter::create(&path).unwrap();
+        writer.write("/t", 5, &Time::default()).unwrap();
+        writer.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let bag = BagReader::from_bytes(path.clone(), &bytes[..bytes.len() - 20]).unwrap();
+        let text = info_text(&bag);
+        assert!(
+            text.contains("Incomplete:        read up to byte"),
+            "{text}"
+        );
+        assert!(text.contains("Count: 1"), "{text}");
+    }
+}

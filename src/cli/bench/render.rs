@@ -1,0 +1,119 @@
+//! `lhmpp bench render`: CPU splatting and LBS posing on seeded synthetic scenes.
+//!
+//! `lhmpp bench render --sizes 592,1176 --counts 40000,160000 --threads 2` renders a body-like
+//! Gaussian cloud (seed 42) at every size × count and prints the median frame time and FPS,
+//! then the median LBS posing time of each count.
+
+use anyhow::{Context, Result};
+use clap::Args;
+use glam::{Mat4, Quat, Vec3};
+use lhmpp::avatar::Avatar;
+use lhmpp::body::SkinWeights;
+use lhmpp::splat::synthetic::body_cloud;
+use lhmpp::splat::{render, Camera, Intrinsics, RenderOptions};
+use rand::{Rng, SeedableRng};
+use std::time::{Duration, Instant};
+
+/// Options of `lhmpp bench render`.
+#[derive(Args, Debug)]
+pub struct RenderBenchArgs {
+    /// Square image sizes (pixels).
+    #[arg(long, value_delimiter = ',', default_value = "592,1176")]
+    sizes: Vec<u32>,
+    /// Gaussian counts.
+    #[arg(long, value_delimiter = ',', default_value = "40000,160000")]
+    counts: Vec<usize>,
+    /// Worker threads (rayon pool size).
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Minimum measuring time per cell (seconds); at least 5 frames are timed.
+    #[arg(long, default_value_t = 2.0)]
+    seconds: f64,
+    /// Feature channels rendered alongside RGB (0 = RGB only).
+    #[arg(long, default_value_t = 0)]
+    features: usize,
+}
+
+/// Times `f` (after one warm-up call) until `seconds` have passed and at least 5 runs; median.
+fn median_time(seconds: f64, mut f: impl FnMut()) -> Duration {
+    f();
+    let start = Instant::now();
+    let mut times = Vec::new();
+    while times.len() < 5 || start.elapsed().as_secs_f64() < seconds {
+        let t = Instant::now();
+        f();
+        times.push(t.elapsed());
+    }
+    times.sort();
+    times[times.len() / 2]
+}
+
+pub fn run(a: RenderBenchArgs) -> Result<()> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(a.threads)
+        .build()
+        .context("building the rayon thread pool")?;
+    println!("CPU splatting, {} thread(s), body-like cloud (seed 42), camera 2.6 m away, median of ≥5 frames", a.threads);
+    println!("| Gaussians | size | ms/frame | FPS |");
+    println!("|---:|---:|---:|---:|");
+    for &count in &a.counts {
+        let g = body_cloud(count, a.features, 42);
+        for &size in &a.sizes {
+            let cam = Camera::orbit(
+                0,
+                8,
+                2.6,
+                0.0,
+                Vec3::new(0.0, 0.88, 0.0),
+                Intrinsics::from_fov_y(size, size, 0.75),
+            );
+            let opts = RenderOptions {
+                render_features: a.features > 0,
+                ..Default::default()
+            };
+            let t = pool.install(|| median_time(a.seconds, || drop(render(&g, &cam, &opts))));
+            let ms = t.as_secs_f64() * 1e3;
+            println!("| {count} | {size}×{size} | {ms:.1} | {:.1} |", 1e3 / ms);
+        }
+    }
+    println!();
+    println!(
+        "Gaussian LBS posing ({} thread(s), 4 influences 0.4/0.3/0.2/0.1 on random bones of 55, bone rotations up to 0.87 rad), median:",
+        a.threads
+    );
+    println!("| Gaussians | ms/pose |");
+    println!("|---:|---:|");
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
+    let bones: Vec<Mat4> = (0..55)
+        .map(|_| {
+            let q = Quat::from_scaled_axis(Vec3::new(
+                rng.gen_range(-0.5..0.5),
+                rng.gen_range(-0.5..0.5),
+                rng.gen_range(-0.5..0.5),
+            ));
+            Mat4::from_rotation_translation(
+                q,
+                Vec3::new(rng.gen_range(-0.1..0.1), rng.gen_range(-0.1..0.1), 0.0),
+            )
+        })
+        .collect();
+    for &count in &a.counts {
+        let g = body_cloud(count, 0, 42);
+        let mut skin = SkinWeights::default();
+        for _ in 0..count {
+            let w: [f32; 4] = [0.4, 0.3, 0.2, 0.1];
+            skin.bones
+                .push(std::array::from_fn(|_| rng.gen_range(0..55)));
+            skin.weights.push(w);
+        }
+        let avatar = Avatar::new(g.clone(), skin, "synthetic")?;
+        let mut posed = g;
+        let t = pool.install(|| {
+            median_time(a.seconds.min(1.0), || {
+                avatar.animate_into(&bones, &mut posed)
+            })
+        });
+        println!("| {count} | {:.2} |", t.as_secs_f64() * 1e3);
+    }
+    Ok(())
+}

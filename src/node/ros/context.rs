@@ -1,0 +1,158 @@
+//! DDS participant set-up for the node: domain id (config or `ROS_DOMAIN_ID`, which
+//! ros2-client does not read), optional restriction to given interfaces (tests use 127.0.0.1),
+//! socket buffer sizes, and the QoS profiles the node uses.
+
+use super::RosError;
+use ros2_client::dds::rustdds::DomainParticipantBuilder;
+use ros2_client::qos::{Durability, History, QosProfile, Reliability, WhenFull};
+use ros2_client::Context;
+use std::net::IpAddr;
+use std::time::Duration;
+
+/// Highest DDS domain id ROS 2 allows.
+pub const MAX_DOMAIN_ID: u16 = 232;
+
+/// Resolves the configured domain id: `-1` reads `ROS_DOMAIN_ID` (`env_value`), falling back
+/// to 0 when it is unset or empty.
+pub fn resolve_domain_id(configured: i32, env_value: Option<&str>) -> Result<u16, RosError> {
+    if configured >= 0 {
+        return u16::try_from(configured)
+            .ok()
+            .filter(|d| *d <= MAX_DOMAIN_ID)
+            .ok_or_else(|| {
+                RosError::DomainId(format!("domain_id {configured} is not in 0..=232"))
+            });
+    }
+    match env_value.map(str::trim) {
+        None | Some("") => Ok(0),
+        Some(text) => text
+            .parse::<u16>()
+            .ok()
+            .filter(|d| *d <= MAX_DOMAIN_ID)
+            .ok_or_else(|| RosError::DomainId(format!("ROS_DOMAIN_ID=`{text}` is not in 0..=232"))),
+    }
+}
+
+/// How the DDS participant is created.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ParticipantOptions {
+    /// DDS domain id.
+    pub domain_id: u16,
+    /// Use only interfaces with these addresses (e.g. `127.0.0.1` for loopback tests);
+    /// empty means all.
+    pub only_networks: Vec<IpAddr>,
+    /// Socket receive buffer size in bytes (0 = RustDDS default).
+    pub socket_receive_buffer: usize,
+}
+
+/// Creates the ros2-client context (one DDS participant).
+pub fn create_context(opts: &ParticipantOptions) -> Result<Context, RosError> {
+    let mut builder = DomainParticipantBuilder::new(opts.domain_id);
+    if !opts.only_networks.is_empty() {
+        builder = builder.with_only_networks(opts.only_networks.iter().copied());
+    }
+    if opts.socket_receive_buffer > 0 {
+        builder = builder.socket_receive_buffer_size(opts.socket_receive_buffer);
+    }
+    let participant = builder.build().map_err(|e| {
+        RosError::Create(format!("DDS participant in domain {}: {e}", opts.domain_id))
+    })?;
+    Context::from_domain_participant(participant)
+        .map_err(|e| RosError::Create(format!("ROS 2 context in domain {}: {e}", opts.domain_id)))
+}
+
+/// Image QoS names accepted by the config (`inputs.image_qos`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InputQos {
+    /// `sensor_data`: best effort, volatile, keep last 5 (as rclcpp's SensorDataQoS).
+    SensorData,
+    /// `reliable`: reliable, volatile, keep last 5.
+    Reliable,
+}
+
+impl InputQos {
+    /// Parses the config value.
+    pub fn parse(name: &str) -> Result<Self, RosError> {
+        match name {
+            "sensor_data" => Ok(Self::SensorData),
+            "reliable" => Ok(Self::Reliable),
+            other => Err(RosError::Config(format!(
+                "inputs.image_qos `{other}` is not `sensor_data` or `reliable`"
+            ))),
+        }
+    }
+
+    /// The subscription QoS profile.
+    pub fn profile(self) -> QosProfile {
+        let base = QosProfile::subscription_default().history(History::KeepLast { depth: 5 });
+        match self {
+            Self::SensorData => base.reliability(Reliability::BestEffort),
+            Self::Reliable => base.reliability(Reliability::Reliable {
+                when_full: WhenFull::DEFAULT,
+            }),
+        }
+    }
+}
+
+/// QoS of low-rate inputs that must not be lost (CameraInfo, BodyPose): reliable, keep last 10.
+pub fn reliable_input_qos() -> QosProfile {
+    QosProfile::subscription_default()
+        .history(History::KeepLast { depth: 10 })
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::DEFAULT,
+        })
+}
+
+/// QoS of the avatar and status outputs: reliable and transient-local (late joiners get the
+/// latest avatar), keep last 1; a full send window fails at once (back-pressure, not a stall).
+pub fn latched_output_qos() -> QosProfile {
+    QosProfile::subscription_default()
+        .history(History::KeepLast { depth: 1 })
+        .durability(Durability::TransientLocal)
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::Wait(Duration::from_millis(5)),
+        })
+}
+
+/// QoS of rendered frames: best effort, keep last 2 (a video stream).
+pub fn frame_output_qos() -> QosProfile {
+    QosProfile::subscription_default()
+        .history(History::KeepLast { depth: 2 })
+        .reliability(Reliability::BestEffort)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn domain_id_comes_from_config_then_env_then_zero() {
+        assert_eq!(resolve_domain_id(7, Some("3")).unwrap(), 7);
+        assert_eq!(resolve_domain_id(-1, Some("3")).unwrap(), 3);
+        assert_eq!(resolve_domain_id(-1, Some(" 42 ")).unwrap(), 42);
+        assert_eq!(resolve_domain_id(-1, None).unwrap(), 0);
+        assert_eq!(resolve_domain_id(-1, Some("")).unwrap(), 0);
+    }
+
+    #[test]
+    fn bad_domain_ids_are_errors_naming_the_source() {
+        let e = resolve_domain_id(-1, Some("abc")).unwrap_err().to_string();
+        assert!(e.contains("ROS_DOMAIN_ID") && e.contains("abc"), "{e}");
+        let e = resolve_domain_id(-1, Some("300")).unwrap_err().to_string();
+        assert!(e.contains("300"), "{e}");
+        assert!(resolve_domain_id(233, None).is_err());
+    }
+
+    #[test]
+    fn sensor_data_is_best_effort_keep_last_5() {
+        let q = InputQos::parse("sensor_data").unwrap().profile();
+        assert_eq!(q.reliability, Reliability::BestEffort);
+        assert_eq!(q.history, History::KeepLast { depth: 5 });
+        let r = InputQos::parse("reliable").unwrap().profile();
+        assert!(matches!(r.reliability, Reliability::Reliable { .. }));
+        assert!(InputQos::parse("fast")
+            .unwrap_err()
+            .to_string()
+            .contains("fast"));
+    }
+}

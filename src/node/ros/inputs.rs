@@ -1,0 +1,130 @@
+//! What the node receives: decoded camera frames, masks, camera calibration and body poses,
+//! all delivered as [`InputEvent`]s through one bounded queue.
+
+use crate::msgs::{BodyPose, CameraInfo, CompressedImage, Image};
+use crate::node::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
+use image::{GrayImage, RgbImage};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// A decoded camera frame.
+#[derive(Debug, Clone)]
+pub struct CameraFrame {
+    /// Resolved topic it came from (identifies the camera).
+    pub topic: String,
+    /// `header.frame_id` (the camera's optical frame).
+    pub frame_id: String,
+    /// `header.stamp` in nanoseconds since the epoch.
+    pub stamp_ns: i64,
+    /// Node clock at arrival.
+    pub arrival: Duration,
+    /// Pixels, RGB8.
+    pub image: Arc<RgbImage>,
+}
+
+/// A decoded person mask.
+#[derive(Debug, Clone)]
+pub struct MaskFrame {
+    /// Resolved topic.
+    pub topic: String,
+    /// `header.stamp` in nanoseconds since the epoch (matches the frame it masks).
+    pub stamp_ns: i64,
+    /// Node clock at arrival.
+    pub arrival: Duration,
+    /// Mask, 0 = background, 255 = person.
+    pub mask: Arc<GrayImage>,
+}
+
+/// One decoded input message.
+#[derive(Debug, Clone)]
+pub enum InputEvent {
+    /// A camera frame (from `Image` or `CompressedImage`).
+    Frame(CameraFrame),
+    /// A person mask.
+    Mask(MaskFrame),
+    /// Calibration of a camera.
+    CameraInfo {
+        /// Resolved CameraInfo topic.
+        topic: String,
+        /// Index of the matching image topic (camera infos pair with image topics by position).
+        camera_index: usize,
+        /// Node clock at arrival.
+        arrival: Duration,
+        /// The message.
+        info: Box<CameraInfo>,
+    },
+    /// A body pose that drives the avatar.
+    BodyPose {
+        /// Resolved topic.
+        topic: String,
+        /// Node clock at arrival.
+        arrival: Duration,
+        /// The message.
+        pose: Box<BodyPose>,
+    },
+}
+
+/// `sensor_msgs/Image` → [`InputEvent::Frame`].
+pub(crate) fn image_event(
+    topic: &str,
+    msg: Image,
+    arrival: Duration,
+    max_side: u32,
+) -> Result<InputEvent, String> {
+    let raw = RawImage {
+        width: msg.width,
+        height: msg.height,
+        encoding: &msg.encoding,
+        step: msg.step,
+        data: &msg.data,
+    };
+    let image = decode_raw(topic, &raw, max_side).map_err(|e| e.to_string())?;
+    Ok(InputEvent::Frame(CameraFrame {
+        topic: topic.to_owned(),
+        stamp_ns: msg.header.stamp.as_nanos(),
+        frame_id: msg.header.frame_id,
+        arrival,
+        image: Arc::new(image),
+    }))
+}
+
+/// `sensor_msgs/CompressedImage` → [`InputEvent::Frame`].
+pub(crate) fn compressed_event(
+    topic: &str,
+    msg: CompressedImage,
+    arrival: Duration,
+    max_side: u32,
+) -> Result<InputEvent, String> {
+    let image =
+        decode_compressed(topic, &msg.format, &msg.data, max_side).map_err(|e| e.to_string())?;
+    Ok(InputEvent::Frame(CameraFrame {
+        topic: topic.to_owned(),
+        stamp_ns: msg.header.stamp.as_nanos(),
+        frame_id: msg.header.frame_id,
+        arrival,
+        image: Arc::new(image),
+    }))
+}
+
+/// mono8 `sensor_msgs/Image` → [`InputEvent::Mask`].
+pub(crate) fn mask_event(
+    topic: &str,
+    msg: Image,
+    arrival: Duration,
+    max_side: u32,
+) -> Result<InputEvent, String> {
+    let raw = RawImage {
+        width: msg.width,
+        height: msg.height,
+        encoding: &msg.encoding,
+        step: msg.step,
+        data: &msg.data,
+    };
+    let mask = decode_mask(topic, &raw, max_side).map_err(|e| e.to_string())?;
+    Ok(InputEvent::Mask(MaskFrame {
+        topic: topic.to_owned(),
+        stamp_ns: msg.header.stamp.as_nanos(),
+        arrival,
+        mask: Arc::new(mask),
+    }))
+}

@@ -1,0 +1,491 @@
+//! The node's ROS 2 endpoint on ros2-client 0.12.1 (RustDDS) and tokio.
+//!
+//! [`RosNode::start`] creates the DDS participant in the resolved domain, resolves every topic
+//! name (namespace, `~/`, remapping), subscribes to the configured image, compressed-image,
+//! camera-info, mask and body-pose topics, and returns the receiving end of ONE bounded queue of
+//! [`InputEvent`]s. Bad messages are counted and reported per topic at most once per period;
+//! they never stop the node. Outputs (avatar, rendered frames, status) are published through
+//! the node; a full reliable send window is [`PublishOutcome::BackPressure`].
+//!
+//! ros2-client supports `rosout`: with [`RosNodeOptions::rosout`] the node's input-error
+//! reports also go to `/rosout` (and always to `tracing`).
+
+mod context;
+mod inputs;
+mod outputs;
+mod sink;
+
+pub use context::{
+    create_context, frame_output_qos, latched_output_qos, reliable_input_qos, resolve_domain_id,
+    InputQos, ParticipantOptions,
+};
+pub use inputs::{CameraFrame, InputEvent, MaskFrame};
+pub use outputs::{rgb8_image, OutputTopics, PublishOutcome};
+pub use sink::InputStats;
+
+use crate::config::NodeConfig;
+use crate::msgs::{
+    BodyPose, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus, RosMessage,
+};
+use crate::node::input_queue::{bounded, OverflowPolicy, QueueReceiver};
+use crate::node::names::{split_fully_qualified, NameError, NameResolver};
+use outputs::OutputPort;
+use ros2_client::dds::Node;
+use ros2_client::qos::QosProfile;
+use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+use sink::InputSink;
+use std::collections::BTreeMap;
+use std::net::IpAddr;
+use std::time::{Duration, Instant};
+
+/// A failure to set up or use the ROS 2 endpoint; each names what it was about.
+#[derive(Debug, thiserror::Error)]
+pub enum RosError {
+    /// The domain id (config or `ROS_DOMAIN_ID`) is invalid.
+    #[error("domain id: {0}")]
+    DomainId(String),
+    /// A configuration value is invalid.
+    #[error("config: {0}")]
+    Config(String),
+    /// A topic name, namespace or remapping rule is invalid.
+    #[error(transparent)]
+    Name(#[from] NameError),
+    /// Creating the participant, node, topic or endpoint failed.
+    #[error("cannot create {0}")]
+    Create(String),
+    /// Publishing failed for a reason other than back-pressure.
+    #[error("publish on {topic}: {reason}")]
+    Publish {
+        /// Resolved topic.
+        topic: String,
+        /// Middleware message.
+        reason: String,
+    },
+}
+
+/// Everything needed to start the endpoint.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RosNodeOptions {
+    /// Node name (`lhmpp`).
+    pub node_name: String,
+    /// Namespace (`/` for none).
+    pub namespace: String,
+    /// Participant: domain id, interfaces, socket buffers.
+    pub participant: ParticipantOptions,
+    /// Remapping, original name → new name (both may be relative).
+    pub remap: BTreeMap<String, String>,
+    /// sensor_msgs/Image camera topics.
+    pub image_topics: Vec<String>,
+    /// sensor_msgs/CompressedImage camera topics.
+    pub compressed_image_topics: Vec<String>,
+    /// sensor_msgs/CameraInfo topics (paired with image topics by position).
+    pub camera_info_topics: Vec<String>,
+    /// Optional mono8 mask topic.
+    pub mask_topic: Option<String>,
+    /// Optional BodyPose topic.
+    pub pose_topic: Option<String>,
+    /// QoS of image and mask subscriptions.
+    pub image_qos: InputQos,
+    /// Largest accepted image side (pixels).
+    pub max_image_side: u32,
+    /// Capacity of the input queue.
+    pub queue_capacity: usize,
+    /// What the input queue drops when full.
+    pub overflow: OverflowPolicy,
+    /// Bad inputs are reported at most once per topic per this period.
+    pub error_report_period: Duration,
+    /// Output topics.
+    pub outputs: OutputTopics,
+    /// Also send input-error reports to `/rosout`.
+    pub rosout: bool,
+}
+
+impl RosNodeOptions {
+    /// Options from the node config; `remap` from the command line (`from:=to` already split),
+    /// `ros_domain_id_env` the value of `ROS_DOMAIN_ID` if set.
+    pub fn from_config(
+        cfg: &NodeConfig,
+        remap: BTreeMap<String, String>,
+        ros_domain_id_env: Option<&str>,
+    ) -> Result<Self, RosError> {
+        let non_empty = |s: &str| (!s.trim().is_empty()).then(|| s.to_owned());
+        Ok(Self {
+            node_name: crate::config::NODE_NAME.into(),
+            namespace: cfg.namespace.clone(),
+            participant: ParticipantOptions {
+                domain_id: resolve_domain_id(cfg.domain_id, ros_domain_id_env)?,
+                only_networks: Vec::new(),
+                socket_receive_buffer: 0,
+            },
+            remap,
+            image_topics: cfg.inputs.image_topics.clone(),
+            compressed_image_topics: cfg.inputs.compressed_image_topics.clone(),
+            camera_info_topics: cfg.inputs.camera_info_topics.clone(),
+            mask_topic: non_empty(&cfg.inputs.mask_topic),
+            pose_topic: non_empty(&cfg.inputs.pose_topic),
+            image_qos: InputQos::parse(&cfg.inputs.image_qos)?,
+            max_image_side: cfg.inputs.max_image_side,
+            queue_capacity: 32,
+            overflow: OverflowPolicy::DropOldest,
+            error_report_period: Duration::from_secs(5),
+            outputs: OutputTopics::for_virtual_cameras(cfg.outputs.virtual_cameras),
+            rosout: true,
+        })
+    }
+
+    /// Restricts DDS to loopback (tests and single-host set-ups).
+    pub fn loopback_only(mut self) -> Self {
+        self.participant.only_networks = vec![IpAddr::from([127, 0, 0, 1])];
+        self
+    }
+}
+
+/// Fully qualified names of every topic the node uses.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct ResolvedTopics {
+    /// Image topics.
+    pub images: Vec<String>,
+    /// CompressedImage topics.
+    pub compressed_images: Vec<String>,
+    /// CameraInfo topics.
+    pub camera_infos: Vec<String>,
+    /// Mask topic.
+    pub mask: Option<String>,
+    /// BodyPose topic.
+    pub pose: Option<String>,
+    /// GaussianAvatar topic.
+    pub avatar: String,
+    /// ReconstructionStatus topic.
+    pub status: String,
+    /// Rendered-frame topics, one per virtual camera.
+    pub frames: Vec<String>,
+}
+
+impl ResolvedTopics {
+    fn resolve(opts: &RosNodeOptions, names: &NameResolver) -> Result<Self, RosError> {
+        let all = |v: &[String]| {
+            v.iter()
+                .map(|t| names.resolve(t))
+                .collect::<Result<Vec<_>, _>>()
+        };
+        Ok(Self {
+            images: all(&opts.image_topics)?,
+            compressed_images: all(&opts.compressed_image_topics)?,
+            camera_infos: all(&opts.camera_info_topics)?,
+            mask: opts
+                .mask_topic
+                .as_deref()
+                .map(|t| names.resolve(t))
+                .transpose()?,
+            pose: opts
+                .pose_topic
+                .as_deref()
+                .map(|t| names.resolve(t))
+                .transpose()?,
+            avatar: names.resolve(&opts.outputs.avatar)?,
+            status: names.resolve(&opts.outputs.status)?,
+            frames: all(&opts.outputs.frames)?,
+        })
+    }
+}
+
+/// The running ROS 2 endpoint.
+pub struct RosNode {
+    node: Node,
+    topics: ResolvedTopics,
+    sink: InputSink<InputEvent>,
+    avatar: OutputPort<GaussianAvatar>,
+    status: OutputPort<ReconstructionStatus>,
+    frames: Vec<OutputPort<Image>>,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    start: Instant,
+    domain_id: u16,
+}
+
+/// `pkg/msg/Type` → ros2-client's (package, type) name.
+fn type_name<M: RosMessage>() -> MessageTypeName {
+    let full = M::TYPE_NAME;
+    let package = full.split('/').next().unwrap_or(full);
+    let name = full.rsplit('/').next().unwrap_or(full);
+    MessageTypeName::new(package, name)
+}
+
+impl RosNode {
+    /// Starts the endpoint; must be called inside a tokio runtime. Returns the node and the
+    /// receiving end of its input queue.
+    pub fn start(opts: &RosNodeOptions) -> Result<(Self, QueueReceiver<InputEvent>), RosError> {
+        let names = NameResolver::new(&opts.namespace, &opts.node_name)?.with_map(&opts.remap)?;
+        let topics = ResolvedTopics::resolve(opts, &names)?;
+        let context = create_context(&opts.participant)?;
+        let node_name = NodeName::new(names.namespace(), &opts.node_name)
+            .map_err(|e| RosError::Create(format!("node {}: {e:?}", opts.node_name)))?;
+        let mut node = context
+            .new_node(node_name, NodeOptions::new().enable_rosout(opts.rosout))
+            .map_err(|e| RosError::Create(format!("node {}: {e:?}", opts.node_name)))?;
+        let start = Instant::now();
+        let (tx, rx) = bounded(opts.queue_capacity, opts.overflow);
+        let rosout = opts.rosout.then(|| node.logging_handle());
+        let sink = InputSink::new(tx, opts.error_report_period, start, rosout);
+
+        let mut tasks = Vec::new();
+        let max_side = opts.max_image_side;
+        let image_qos = opts.image_qos.profile();
+        for topic in &topics.images {
+            let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
+            tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
+                inputs::image_event(t, m, a, max_side)
+            }));
+        }
+        for topic in &topics.compressed_images {
+            let sub = subscribe::<CompressedImage>(&mut node, topic, image_qos.clone())?;
+            tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
+                inputs::compressed_event(t, m, a, max_side)
+            }));
+        }
+        for (camera_index, topic) in topics.camera_infos.iter().enumerate() {
+            let sub = subscribe::<CameraInfo>(&mut node, topic, reliable_input_qos())?;
+            tasks.push(sink.spawn(topic.clone(), sub, move |t, info, arrival| {
+                Ok(InputEvent::CameraInfo {
+                    topic: t.to_owned(),
+                    camera_index,
+                    arrival,
+                    info: Box::new(info),
+                })
+            }));
+        }
+        if let Some(topic) = &topics.mask {
+            let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
+            tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
+                inputs::mask_event(t, m, a, max_side)
+            }));
+        }
+        if let Some(topic) = &topics.pose {
+            let sub = subscribe::<BodyPose>(&mut node, topic, reliable_input_qos())?;
+            tasks.push(sink.spawn(topic.clone(), sub, |t, pose, arrival| {
+                Ok(InputEvent::BodyPose {
+                    topic: t.to_owned(),
+                    arrival,
+                    pose: Box::new(pose),
+                })
+            }));
+        }
+
+        let avatar = advertise(&mut node, &topics.avatar, latched_output_qos())?;
+        let status = advertise(&mut node, &topics.status, latched_output_qos())?;
+        let frames = topics
+            .frames
+            .iter()
+            .map(|t| advertise(&mut node, t, frame_output_qos()))
+            .collect::<Result<Vec<_>, _>>()?;
+
+        let spinner = node
+            .spinner()
+            .map_err(|e| RosError::Create(format!("spinner: {e:?}")))?;
+        tasks.push(tokio::spawn(async move {
+            if let Err(e) = spinner.spin().await {
+                tracing::error!("ROS 2 spinner stopped: {e:?}");
+            }
+        }));
+        tracing::info!(
+            domain_id = opts.participant.domain_id,
+            namespace = names.namespace(),
+            ?topics,
+            "ROS 2 node started"
+        );
+        Ok((
+            Self {
+                node,
+                topics,
+                sink,
+                avatar,
+                status,
+                frames,
+                tasks,
+                start,
+                domain_id: opts.participant.domain_id,
+            },
+            rx,
+        ))
+    }
+
+    /// Resolved topic names.
+    pub fn topics(&self) -> &ResolvedTopics {
+        &self.topics
+    }
+
+    /// DDS domain in use.
+    pub fn domain_id(&self) -> u16 {
+        self.domain_id
+    }
+
+    /// Node clock: time since start (the clock of `arrival` fields).
+    pub fn clock(&self) -> Duration {
+        self.start.elapsed()
+    }
+
+    /// Input counters: accepted and rejected messages per topic, queue overflow drops.
+    pub fn input_stats(&self) -> InputStats {
+        self.sink.stats()
+    }
+
+    /// Publishes a GaussianAvatar (reliable, transient-local).
+    pub fn publish_avatar(&self, msg: GaussianAvatar) -> Result<PublishOutcome, RosError> {
+        self.avatar.publish(msg)
+    }
+
+    /// Publishes a ReconstructionStatus (reliable, transient-local).
+    pub fn publish_status(&self, msg: ReconstructionStatus) -> Result<PublishOutcome, RosError> {
+        self.status.publish(msg)
+    }
+
+    /// Publishes a rendered frame on virtual camera `camera`'s topic (best effort).
+    pub fn publish_frame(&self, camera: usize, msg: Image) -> Result<PublishOutcome, RosError> {
+        let port = self.frames.get(camera).ok_or_else(|| RosError::Publish {
+            topic: format!("render camera {camera}"),
+            reason: format!("only {} virtual cameras are configured", self.frames.len()),
+        })?;
+        port.publish(msg)
+    }
+
+    /// Matched readers of the avatar topic.
+    pub fn avatar_subscribers(&self) -> usize {
+        self.avatar.publisher.get_subscription_count(&self.node)
+    }
+
+    /// Matched readers of virtual camera `camera`'s frame topic.
+    pub fn frame_subscribers(&self, camera: usize) -> usize {
+        self.frames
+            .get(camera)
+            .map_or(0, |p| p.publisher.get_subscription_count(&self.node))
+    }
+
+    /// Publishes refused by a full send window so far (all outputs).
+    pub fn back_pressure_count(&self) -> u64 {
+        self.avatar.back_pressure()
+            + self.status.back_pressure()
+            + self.frames.iter().map(|p| p.back_pressure()).sum::<u64>()
+    }
+
+    /// Stops the spinner and the subscription tasks.
+    pub fn shutdown(self) {
+        self.node.stop_spinner();
+        for task in &self.tasks {
+            task.abort();
+        }
+    }
+}
+
+fn ros_name(topic: &str) -> Result<Name, RosError> {
+    let (ns, base) = split_fully_qualified(topic);
+    Name::new(ns, base).map_err(|e| RosError::Create(format!("topic name {topic}: {e:?}")))
+}
+
+fn subscribe<M: RosMessage + DeserializeOwned + 'static>(
+    node: &mut Node,
+    topic: &str,
+    qos: QosProfile,
+) -> Result<ros2_client::dds::Subscription<M>, RosError> {
+    let t = node
+        .create_topic(&ros_name(topic)?, type_name::<M>(), &qos)
+        .map_err(|e| RosError::Create(format!("topic {topic}: {e}")))?;
+    node.create_subscription::<M>(&t, Some(qos))
+        .map_err(|e| RosError::Create(format!("subscription to {topic}: {e}")))
+}
+
+fn advertise<M: RosMessage + Serialize>(
+    node: &mut Node,
+    topic: &str,
+    qos: QosProfile,
+) -> Result<OutputPort<M>, RosError> {
+    let t = node
+        .create_topic(&ros_name(topic)?, type_name::<M>(), &qos)
+        .map_err(|e| RosError::Create(format!("topic {topic}: {e}")))?;
+    let publisher = node
+        .create_publisher::<M>(&t, Some(qos))
+        .map_err(|e| RosError::Create(format!("publisher on {topic}: {e}")))?;
+    Ok(OutputPort::new(topic.to_owned(), publisher))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config() -> NodeConfig {
+        let mut cfg = NodeConfig {
+            namespace: "/robot".into(),
+            domain_id: 12,
+            ..NodeConfig::default()
+        };
+        cfg.inputs.image_topics = vec!["front/image_raw".into(), "/abs/cam".into()];
+        cfg.inputs.camera_info_topics = vec!["front/camera_info".into()];
+        cfg.inputs.mask_topic = String::new();
+        cfg.outputs.virtual_cameras = 2;
+        cfg
+    }
+
+    #[test]
+    fn topics_resolve_in_the_namespace_and_follow_remapping() {
+        let remap = BTreeMap::from([
+            (
+                "front/image_raw".to_string(),
+                "/cameras/front/color".to_string(),
+            ),
+            ("avatar".to_string(), "/avatars/person_0".to_string()),
+        ]);
+        let opts = RosNodeOptions::from_config(&config(), remap, None).unwrap();
+        assert_eq!(opts.participant.domain_id, 12);
+        let names = NameResolver::new(&opts.namespace, &opts.node_name)
+            .unwrap()
+            .with_map(&opts.remap)
+            .unwrap();
+        let t = ResolvedTopics::resolve(&opts, &names).unwrap();
+        assert_eq!(t.images, vec!["/cameras/front/color", "/abs/cam"]);
+        assert_eq!(t.camera_infos, vec!["/robot/front/camera_info"]);
+        assert_eq!(t.mask, None);
+        assert_eq!(t.pose.as_deref(), Some("/lhmpp/body_pose"));
+        assert_eq!(t.avatar, "/avatars/person_0");
+        assert_eq!(t.status, "/robot/status");
+        assert_eq!(
+            t.frames,
+            vec![
+                "/robot/render/cam0/image_raw",
+                "/robot/render/cam1/image_raw"
+            ]
+        );
+    }
+
+    #[test]
+    fn domain_minus_one_reads_ros_domain_id() {
+        let cfg = NodeConfig {
+            domain_id: -1,
+            ..config()
+        };
+        let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), Some("42")).unwrap();
+        assert_eq!(opts.participant.domain_id, 42);
+        let e = RosNodeOptions::from_config(&cfg, BTreeMap::new(), Some("x")).unwrap_err();
+        assert!(e.to_string().contains("ROS_DOMAIN_ID"), "{e}");
+    }
+
+    #[test]
+    fn bad_topic_names_fail_before_any_dds_entity_is_created() {
+        let mut cfg = config();
+        cfg.inputs.image_topics = vec!["bad topic".into()];
+        let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None).unwrap();
+        let names = NameResolver::new(&opts.namespace, &opts.node_name).unwrap();
+        let e = ResolvedTopics::resolve(&opts, &names).unwrap_err();
+        assert!(e.to_string().contains("bad topic"), "{e}");
+    }
+
+    #[test]
+    fn message_type_names_split_into_package_and_type() {
+        let t = type_name::<Image>();
+        assert_eq!((t.package_name(), t.type_name()), ("sensor_msgs", "Image"));
+        let t = type_name::<GaussianAvatar>();
+        assert_eq!(
+            (t.package_name(), t.type_name()),
+            ("lhmpp_msgs", "GaussianAvatar")
+        );
+    }
+}

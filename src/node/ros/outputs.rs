@@ -1,0 +1,95 @@
+//! What the node publishes: the GaussianAvatar, rendered frames (sensor_msgs/Image rgb8, one
+//! topic per virtual camera) and ReconstructionStatus. A reliable writer whose send window is
+//! full (typically before discovery has matched a reader) reports back-pressure, not an error.
+
+use super::RosError;
+use crate::msgs::{Header, Image, Time};
+use image::RgbImage;
+use ros2_client::dds::Publisher;
+use ros2_client::WriteError;
+use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Output topic names before namespace expansion and remapping (relative names resolve in the
+/// node's namespace).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct OutputTopics {
+    /// lhmpp_msgs/GaussianAvatar.
+    pub avatar: String,
+    /// lhmpp_msgs/ReconstructionStatus.
+    pub status: String,
+    /// sensor_msgs/Image rgb8, one per virtual camera.
+    pub frames: Vec<String>,
+}
+
+impl OutputTopics {
+    /// `avatar`, `status` and `render/cam<i>/image_raw` for each virtual camera.
+    pub fn for_virtual_cameras(count: u32) -> Self {
+        Self {
+            avatar: "avatar".into(),
+            status: "status".into(),
+            frames: (0..count)
+                .map(|i| format!("render/cam{i}/image_raw"))
+                .collect(),
+        }
+    }
+}
+
+/// Result of one publish call.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PublishOutcome {
+    /// Handed to DDS.
+    Sent,
+    /// The reliable send window was full (no matched reader yet, or a slow one); the
+    /// message was not sent. Try again with the next message.
+    BackPressure,
+}
+
+/// A publisher with its resolved topic, counting back-pressure.
+pub(crate) struct OutputPort<M: Serialize> {
+    pub(crate) topic: String,
+    pub(crate) publisher: Publisher<M>,
+    back_pressure: AtomicU64,
+}
+
+impl<M: Serialize> OutputPort<M> {
+    pub(crate) fn new(topic: String, publisher: Publisher<M>) -> Self {
+        Self {
+            topic,
+            publisher,
+            back_pressure: AtomicU64::new(0),
+        }
+    }
+
+    pub(crate) fn publish(&self, msg: M) -> Result<PublishOutcome, RosError> {
+        match self.publisher.publish(msg) {
+            Ok(()) => Ok(PublishOutcome::Sent),
+            Err(WriteError::WouldBlock { .. }) => {
+                self.back_pressure.fetch_add(1, Ordering::Relaxed);
+                tracing::debug!(topic = self.topic, "publish would block: back-pressure");
+                Ok(PublishOutcome::BackPressure)
+            }
+            Err(e) => Err(RosError::Publish {
+                topic: self.topic.clone(),
+                reason: e.to_string(),
+            }),
+        }
+    }
+
+    pub(crate) fn back_pressure(&self) -> u64 {
+        self.back_pressure.load(Ordering::Relaxed)
+    }
+}
+
+/// Builds an rgb8 `sensor_msgs/Image` from a rendered frame.
+pub fn rgb8_image(image: &RgbImage, stamp_ns: i64, frame_id: &str) -> Image {
+    Image {
+        header: Header::new(Time::from_nanos(stamp_ns), frame_id),
+        height: image.height(),
+        width: image.width(),
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: image.width() * 3,
+        data: image.as_raw().clone(),
+    }
+}

@@ -1,0 +1,12 @@
+//! Synthetic people with ground truth: seeded body and outfit, camera rigs, rendered views
+//! written to rosbag2-layout MCAP bags (`lhmpp synth`), used by the demo, the replay tests and
+//! `lhmpp eval`.
+
+pub mod capture;
+pub mod outfit;
+pub mod person;
+pub mod scene;
+
+pub use capture::{write_synthetic_bag, SynthOptions, SynthSummary};
+pub use person::{SynthError, SyntheticPerson};
+pub use scene::{Rig, RigCamera};
