@@ -100,6 +100,8 @@ fn init_then_load_round_trips_with_metadata() {
     assert_eq!(preset.as_deref(), Some("tiny"));
     assert_eq!(stored.unwrap(), cfg);
     checkpoint::load_var_builder(&path, &cfg, DType::BF16, &Device::Cpu).unwrap();
+    let model = checkpoint::load(&path, &cfg, DType::F32, &Device::Cpu).unwrap();
+    assert_eq!(model.config(), &cfg);
     // Same seed, same tensors; another seed, other values.
     let tensors = |seed: u64| {
         let p = dir.path().join(format!("seed{seed}.safetensors"));

@@ -148,9 +148,12 @@ impl SimpleBackend for SeededInit {
     }
 }
 
+/// Name → (shape, init hint) of every tensor the network requests.
+type Recorded = BTreeMap<String, (Vec<usize>, Init)>;
+
 /// Backend that records every requested name, shape and init hint; returns zero-cost zeros.
 struct Recorder {
-    seen: Arc<Mutex<BTreeMap<String, (Vec<usize>, Init)>>>,
+    seen: Arc<Mutex<Recorded>>,
 }
 
 impl SimpleBackend for Recorder {
@@ -178,7 +181,7 @@ impl SimpleBackend for Recorder {
 }
 
 /// Builds the network for `cfg` against a [`Recorder`].
-fn record(cfg: &LhmppConfig) -> Result<BTreeMap<String, (Vec<usize>, Init)>, CheckpointError> {
+fn record(cfg: &LhmppConfig) -> Result<Recorded, CheckpointError> {
     cfg.validate()?;
     let seen = Arc::new(Mutex::new(BTreeMap::new()));
     let vb = VarBuilder::from_backend(
@@ -338,6 +341,17 @@ pub fn load_var_builder(
         });
     }
     Ok(VarBuilder::from_tensors(tensors, dtype, device))
+}
+
+/// Loads a validated checkpoint into a ready network (see [`load_var_builder`]).
+pub fn load(
+    path: &Path,
+    cfg: &LhmppConfig,
+    dtype: DType,
+    device: &Device,
+) -> Result<super::Lhmpp, CheckpointError> {
+    let vb = load_var_builder(path, cfg, dtype, device)?;
+    Ok(super::Lhmpp::new(cfg, vb)?)
 }
 
 #[cfg(test)]

@@ -211,8 +211,8 @@ mod tests {
             assert!((n - 1.0).abs() < 1e-4);
         }
         let anchors = anchors.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        for i in 0..600 {
-            assert!((a.positions[i] - anchors[i] - a.offsets[i]).abs() < 1e-6);
+        for ((p, a0), o) in a.positions.iter().zip(&anchors).zip(&a.offsets) {
+            assert!((p - a0 - o).abs() < 1e-6);
         }
         assert_eq!(a.features.len(), 200 * cfg.gs_query_dim);
     }

@@ -155,6 +155,11 @@ impl Lhmpp {
         &self.pit_dec
     }
 
+    /// The PTv3 point backbone (`transformer.point_backbone.*`).
+    pub fn point_backbone(&self) -> &PointBackbone {
+        &self.point_backbone
+    }
+
     /// The DPT neural renderer (`neural_renderer.*`).
     pub fn neural_renderer(&self) -> &NeuralRenderer {
         &self.neural_renderer

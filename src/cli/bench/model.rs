@@ -155,6 +155,11 @@ pub fn run(a: ModelBenchArgs) -> anyhow::Result<()> {
             .to_cpu_arrays()?;
         Ok(())
     })?;
+    let pts = median_ms(a.runs, || {
+        model.point_backbone().forward(&anchors, &normals)?;
+        Ok(())
+    })?;
+    println!("point backbone alone (embed + encoder + decoder, no PIT blocks): {pts:.1} ms");
     println!("incremental update (1 new view + 7 cached, encode + fuse + head): {inc:.1} ms");
     Ok(())
 }
