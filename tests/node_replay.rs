@@ -70,8 +70,7 @@ fn a_missing_bag_is_an_error_naming_it() {
     let dir = tempfile::tempdir().unwrap();
     let config = demo_config(dir.path(), &["replay.bag=/nonexistent/x.mcap"]);
     let err = lhmpp::node::run::run(&config, BTreeMap::new())
-        .err()
-        .expect("missing bag must fail")
+        .expect_err("missing bag must fail")
         .to_string();
     assert!(err.contains("/nonexistent/x.mcap"), "{err}");
 }

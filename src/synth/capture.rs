@@ -10,7 +10,7 @@ use crate::msgs::{
     BodyPose, CameraInfo, Header, Image, TFMessage, Time, Transform, TransformStamped,
 };
 use crate::splat::{render, RenderOptions, RenderOutput};
-use glam::{Quat, Vec3};
+use glam::Vec3;
 use std::path::Path;
 
 /// World frame of synthetic bags: the body's canonical frame (+Y up, person facing +Z).
@@ -179,7 +179,7 @@ fn camera_transform(rig: &RigCamera, ns: u64) -> TransformStamped {
         child_frame_id: optical_frame(&rig.name),
         transform: Transform {
             translation: translation.into(),
-            rotation: Quat::from(rotation).normalize().into(),
+            rotation: rotation.normalize().into(),
         },
     }
 }

@@ -99,10 +99,8 @@ impl Outfit {
             _ => {
                 if h < 0.52 {
                     self.trousers
-                } else if h > 0.83 {
-                    self.skin // neck
-                } else if self.short_sleeves && p.x.abs() > 0.24 * height {
-                    self.skin
+                } else if h > 0.83 || (self.short_sleeves && p.x.abs() > 0.24 * height) {
+                    self.skin // neck, or forearms below short sleeves
                 } else {
                     match self.stripes {
                         Some((c, period)) if (p.y / period).rem_euclid(1.0) < 0.5 => c,
