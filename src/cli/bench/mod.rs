@@ -3,6 +3,7 @@
 use clap::{Args, Subcommand};
 
 mod model;
+mod points;
 mod render;
 
 /// Arguments of `lhmpp bench`.
@@ -18,6 +19,8 @@ enum BenchCommand {
     Render(render::RenderBenchArgs),
     /// Time image encoding, PIT fusion, the Gaussian head, end to end, and an incremental update.
     Model(model::ModelBenchArgs),
+    /// Time each point-backbone stage (embed, pooling levels, unpooling levels).
+    Points(points::PointsBenchArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -25,5 +28,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.command {
         BenchCommand::Render(a) => render::run(a),
         BenchCommand::Model(a) => model::run(a),
+        BenchCommand::Points(a) => points::run(a),
     }
 }
