@@ -14,3 +14,4 @@ pub mod model;
 pub mod msgs;
 pub mod splat;
 pub mod synth;
+pub mod transport;

@@ -2,7 +2,9 @@
 
 use clap::{Parser, Subcommand};
 
+mod bench;
 mod config_cmd;
+mod shm_echo;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -23,6 +25,10 @@ struct Cli {
 enum Command {
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
+    /// Print avatars and frames received over shared memory (iceoryx2), one line each.
+    ShmEcho(shm_echo::ShmEchoArgs),
+    /// Run a benchmark and print its table (`bench transport`).
+    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -31,6 +37,8 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Config(args) => config_cmd::run(args),
+        Command::ShmEcho(args) => shm_echo::run(args),
+        Command::Bench(args) => bench::run(args),
     }
 }
 
