@@ -22,8 +22,11 @@ pub struct ShmNode {
 
 impl ShmNode {
     /// Creates a node called `name` with the service sizing `options`. iceoryx2 installs no
-    /// signal handlers (the embedding application owns SIGINT/SIGTERM).
+    /// signal handlers (the embedding application owns SIGINT/SIGTERM). The first node of a
+    /// process sets iceoryx2's own log level from `IOX2_LOG_LEVEL`, else to errors only.
     pub fn new(name: &str, options: ShmOptions) -> Result<Self, ShmError> {
+        static LOG_LEVEL: std::sync::Once = std::sync::Once::new();
+        LOG_LEVEL.call_once(|| set_log_level_from_env_or(LogLevel::Error));
         let node_name = NodeName::new(name).map_err(iceoryx(name, "node name"))?;
         let node = NodeBuilder::new()
             .name(&node_name)
@@ -71,21 +74,22 @@ impl ShmNode {
         ShmSubscriber::create(self, &event_service(person)?, &services)
     }
 
-    /// Opens (or creates) the byte-slice publish-subscribe service `name`.
+    /// Opens (or creates) the publish-subscribe service `name` of `u64` slices.
     pub(crate) fn pubsub(
         &self,
         name: &str,
         kind: PayloadKind,
     ) -> Result<
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<Svc, [u8], ()>,
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<Svc, [u64], ()>,
         ShmError,
     > {
         let o = &self.options;
         let service_name = ServiceName::new(name).map_err(iceoryx(name, "service name"))?;
         self.node
             .service_builder(&service_name)
-            .publish_subscribe::<[u8]>()
-            .payload_alignment(Alignment::new(8).expect("8 is a power of two"))
+            // u64 elements give 8-byte alignment at 1 byte of memory per payload byte
+            // (`payload_alignment(8)` on `[u8]` would reserve 8 bytes per byte).
+            .publish_subscribe::<[u64]>()
             .enable_safe_overflow(true)
             .max_subscribers(o.max_subscribers)
             .max_publishers(o.max_publishers)

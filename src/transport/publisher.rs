@@ -1,6 +1,8 @@
 //! `ShmPublisher`: writes one payload (header + arrays) in place into a loaned shared-memory
 //! sample, sends it, and notifies the person's event service.
 
+use std::mem::MaybeUninit;
+
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
@@ -20,7 +22,7 @@ pub struct ShmPublisher {
     service: String,
     person: PersonId,
     kind: PayloadKind,
-    publisher: Publisher<Svc, [u8], ()>,
+    publisher: Publisher<Svc, [u64], ()>,
     notifier: Notifier<Svc>,
 }
 
@@ -38,7 +40,7 @@ impl ShmPublisher {
         let pubsub = node.pubsub(service, kind)?;
         let publisher = pubsub
             .publisher_builder()
-            .initial_max_slice_len(node.options().initial_capacity.max(1))
+            .initial_max_slice_len(node.options().initial_capacity.div_ceil(8).max(1))
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .max_loaned_samples(node.options().max_loaned)
             .backpressure_strategy(BackpressureStrategy::DiscardData)
@@ -79,12 +81,13 @@ impl ShmPublisher {
             return Err(self.wrong_kind(body.kind()));
         }
         let encoder = Encoder::new(&self.person, stamp, body).map_err(|e| self.layout(e))?;
+        // Encoded payloads are a multiple of 8 bytes long: whole u64 elements.
         let mut sample = self
             .publisher
-            .loan_slice_uninit(encoder.len())
+            .loan_slice_uninit(encoder.len() / 8)
             .map_err(iceoryx(&self.service, "loan"))?;
         encoder
-            .write_into(sample.payload_mut())
+            .write_into(as_uninit_bytes(sample.payload_mut()))
             .map_err(|e| self.layout(e))?;
         // SAFETY: write_into initialised every byte of the payload.
         let sample = unsafe { sample.assume_init() };
@@ -104,11 +107,21 @@ impl ShmPublisher {
                 return Err(self.layout(super::layout::LayoutError::BadKind { found: header.kind }))
             }
         }
-        let sample = self
+        let mut sample = self
             .publisher
-            .loan_slice_uninit(payload.len())
+            .loan_slice_uninit(payload.len().div_ceil(8))
             .map_err(iceoryx(&self.service, "loan"))?;
-        let sample = sample.write_from_slice(payload);
+        let dest = as_uninit_bytes(sample.payload_mut());
+        let (body, tail) = dest.split_at_mut(payload.len());
+        // SAFETY: `body` and `payload` have the same length and do not overlap.
+        unsafe {
+            std::ptr::copy_nonoverlapping(payload.as_ptr(), body.as_mut_ptr().cast(), payload.len())
+        };
+        for d in tail {
+            d.write(0);
+        }
+        // SAFETY: every byte was written above.
+        let sample = unsafe { sample.assume_init() };
         let delivered = sample.send().map_err(iceoryx(&self.service, "send"))?;
         self.notify();
         Ok(delivered)
@@ -134,5 +147,14 @@ impl ShmPublisher {
             expected: self.kind.name(),
             found: found.name(),
         }
+    }
+}
+
+/// The bytes of a loaned `u64` slice.
+fn as_uninit_bytes(words: &mut [MaybeUninit<u64>]) -> &mut [MaybeUninit<u8>] {
+    // SAFETY: same memory, u8 has no alignment requirement and MaybeUninit<u8> accepts any
+    // (even uninitialised) content; the length is the byte size of `words`.
+    unsafe {
+        std::slice::from_raw_parts_mut(words.as_mut_ptr().cast(), std::mem::size_of_val(words))
     }
 }

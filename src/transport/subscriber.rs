@@ -22,7 +22,7 @@ use super::node::{ShmNode, Svc};
 pub struct ShmSample {
     service: Arc<str>,
     kind: PayloadKind,
-    sample: Sample<Svc, [u8], ()>,
+    sample: Sample<Svc, [u64], ()>,
 }
 
 impl ShmSample {
@@ -38,7 +38,7 @@ impl ShmSample {
 
     /// The raw payload bytes (header + arrays).
     pub fn bytes(&self) -> &[u8] {
-        self.sample.payload()
+        bytemuck::cast_slice(self.sample.payload())
     }
 
     /// Header fields and arrays borrowed from shared memory.
@@ -50,7 +50,7 @@ impl ShmSample {
 struct Stream {
     service: Arc<str>,
     kind: PayloadKind,
-    subscriber: Subscriber<Svc, [u8], ()>,
+    subscriber: Subscriber<Svc, [u64], ()>,
 }
 
 impl std::fmt::Debug for Stream {
