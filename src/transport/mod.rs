@@ -1,6 +1,7 @@
 //! Zero-copy shared-memory transport over iceoryx2 for avatars and rendered frames.
 //!
-//! Each stream is one publish-subscribe service of byte slices (`lhmpp/<person>/avatar`,
+//! Each stream is one publish-subscribe service of `u64` slices (8-byte aligned bytes;
+//! `lhmpp/<person>/avatar`,
 //! `lhmpp/<person>/frame/<camera>`), whose samples hold the [`layout`] payload written in
 //! place; publishers also notify `lhmpp/<person>/events`, on which subscribers wait.
 //! This module is synchronous except [`ShmSubscriber::wait_async`], which lets a tokio task
