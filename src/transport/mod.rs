@@ -23,3 +23,21 @@ pub use node::ShmNode;
 pub use options::ShmOptions;
 pub use publisher::ShmPublisher;
 pub use subscriber::{ShmSample, ShmSubscriber};
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn is_send<T: Send>() {}
+
+    #[test]
+    fn ports_can_move_into_tokio_tasks() {
+        is_send::<ShmNode>();
+        is_send::<ShmPublisher>();
+        is_send::<ShmSubscriber>();
+        is_send::<ShmSample>();
+        // A task awaiting the listener can be spawned on the multi-threaded runtime.
+        fn is_send_value<T: Send>(_: T) {}
+        let _spawnable = |s: &mut ShmSubscriber| is_send_value(s.wait_async());
+    }
+}
