@@ -16,3 +16,4 @@ pub mod msgs;
 pub mod node;
 pub mod splat;
 pub mod synth;
+pub mod transport;

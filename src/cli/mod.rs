@@ -11,6 +11,9 @@ mod model;
 mod render;
 mod run;
 mod synth;
+mod bench;
+mod config_cmd;
+mod shm_echo;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -45,6 +48,10 @@ enum Command {
     Synth(synth::SynthArgs),
     /// Create seeded model checkpoints and print parameter counts.
     Model(model::ModelArgs),
+    /// Print avatars and frames received over shared memory (iceoryx2), one line each.
+    ShmEcho(shm_echo::ShmEchoArgs),
+    /// Run a benchmark and print its table (`bench transport`).
+    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -61,6 +68,8 @@ pub fn main() -> anyhow::Result<()> {
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),
         Command::Model(args) => model::run(args),
+        Command::ShmEcho(args) => shm_echo::run(args),
+        Command::Bench(args) => bench::run(args),
     }
 }
 
