@@ -10,10 +10,8 @@ mod eval;
 mod model;
 mod render;
 mod run;
-mod synth;
-mod bench;
-mod config_cmd;
 mod shm_echo;
+mod synth;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -40,7 +38,7 @@ enum Command {
     Body(body::BodyArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
     Bag(bag::BagArgs),
-    /// Benchmarks that print tables (`bench render`, `bench model`).
+    /// Benchmarks that print tables (`bench render|model|points|transport`).
     Bench(bench::BenchArgs),
     /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
     Render(render::RenderArgs),
@@ -50,8 +48,6 @@ enum Command {
     Model(model::ModelArgs),
     /// Print avatars and frames received over shared memory (iceoryx2), one line each.
     ShmEcho(shm_echo::ShmEchoArgs),
-    /// Run a benchmark and print its table (`bench transport`).
-    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
@@ -69,7 +65,6 @@ pub fn main() -> anyhow::Result<()> {
         Command::Synth(args) => synth::run(args),
         Command::Model(args) => model::run(args),
         Command::ShmEcho(args) => shm_echo::run(args),
-        Command::Bench(args) => bench::run(args),
     }
 }
 

@@ -5,6 +5,7 @@ use clap::{Args, Subcommand};
 mod model;
 mod points;
 mod render;
+mod transport;
 
 /// Arguments of `lhmpp bench`.
 #[derive(Args, Debug)]
@@ -21,6 +22,9 @@ enum BenchCommand {
     Model(model::ModelBenchArgs),
     /// Time each point-backbone stage (embed, pooling levels, unpooling levels).
     Points(points::PointsBenchArgs),
+    /// Publish→receive latency (p50/p99) and throughput of a 160K-Gaussian avatar and a
+    /// 1920×1080 RGBA frame over iceoryx2, plus the shared memory each service reserves.
+    Transport(transport::TransportArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -29,5 +33,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Render(a) => render::run(a),
         BenchCommand::Model(a) => model::run(a),
         BenchCommand::Points(a) => points::run(a),
+        BenchCommand::Transport(a) => transport::run(a),
     }
 }

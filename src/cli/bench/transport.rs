@@ -1,27 +1,14 @@
-//! `lhmpp bench <target>`: measurements printed as tables. Today: `transport`.
+//! `lhmpp bench transport`: iceoryx2 publish→receive latency, throughput and shared-memory
+//! footprint for a 160K-Gaussian avatar and a 1920×1080 RGBA frame.
 
 use anyhow::Result;
 use lhmpp::transport::bench::{render_table, run_case, BenchCase, Iceoryx2Bench};
 use lhmpp::transport::footprint::ShmSnapshot;
 use lhmpp::transport::ShmOptions;
 
-/// Arguments of `lhmpp bench`.
-#[derive(clap::Args, Debug)]
-pub struct BenchArgs {
-    #[command(subcommand)]
-    target: BenchTarget,
-}
-
-#[derive(clap::Subcommand, Debug)]
-enum BenchTarget {
-    /// Publish→receive latency (p50/p99) and throughput of a 160K-Gaussian avatar and a
-    /// 1920×1080 RGBA frame over iceoryx2, plus the shared memory each service reserves.
-    Transport(TransportArgs),
-}
-
 /// Arguments of `lhmpp bench transport`.
 #[derive(clap::Args, Debug)]
-struct TransportArgs {
+pub struct TransportArgs {
     /// Measured round trips per payload (after 10 warm-up ones).
     #[arg(long, default_value_t = 200)]
     iterations: usize,
@@ -30,14 +17,8 @@ struct TransportArgs {
     gaussians: usize,
 }
 
-/// Runs the selected benchmark and prints its table.
-pub fn run(args: BenchArgs) -> Result<()> {
-    match args.target {
-        BenchTarget::Transport(t) => transport(t),
-    }
-}
-
-fn transport(args: TransportArgs) -> Result<()> {
+/// Runs the iceoryx2 transport benchmark and prints its tables.
+pub fn run(args: TransportArgs) -> Result<()> {
     let cases = [
         BenchCase::avatar(args.gaussians),
         BenchCase::frame(1920, 1080, 4),
