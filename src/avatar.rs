@@ -95,6 +95,17 @@ impl Avatar {
         })
     }
 
+    /// Writes the canonical Gaussians as a 3DGS PLY with the skinning weights and body model id
+    /// in the lhmpp extension properties (see [`crate::splat::write_ply`]).
+    pub fn save_ply(&self, path: &std::path::Path) -> Result<(), crate::splat::PlyError> {
+        crate::splat::write_ply(
+            path,
+            &self.canonical,
+            Some(&self.skin),
+            Some(&self.body_model),
+        )
+    }
+
     /// Number of skinning matrices [`Avatar::animate`] needs.
     pub fn bones_needed(&self) -> usize {
         self.bones_needed

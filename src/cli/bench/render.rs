@@ -10,7 +10,7 @@ use glam::{Mat4, Quat, Vec3};
 use lhmpp::avatar::Avatar;
 use lhmpp::body::SkinWeights;
 use lhmpp::splat::synthetic::body_cloud;
-use lhmpp::splat::{render, Camera, Intrinsics, RenderOptions};
+use lhmpp::splat::{render_timed, Camera, Intrinsics, RenderOptions, StageTimes};
 use rand::{Rng, SeedableRng};
 use std::time::{Duration, Instant};
 
@@ -54,8 +54,10 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
         .build()
         .context("building the rayon thread pool")?;
     println!("CPU splatting, {} thread(s), body-like cloud (seed 42), camera 2.6 m away, median of ≥5 frames", a.threads);
-    println!("| Gaussians | size | ms/frame | FPS |");
-    println!("|---:|---:|---:|---:|");
+    println!(
+        "| Gaussians | size | ms/frame | FPS | project ms | bin+sort ms | blend ms | tile pairs |"
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
     for &count in &a.counts {
         let g = body_cloud(count, a.features, 42);
         for &size in &a.sizes {
@@ -71,9 +73,24 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
                 render_features: a.features > 0,
                 ..Default::default()
             };
-            let t = pool.install(|| median_time(a.seconds, || drop(render(&g, &cam, &opts))));
+            let mut stages = Vec::new();
+            let t = pool.install(|| {
+                median_time(a.seconds, || stages.push(render_timed(&g, &cam, &opts).1))
+            });
             let ms = t.as_secs_f64() * 1e3;
-            println!("| {count} | {size}×{size} | {ms:.1} | {:.1} |", 1e3 / ms);
+            let median = |f: fn(&StageTimes) -> f64| {
+                let mut v: Vec<f64> = stages.iter().map(f).collect();
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2] * 1e3
+            };
+            println!(
+                "| {count} | {size}×{size} | {ms:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                1e3 / ms,
+                median(|s| s.project),
+                median(|s| s.bin_sort),
+                median(|s| s.blend),
+                stages[0].tile_pairs
+            );
         }
     }
     println!();

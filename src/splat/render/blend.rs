@@ -54,7 +54,8 @@ pub(crate) struct BlendInput<'a> {
 /// Per-tile accumulators, reused from tile to tile.
 struct TileScratch {
     transmittance: [f32; PIXELS],
-    done: [bool; PIXELS],
+    /// Per tile row, bit `x` set when pixel `x` of that row is finished.
+    row_done: [u16; TILE],
     rgb: [[f32; 3]; PIXELS],
     depth: [f32; PIXELS],
     features: Vec<f32>,
@@ -64,7 +65,7 @@ struct TileScratch {
 pub(crate) fn blend_band(row: usize, input: &BlendInput, out: BandOut) {
     let mut scratch = TileScratch {
         transmittance: [1.0; PIXELS],
-        done: [false; PIXELS],
+        row_done: [0; TILE],
         rgb: [[0.0; 3]; PIXELS],
         depth: [0.0; PIXELS],
         features: vec![0.0; PIXELS * input.channels],
@@ -86,25 +87,30 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
     let tw = TILE.min(input.width - x0);
     let th = TILE.min(input.height - y0);
     s.transmittance.fill(1.0);
-    s.done.fill(false);
+    s.row_done.fill(0);
     s.rgb.fill([0.0; 3]);
     s.depth.fill(0.0);
     s.features.fill(0.0);
     let c = input.channels;
     let mut remaining = tw * th;
     let tile = row * input.grid.cols + col;
-    let (xmax, ymax) = ((x0 + tw - 1) as f32, (y0 + th - 1) as f32);
+    let (xmax, ymax) = ((x0 + tw - 1) as i32, (y0 + th - 1) as i32);
     for si in input.bins.tile(tile) {
         let g = &input.splats[si];
-        let lo_x = (g.mean[0] - g.extent[0]).ceil().max(x0 as f32);
-        let hi_x = (g.mean[0] + g.extent[0]).floor().min(xmax);
-        let lo_y = (g.mean[1] - g.extent[1]).ceil().max(y0 as f32);
-        let hi_y = (g.mean[1] + g.extent[1]).floor().min(ymax);
+        let lo_x = ceil_i(g.mean[0] - g.extent[0]).max(x0 as i32);
+        let hi_x = floor_i(g.mean[0] + g.extent[0]).min(xmax);
+        let lo_y = ceil_i(g.mean[1] - g.extent[1]).max(y0 as i32);
+        let hi_y = floor_i(g.mean[1] + g.extent[1]).min(ymax);
         if lo_x > hi_x || lo_y > hi_y {
             continue;
         }
         let [ca, cb, cc] = g.conic;
-        let min_power = (MIN_ALPHA / g.opacity).ln();
+        let min_power = g.min_power;
+        // Row `dy` holds the pixels with power ≥ min_power, i.e. a dx² + 2 b dy dx + c dy² +
+        // 2 min_power ≤ 0: dx = (−b dy ± √(k0 − k1 dy²)) / a.
+        let inv_a = 1.0 / ca;
+        let k0 = -2.0 * ca * min_power;
+        let k1 = ca * cc - cb * cb;
         let feats = if c > 0 {
             input.gaussians.features_of(g.index as usize)
         } else {
@@ -112,25 +118,28 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
         };
         for py in lo_y as usize..=hi_y as usize {
             let dy = g.mean[1] - py as f32;
-            // Pixels of this row with power ≥ min_power: a dx² + 2 b dy dx + c dy² + 2 min_power ≤ 0.
-            let disc = (cb * dy) * (cb * dy) - ca * (cc * dy * dy + 2.0 * min_power);
+            let disc = k0 - k1 * dy * dy;
             if disc.is_nan() || disc < 0.0 {
                 continue;
             }
-            let root = disc.sqrt();
-            let (dx_lo, dx_hi) = ((-cb * dy - root) / ca, (-cb * dy + root) / ca);
+            let half = disc.sqrt() * inv_a;
             // px = mean − dx; widen by a little so rounding never drops a pixel.
-            let span_lo = (g.mean[0] - dx_hi - SPAN_MARGIN).ceil().max(lo_x);
-            let span_hi = (g.mean[0] - dx_lo + SPAN_MARGIN).floor().min(hi_x);
+            let centre = g.mean[0] + cb * dy * inv_a;
+            let span_lo = ceil_i(centre - half - SPAN_MARGIN).max(lo_x);
+            let span_hi = floor_i(centre + half + SPAN_MARGIN).min(hi_x);
             if span_lo > span_hi {
                 continue;
             }
+            // Visit only the unfinished pixels of the span (bit x = pixel x0 + x).
+            let (first, last) = (span_lo as usize - x0, span_hi as usize - x0);
+            let span_bits = ((1u32 << (last + 1)) - (1u32 << first)) as u16;
+            let mut todo = span_bits & !s.row_done[py - y0];
             let row_base = (py - y0) * TILE;
-            for px in span_lo as usize..=span_hi as usize {
-                let p = row_base + (px - x0);
-                if s.done[p] {
-                    continue;
-                }
+            while todo != 0 {
+                let lx = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                let px = x0 + lx;
+                let p = row_base + lx;
                 let dx = g.mean[0] - px as f32;
                 let power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
                 // `power < min_power` ⇔ alpha < 1/255: skip without the exponential.
@@ -144,7 +153,7 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
                 let t = s.transmittance[p];
                 let next_t = t * (1.0 - alpha);
                 if next_t < MIN_TRANSMITTANCE {
-                    s.done[p] = true;
+                    s.row_done[py - y0] |= 1 << lx;
                     remaining -= 1;
                     continue;
                 }
@@ -166,6 +175,22 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
             break;
         }
     }
+}
+
+/// `⌊x⌋` without a libm call, for `x` clamped to ±1e9 (NaN gives 0).
+#[inline(always)]
+fn floor_i(x: f32) -> i32 {
+    let x = x.clamp(-1e9, 1e9);
+    let i = x as i32;
+    i - ((i as f32) > x) as i32
+}
+
+/// `⌈x⌉` without a libm call, for `x` clamped to ±1e9 (NaN gives 0).
+#[inline(always)]
+fn ceil_i(x: f32) -> i32 {
+    let x = x.clamp(-1e9, 1e9);
+    let i = x as i32;
+    i + ((i as f32) < x) as i32
 }
 
 /// `e^x` for `x` in `[-87, 0]`, relative error below 3e-7: `x = n ln2 + r` with `|r| ≤ ln2/2`,
@@ -246,5 +271,14 @@ mod tests {
         }
         assert!(worst < 3e-7, "worst relative error {worst}");
         assert_eq!(fast_exp(0.0), 1.0);
+    }
+
+    #[test]
+    fn integer_floor_and_ceil_match_std() {
+        for x in [-3.5f32, -3.0, -0.2, 0.0, 0.7, 2.0, 2.0001, 1e12, -1e12] {
+            let x_c = x.clamp(-1e9, 1e9);
+            assert_eq!(super::floor_i(x), x_c.floor() as i32, "{x}");
+            assert_eq!(super::ceil_i(x), x_c.ceil() as i32, "{x}");
+        }
     }
 }

@@ -33,6 +33,8 @@ pub(crate) struct Splat2D {
     pub radius: f32,
     /// Half extents of the box outside which alpha < 1/255 (pixels, with a 0.5 px margin).
     pub extent: [f32; 2],
+    /// `ln(1/255 / opacity)`: samples with a lower power have alpha < 1/255.
+    pub min_power: f32,
     /// Index of the source Gaussian (for its feature row).
     pub index: u32,
 }
@@ -129,6 +131,7 @@ pub(crate) fn project(
                 rgb: rgb.to_array(),
                 radius,
                 extent,
+                min_power: (MIN_ALPHA / opacity).ln(),
                 index: i as u32,
             })
         })
