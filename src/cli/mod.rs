@@ -28,26 +28,26 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Score reconstructions on held-out views of synthetic bags (PSNR, SSIM, mask IoU).
-    Eval(eval::EvalArgs),
     /// Run the node: live ROS 2 topics, or replay a bag (`run --config launch_configs/demo.yaml`).
     Run(run::RunArgs),
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
-    /// Body template: summary, posed point clouds, asset conversion.
-    Body(body::BodyArgs),
-    /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
-    Bag(bag::BagArgs),
-    /// Benchmarks that print tables (`bench render|model|points|transport`).
-    Bench(bench::BenchArgs),
-    /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
-    Render(render::RenderArgs),
     /// Render a seeded synthetic person into an MCAP bag with ground truth.
     Synth(synth::SynthArgs),
+    /// Score reconstructions on held-out views of synthetic bags (PSNR, SSIM, mask IoU).
+    Eval(eval::EvalArgs),
+    /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
+    Bag(bag::BagArgs),
+    /// Body template: summary, posed point clouds, asset conversion.
+    Body(body::BodyArgs),
     /// Create seeded model checkpoints and print parameter counts.
     Model(model::ModelArgs),
+    /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
+    Render(render::RenderArgs),
     /// Print avatars and frames received over shared memory (iceoryx2), one line each.
     ShmEcho(shm_echo::ShmEchoArgs),
+    /// Benchmarks that print tables (`bench render|model|points|transport`).
+    Bench(bench::BenchArgs),
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.
