@@ -74,3 +74,41 @@ fn a_missing_bag_is_an_error_naming_it() {
         .to_string();
     assert!(err.contains("/nonexistent/x.mcap"), "{err}");
 }
+
+#[test]
+fn replayed_avatar_reaches_a_shared_memory_subscriber_in_another_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let person = format!("replay{}", std::process::id());
+    let mut echo = std::process::Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+        .args([
+            "shm-echo",
+            "--person",
+            &person,
+            "--count",
+            "1",
+            "--timeout",
+            "120",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(echo.stdout.take().unwrap()));
+    // Wait until the subscriber is attached, so the one avatar is not missed.
+    let ready = lines.next().unwrap().unwrap();
+    assert!(ready.starts_with("ready"), "{ready}");
+    let config = demo_config(
+        dir.path(),
+        &["outputs.shm=true", &format!("person_id={person}")],
+    );
+    let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
+    assert_eq!(summary.revision, 1);
+    let line = lines.next().unwrap().unwrap();
+    assert!(echo.wait().unwrap().success());
+    assert!(
+        line.contains(&format!("person={person}"))
+            && line.contains("rev=1")
+            && line.contains(&format!("gaussians={}", config.model.num_points)),
+        "{line}"
+    );
+}

@@ -12,6 +12,7 @@ pub mod input_queue;
 pub mod names;
 pub mod pipeline;
 pub mod preprocess;
+pub mod publishers;
 pub mod replay;
 pub mod ros;
 pub mod run;

@@ -3,11 +3,11 @@
 //! (`replay.exit_when_done`) or SIGINT/SIGTERM. The tokio runtime hosts only the DDS endpoint
 //! and the signal handlers.
 
-use super::pipeline::{Pipeline, PipelineError, PipelineStats, Publisher};
+use super::pipeline::{Fanout, Pipeline, PipelineError, PipelineStats, Publisher};
+use super::publishers::{RosPublisher, ShmOutputs};
 use super::replay::{BagReplay, Replayed};
 use super::ros::{InputEvent, ResolvedTopics, RosError, RosNode, RosNodeOptions};
 use crate::config::NodeConfig;
-use crate::msgs::{GaussianAvatar, Image, ReconstructionStatus};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -32,6 +32,9 @@ pub enum RunError {
     /// The bag could not be opened.
     #[error(transparent)]
     Bag(#[from] crate::bag::BagError),
+    /// The shared-memory outputs could not start.
+    #[error("shared memory: {0}")]
+    Shm(#[from] crate::transport::ShmError),
     /// The async runtime could not start.
     #[error("tokio runtime: {0}")]
     Runtime(#[from] std::io::Error),
@@ -52,27 +55,6 @@ pub struct RunSummary {
     pub animation_frames: usize,
     /// Wall time.
     pub wall: Duration,
-}
-
-/// Publishes pipeline outputs on the ROS 2 endpoint; failures are logged, never fatal.
-struct RosPublisher(Arc<RosNode>);
-
-impl Publisher for RosPublisher {
-    fn avatar(&self, msg: GaussianAvatar) {
-        if let Err(e) = self.0.publish_avatar(msg) {
-            tracing::warn!("{e}");
-        }
-    }
-    fn status(&self, msg: ReconstructionStatus) {
-        if let Err(e) = self.0.publish_status(msg) {
-            tracing::warn!("{e}");
-        }
-    }
-    fn frame(&self, camera: usize, msg: Image) {
-        if let Err(e) = self.0.publish_frame(camera, msg) {
-            tracing::warn!("{e}");
-        }
-    }
 }
 
 /// Runs the node with `config`; `remap` holds command-line topic remappings.
@@ -118,9 +100,17 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         None
     };
     drop(wake_tx);
-    let publisher = ros
-        .clone()
-        .map(|n| Box::new(RosPublisher(n)) as Box<dyn Publisher>);
+    let mut publishers: Vec<Box<dyn Publisher>> = Vec::new();
+    if let (Some(node), true) = (&ros, config.outputs.ros) {
+        publishers.push(Box::new(RosPublisher(node.clone())));
+    }
+    if config.outputs.shm {
+        let shm = ShmOutputs::new(&config.person_id, config.outputs.virtual_cameras)?;
+        tracing::info!(services = ?shm.services(), "shared-memory outputs up");
+        publishers.push(Box::new(shm));
+    }
+    let publisher =
+        (!publishers.is_empty()).then(|| Box::new(Fanout(publishers)) as Box<dyn Publisher>);
     let mut pipeline = Pipeline::new(config, publisher)?;
     let mut animation_frames = 0;
     if live {

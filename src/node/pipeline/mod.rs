@@ -15,7 +15,7 @@ use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::node::ros::{CameraFrame, InputEvent};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use image::GrayImage;
-use outputs::{avatar_message, frame_message, status_message, FileOutputs};
+use outputs::{status_message, FileOutputs};
 use reconstructor::{ReconstructError, Reconstructor};
 use render::{display_pose, render_frames, VirtualCameras};
 use std::collections::VecDeque;
@@ -30,14 +30,46 @@ const MASKS_KEPT: usize = 16;
 /// Latencies kept for the summary.
 const LATENCIES_KEPT: usize = 256;
 
+/// A new avatar revision as handed to publishers.
+pub struct AvatarUpdate<'a> {
+    /// Person id.
+    pub person: &'a str,
+    /// Revision number.
+    pub revision: u64,
+    /// Views it was built from.
+    pub views_used: usize,
+    /// Stamp of the newest view (ns since the epoch).
+    pub stamp_ns: i64,
+    /// The avatar.
+    pub avatar: &'a Avatar,
+    /// The body template whose skeleton the skinning refers to.
+    pub template: &'a crate::body::BodyTemplate,
+}
+
 /// Where the pipeline publishes (ROS 2, shared memory); implemented by the node's endpoints.
+/// Failures are the endpoint's to log: publishing never stops the pipeline.
 pub trait Publisher {
     /// Publishes a new avatar revision.
-    fn avatar(&self, msg: crate::msgs::GaussianAvatar);
+    fn avatar(&self, update: &AvatarUpdate<'_>);
     /// Publishes the reconstruction status.
     fn status(&self, msg: ReconstructionStatus);
     /// Publishes a rendered frame of virtual camera `camera`.
-    fn frame(&self, camera: usize, msg: crate::msgs::Image);
+    fn frame(&self, camera: usize, image: &image::RgbImage, stamp_ns: i64);
+}
+
+/// Several publishers behind one (ROS 2 and shared memory at once).
+pub struct Fanout(pub Vec<Box<dyn Publisher>>);
+
+impl Publisher for Fanout {
+    fn avatar(&self, update: &AvatarUpdate<'_>) {
+        self.0.iter().for_each(|p| p.avatar(update));
+    }
+    fn status(&self, msg: ReconstructionStatus) {
+        self.0.iter().for_each(|p| p.status(msg.clone()));
+    }
+    fn frame(&self, camera: usize, image: &image::RgbImage, stamp_ns: i64) {
+        self.0.iter().for_each(|p| p.frame(camera, image, stamp_ns));
+    }
 }
 
 /// Counters of one run, printed at the end and used by tests.
@@ -341,17 +373,14 @@ impl Pipeline {
             }
         }
         if let Some(p) = &self.publisher {
-            match avatar_message(
+            p.avatar(&AvatarUpdate {
+                person: &job.person,
+                revision: job.revision,
+                views_used: views,
+                stamp_ns: stamp,
                 avatar,
-                self.recon.template(),
-                &job.person,
-                job.revision,
-                views,
-                stamp,
-            ) {
-                Ok(msg) => p.avatar(msg),
-                Err(e) => tracing::error!("avatar message: {e}"),
-            }
+                template: self.recon.template(),
+            });
         }
     }
 
@@ -381,11 +410,11 @@ impl Pipeline {
         };
         let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
         let frames = render_frames(&current.avatar, self.recon.template(), &pose, &self.cameras);
+        let stamp = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as i64);
         for (i, f) in frames.iter().enumerate() {
-            p.frame(
-                i,
-                frame_message(f, now.as_nanos() as i64, &format!("lhmpp_virtual_cam{i}")),
-            );
+            p.frame(i, f, stamp);
         }
         self.stats.rendered_frames += frames.len() as u64;
     }

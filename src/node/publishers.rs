@@ -1,0 +1,129 @@
+//! The node's output endpoints behind [`Publisher`]: ROS 2 messages (GaussianAvatar, rendered
+//! Image, ReconstructionStatus) and iceoryx2 shared-memory services (avatar, frames).
+//! Failures are logged and counted by the endpoint; they never stop the pipeline.
+
+use super::pipeline::outputs::{avatar_message, frame_message};
+use super::pipeline::{AvatarUpdate, Publisher};
+use super::ros::RosNode;
+use crate::msgs::ReconstructionStatus;
+use crate::splat::sh_dc_to_rgb;
+use crate::transport::{
+    AvatarView, FrameView, PayloadBody, ShmError, ShmNode, ShmOptions, ShmPublisher, Stamp,
+};
+use image::RgbImage;
+use std::sync::Arc;
+
+/// Publishes on the ROS 2 endpoint.
+pub struct RosPublisher(pub Arc<RosNode>);
+
+impl Publisher for RosPublisher {
+    fn avatar(&self, u: &AvatarUpdate<'_>) {
+        match avatar_message(
+            u.avatar,
+            u.template,
+            u.person,
+            u.revision,
+            u.views_used,
+            u.stamp_ns,
+        ) {
+            Ok(msg) => {
+                if let Err(e) = self.0.publish_avatar(msg) {
+                    tracing::warn!("{e}");
+                }
+            }
+            Err(e) => tracing::error!("avatar message: {e}"),
+        }
+    }
+    fn status(&self, msg: ReconstructionStatus) {
+        if let Err(e) = self.0.publish_status(msg) {
+            tracing::warn!("{e}");
+        }
+    }
+    fn frame(&self, camera: usize, image: &RgbImage, stamp_ns: i64) {
+        let msg = frame_message(image, stamp_ns, &format!("lhmpp_virtual_cam{camera}"));
+        if let Err(e) = self.0.publish_frame(camera, msg) {
+            tracing::warn!("{e}");
+        }
+    }
+}
+
+/// Publishes avatars and rendered frames over iceoryx2 (layout: `docs/shm-layout.md`).
+pub struct ShmOutputs {
+    _node: ShmNode,
+    avatar: ShmPublisher,
+    frames: Vec<ShmPublisher>,
+}
+
+impl ShmOutputs {
+    /// Services `lhmpp/<person>/avatar` and `lhmpp/<person>/frame/cam<i>` for each virtual
+    /// camera.
+    pub fn new(person: &str, virtual_cameras: u32) -> Result<Self, ShmError> {
+        let node = ShmNode::new(&format!("lhmpp_{person}"), ShmOptions::default())?;
+        let avatar = node.avatar_publisher(person)?;
+        let frames = (0..virtual_cameras)
+            .map(|i| node.frame_publisher(person, &format!("cam{i}")))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            _node: node,
+            avatar,
+            frames,
+        })
+    }
+
+    /// Names of the services published on.
+    pub fn services(&self) -> Vec<String> {
+        std::iter::once(&self.avatar)
+            .chain(&self.frames)
+            .map(|p| p.service().to_owned())
+            .collect()
+    }
+}
+
+impl Publisher for ShmOutputs {
+    fn avatar(&self, u: &AvatarUpdate<'_>) {
+        let g = &u.avatar.canonical;
+        let positions: Vec<[f32; 3]> = g.positions.iter().map(|p| p.to_array()).collect();
+        let scales: Vec<[f32; 3]> = g.scales.iter().map(|s| s.to_array()).collect();
+        let rotations: Vec<[f32; 4]> = g.rotations.iter().map(|q| [q.w, q.x, q.y, q.z]).collect();
+        let colours: Vec<f32> = (0..g.len())
+            .flat_map(|i| sh_dc_to_rgb(g.sh_of(i)[0]).to_array())
+            .collect();
+        let view = AvatarView {
+            positions: &positions,
+            scales: &scales,
+            rotations: &rotations,
+            opacities: &g.opacities,
+            sh_coeffs: 1,
+            colours: &colours,
+            bones: &u.avatar.skin.bones,
+            weights: &u.avatar.skin.weights,
+        };
+        if let Err(e) = self
+            .avatar
+            .publish(Stamp::now(u.revision), &PayloadBody::Avatar(view))
+        {
+            tracing::warn!("{e}");
+        }
+    }
+    fn status(&self, _msg: ReconstructionStatus) {}
+    fn frame(&self, camera: usize, image: &RgbImage, stamp_ns: i64) {
+        let Some(publisher) = self.frames.get(camera) else {
+            return;
+        };
+        let view = FrameView {
+            width: image.width(),
+            height: image.height(),
+            channels: 3,
+            pixels: image.as_raw(),
+            alpha: None,
+            depth: None,
+        };
+        let stamp = Stamp {
+            revision: stamp_ns as u64,
+            timestamp_ns: crate::transport::layout::unix_time_ns(),
+        };
+        if let Err(e) = publisher.publish(stamp, &PayloadBody::Frame(view)) {
+            tracing::warn!("{e}");
+        }
+    }
+}
