@@ -91,14 +91,7 @@ fn decode_image(bag: &BagReader, topic: &str) -> Result<Option<image::RgbImage>,
         return Ok(None);
     };
     let msg: Image = bag.decode(m)?;
-    let raw = RawImage {
-        width: msg.width,
-        height: msg.height,
-        encoding: &msg.encoding,
-        step: msg.step,
-        data: &msg.data,
-    };
-    decode_raw(topic, &raw, 1 << 14)
+    decode_raw(topic, &RawImage::from(&msg), 1 << 14)
         .map(Some)
         .map_err(|e| EvalError::MissingGroundTruth {
             path: bag.path().display().to_string(),

@@ -107,6 +107,18 @@ pub struct RawImage<'a> {
     pub data: &'a [u8],
 }
 
+impl<'a> From<&'a crate::msgs::Image> for RawImage<'a> {
+    fn from(msg: &'a crate::msgs::Image) -> Self {
+        Self {
+            width: msg.width,
+            height: msg.height,
+            encoding: &msg.encoding,
+            step: msg.step,
+            data: &msg.data,
+        }
+    }
+}
+
 /// Channel order of a supported raw encoding.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Layout {

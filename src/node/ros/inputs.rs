@@ -71,13 +71,7 @@ pub(crate) fn image_event(
     arrival: Duration,
     max_side: u32,
 ) -> Result<InputEvent, String> {
-    let raw = RawImage {
-        width: msg.width,
-        height: msg.height,
-        encoding: &msg.encoding,
-        step: msg.step,
-        data: &msg.data,
-    };
+    let raw = RawImage::from(&msg);
     let image = decode_raw(topic, &raw, max_side).map_err(|e| e.to_string())?;
     Ok(InputEvent::Frame(CameraFrame {
         topic: topic.to_owned(),
@@ -113,13 +107,7 @@ pub(crate) fn mask_event(
     arrival: Duration,
     max_side: u32,
 ) -> Result<InputEvent, String> {
-    let raw = RawImage {
-        width: msg.width,
-        height: msg.height,
-        encoding: &msg.encoding,
-        step: msg.step,
-        data: &msg.data,
-    };
+    let raw = RawImage::from(&msg);
     let mask = decode_mask(topic, &raw, max_side).map_err(|e| e.to_string())?;
     Ok(InputEvent::Mask(MaskFrame {
         topic: topic.to_owned(),
