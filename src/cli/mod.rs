@@ -9,6 +9,7 @@ mod config_cmd;
 mod eval;
 mod model;
 mod render;
+mod replay;
 mod run;
 mod shm_echo;
 mod synth;
@@ -32,6 +33,8 @@ enum Command {
     Run(run::RunArgs),
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
     Config(config_cmd::ConfigArgs),
+    /// Play a bag into the node as if live (`replay BAG [--rate X | --fast]`).
+    Replay(replay::ReplayArgs),
     /// Render a seeded synthetic person into an MCAP bag with ground truth.
     Synth(synth::SynthArgs),
     /// Score reconstructions on held-out views of synthetic bags (PSNR, SSIM, mask IoU).
@@ -56,6 +59,7 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Run(args) => run::run(args),
+        Command::Replay(args) => replay::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),

@@ -10,13 +10,13 @@ use std::path::PathBuf;
 pub struct RunArgs {
     /// Parameter file (`launch_configs/*.yaml`); omitted = built-in defaults.
     #[arg(long)]
-    config: Option<PathBuf>,
+    pub config: Option<PathBuf>,
     /// Override a parameter: `--set model.device=cpu` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
-    overrides: Vec<String>,
+    pub overrides: Vec<String>,
     /// Remap a topic: `--remap /camera/image_raw:=/cam0/image_raw` (repeatable).
     #[arg(long = "remap", value_name = "FROM:=TO")]
-    remaps: Vec<String>,
+    pub remaps: Vec<String>,
 }
 
 /// Loads the config, runs the node until it finishes or is stopped, prints a summary.
