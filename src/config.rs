@@ -61,6 +61,9 @@ pub struct NodeConfig {
     pub namespace: String,
     /// DDS domain id; `-1` means "read `ROS_DOMAIN_ID` or use 0".
     pub domain_id: i32,
+    /// Network interfaces DDS may use, by IP address (e.g. `[127.0.0.1]` for loopback only);
+    /// empty means all.
+    pub dds_interfaces: Vec<String>,
     /// Id of the person reconstructed from the input topics.
     pub person_id: String,
     /// Input topics and their QoS.
@@ -160,6 +163,7 @@ impl Default for NodeConfig {
         Self {
             namespace: "/".into(),
             domain_id: -1,
+            dds_interfaces: Vec::new(),
             person_id: "person_0".into(),
             inputs: InputConfig::default(),
             frame_store: FrameStoreConfig::default(),
@@ -283,6 +287,16 @@ impl NodeConfig {
             return Err(bad(
                 "domain_id",
                 format!("{} is not in -1..=232", self.domain_id),
+            ));
+        }
+        if let Some(address) = self
+            .dds_interfaces
+            .iter()
+            .find(|a| a.parse::<std::net::IpAddr>().is_err())
+        {
+            return Err(bad(
+                "dds_interfaces",
+                format!("`{address}` is not an IP address"),
             ));
         }
         if self.person_id.is_empty() {

@@ -227,6 +227,8 @@ def main():
     ap.add_argument("--gaussians", type=int, default=100)
     ap.add_argument("--person", default="person_0")
     ap.add_argument("--timeout", type=float, default=40.0)
+    ap.add_argument("--min-revisions", type=int, default=1,
+                    help="distinct avatar revisions to receive, each higher than the last")
     args = ap.parse_args()
 
     dp = DomainParticipant(args.domain)
@@ -248,6 +250,7 @@ def main():
     deadline = time.monotonic() + args.timeout
     avatar_err = "no avatar received"
     avatar_ok = False
+    revisions = []
     render_err = "no rendered frame received"
     render_ok = False
     sent = 0
@@ -285,6 +288,14 @@ def main():
             if not isinstance(msg, GaussianAvatar):
                 continue
             avatar_err = check_avatar(msg, args.person, args.gaussians)
+            if avatar_err is None and (not revisions or msg.revision != revisions[-1]):
+                if revisions and msg.revision < revisions[-1]:
+                    print(f"RESULT fail avatar revision went back from {revisions[-1]} to "
+                          f"{msg.revision}", flush=True)
+                    return 1
+                revisions.append(msg.revision)
+            if avatar_err is None and len(revisions) < args.min_revisions:
+                avatar_err = f"revisions so far {revisions}, waiting for {args.min_revisions}"
             avatar_ok = avatar_err is None
         if render_ok and avatar_ok:
             break
@@ -295,7 +306,7 @@ def main():
               flush=True)
         return 1
     print(f"RESULT ok frames_sent={sent} render_after_s={first_render_at:.2f} "
-          f"avatar_gaussians={args.gaussians}", flush=True)
+          f"avatar_gaussians={args.gaussians} revisions={revisions}", flush=True)
     return 0
 
 

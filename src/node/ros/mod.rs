@@ -116,7 +116,11 @@ impl RosNodeOptions {
             namespace: cfg.namespace.clone(),
             participant: ParticipantOptions {
                 domain_id: resolve_domain_id(cfg.domain_id, ros_domain_id_env)?,
-                only_networks: Vec::new(),
+                only_networks: cfg
+                    .dds_interfaces
+                    .iter()
+                    .filter_map(|a| a.parse().ok())
+                    .collect(),
                 socket_receive_buffer: 0,
             },
             remap,
