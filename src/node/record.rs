@@ -176,7 +176,10 @@ pub fn select(plan: Vec<RecordTopic>, wanted: &[String]) -> Result<Vec<RecordTop
             });
         }
     }
-    Ok(plan.into_iter().filter(|t| wanted.contains(&t.name)).collect())
+    Ok(plan
+        .into_iter()
+        .filter(|t| wanted.contains(&t.name))
+        .collect())
 }
 
 /// How a recording runs.
