@@ -246,7 +246,7 @@ fn sigint_finishes_a_bag_holding_every_published_message() {
     let p = &poses[0];
     assert_eq!(p.person_id, "person_0");
     assert_eq!(p.bone_names, ["spine", "head"]);
-    assert!((p.rotations[1].y - 0.70710678).abs() < 1e-12);
+    assert_eq!((p.rotations[1].y, p.rotations[1].w), (0.6, 0.8));
     assert_eq!((p.root.translation.x, p.root.translation.z), (0.5, -1.25));
     // Output topics were recorded too (no messages, but declared with their QoS).
     let avatar = reader

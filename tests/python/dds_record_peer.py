@@ -88,7 +88,7 @@ def pose():
         header=Header(stamp=Time(sec=1_700_000_000, nanosec=500), frame_id="world"),
         person_id="person_0",
         bone_names=["spine", "head"],
-        rotations=[Quaternion(0.0, 0.0, 0.0, 1.0), Quaternion(0.0, 0.70710678, 0.0, 0.70710678)],
+        rotations=[Quaternion(0.0, 0.0, 0.0, 1.0), Quaternion(0.0, 0.6, 0.0, 0.8)],
         root=Transform(translation=Vector3(0.5, 0.0, -1.25), rotation=Quaternion(0.0, 0.0, 0.0, 1.0)),
     )
 
