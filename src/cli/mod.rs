@@ -8,6 +8,7 @@ mod body;
 mod config_cmd;
 mod eval;
 mod model;
+mod record;
 mod render;
 mod replay;
 mod run;
@@ -41,6 +42,8 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
     Bag(bag::BagArgs),
+    /// Record the node's input and output topics into an MCAP bag (`record --config FILE`).
+    Record(record::RecordArgs),
     /// Body template: summary, posed point clouds, asset conversion.
     Body(body::BodyArgs),
     /// Create seeded model checkpoints and print parameter counts.
@@ -64,6 +67,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),
+        Command::Record(args) => record::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),

@@ -13,6 +13,7 @@ pub mod names;
 pub mod pipeline;
 pub mod preprocess;
 pub mod publishers;
+pub mod record;
 pub mod replay;
 pub mod ros;
 pub mod run;

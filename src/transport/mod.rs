@@ -9,6 +9,7 @@
 
 pub mod bench;
 pub mod checksum;
+pub mod dds_bench;
 mod error;
 pub mod footprint;
 pub mod layout;
