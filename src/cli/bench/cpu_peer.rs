@@ -13,7 +13,7 @@ use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::{LayerNorm, Linear, VarBuilder};
 use clap::Args;
 
-use lhmpp::model::attention::{attention, merge_heads, split_heads};
+use lhmpp::model::attention::{attention, attention_reference, merge_heads, split_heads};
 use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::config::EncoderConfig;
 use lhmpp::model::encoder::DinoEncoder;
@@ -27,7 +27,8 @@ pub struct CpuPeerArgs {
     /// Timed runs per config (the median is printed); one warm-up run precedes them.
     #[arg(long, default_value_t = 3)]
     runs: usize,
-    /// Comma list of pieces: matmul, vit, joint (default all).
+    /// Comma list of pieces: matmul, vit, joint (the peer's), and `attn` (ours only: the fused
+    /// attention against the plain candle ops at the joint layer's shape).
     #[arg(long, value_delimiter = ',', default_value = "matmul,vit,joint")]
     only: Vec<String>,
     /// Smallest config of each piece only, 2 timed runs (smoke test).
@@ -245,6 +246,22 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
                 gflop,
                 t,
             );
+        }
+    }
+    if has("attn") {
+        let views: &[usize] = if a.quick { &[1] } else { &[1, 4, 8] };
+        for &v in views {
+            let l = 4096 + 256 * v;
+            let q = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
+            let k = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
+            let w = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
+            let gflop = 4.0 * 6.0 * (l * l * 64) as f64 / 1e9;
+            let t = time_runs(runs, || Ok(attention(&q, &k, &w, None).map(|_| ())?))?;
+            table.report("attn-fused", format!("B=1 H=6 L={l} D=64"), gflop, t);
+            let t = time_runs(runs, || {
+                Ok(attention_reference(&q, &k, &w, None).map(|_| ())?)
+            })?;
+            table.report("attn-candle", format!("B=1 H=6 L={l} D=64"), gflop, t);
         }
     }
     println!();
