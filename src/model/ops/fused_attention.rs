@@ -17,9 +17,9 @@ use gemm::Parallelism;
 use rayon::prelude::*;
 
 /// Query rows per unit of work.
-pub const QUERY_BLOCK: usize = 64;
+pub const QUERY_BLOCK: usize = 128;
 /// Keys per block of the online softmax.
-pub const KEY_BLOCK: usize = 256;
+pub const KEY_BLOCK: usize = 512;
 
 /// Why the fused attention refused its inputs.
 #[derive(Debug, thiserror::Error)]
