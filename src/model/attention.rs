@@ -1,8 +1,12 @@
-//! Plain scaled-dot-product attention shared by every block of the network.
+//! Scaled-dot-product attention shared by every block of the network (ViT, frame, joint and
+//! PTv3 patch attention all call [`attention`]).
 //!
-//! Layout `[B, H, L, D]`, scale `1/sqrt(D)`, softmax in f32. Queries are processed in chunks so
-//! the score matrix never exceeds [`SCORE_BUDGET_BYTES`]; the result is the same as one pass.
+//! Layout `[B, H, L, D]`, scale `1/sqrt(D)`, softmax in f32. On the CPU without a mask it runs
+//! the fused tiled kernel of [`crate::model::ops::fused_attention`]; elsewhere (other devices,
+//! masks) it runs [`attention_reference`], plain candle ops with queries processed in chunks so
+//! the score matrix never exceeds [`SCORE_BUDGET_BYTES`].
 
+use super::ops::fused_attention::fused_attention;
 use candle_core::{DType, Result, Tensor, D};
 
 /// Upper bound for one chunk's score matrix (f32 bytes).
@@ -13,6 +17,27 @@ pub const SCORE_BUDGET_BYTES: usize = 256 << 20;
 /// `mask` is an additive f32 tensor broadcastable to `[B,H,Lq,Lk]` (rank 4). The output has
 /// the dtype of `q`.
 pub fn attention(q: &Tensor, k: &Tensor, v: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
+    if mask.is_none() && q.device().is_cpu() {
+        let in_dtype = q.dtype();
+        let f32_contiguous = |t: &Tensor| t.to_dtype(DType::F32)?.contiguous();
+        return fused_attention(
+            &f32_contiguous(q)?,
+            &f32_contiguous(k)?,
+            &f32_contiguous(v)?,
+        )?
+        .to_dtype(in_dtype);
+    }
+    attention_reference(q, k, v, mask)
+}
+
+/// The plain candle-ops attention: the fallback of [`attention`] off the CPU or with a mask,
+/// and the reference the fused kernel is tested against. Same contract as [`attention`].
+pub fn attention_reference(
+    q: &Tensor,
+    k: &Tensor,
+    v: &Tensor,
+    mask: Option<&Tensor>,
+) -> Result<Tensor> {
     let (b, h, lq, _) = q.dims4()?;
     let per_row = b * h * k.dim(2)? * 4;
     let chunk = (SCORE_BUDGET_BYTES / per_row.max(1)).clamp(1, lq.max(1));

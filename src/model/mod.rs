@@ -15,6 +15,7 @@ pub mod frame_block;
 pub mod gs_head;
 pub mod joint_block;
 pub mod lhmpp;
+pub mod ops;
 pub mod point;
 pub mod token_merge;
 

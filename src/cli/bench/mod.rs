@@ -2,6 +2,7 @@
 
 use clap::{Args, Subcommand};
 
+mod cpu_peer;
 mod model;
 mod points;
 mod render;
@@ -25,6 +26,9 @@ enum BenchCommand {
     /// Publish→receive latency (p50/p99) and throughput of a 160K-Gaussian avatar and a
     /// 1920×1080 RGBA frame over iceoryx2, plus the shared memory each service reserves.
     Transport(transport::TransportArgs),
+    /// The pieces of the PyTorch CPU peer benchmark (matmul 1024³, DINOv2 ViT-S/B, SD3 joint
+    /// attention) timed with our code; `scripts/bench-cpu-peer` runs both side by side.
+    CpuPeer(cpu_peer::CpuPeerArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -34,5 +38,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Model(a) => model::run(a),
         BenchCommand::Points(a) => points::run(a),
         BenchCommand::Transport(a) => transport::run(a),
+        BenchCommand::CpuPeer(a) => cpu_peer::run(a),
     }
 }

@@ -5,9 +5,9 @@
 use candle_core::{Result, Tensor};
 use candle_nn::{layer_norm, linear, LayerNorm, Linear, Module, VarBuilder};
 
-use super::attention::attention;
 use super::serialization::Serialized;
 use super::sparse_conv::{NeighbourMap, SubMConv3d};
+use crate::model::attention::attention;
 
 /// LayerNorm epsilon of the official model (PyTorch default).
 pub const LN_EPS: f64 = 1e-5;
@@ -73,7 +73,7 @@ impl SerializedAttention {
             .reshape((patches, k, 3, h, d))?
             .permute((2, 0, 3, 1, 4))?
             .contiguous()?;
-        let out = attention(&qkv.get(0)?, &qkv.get(1)?, &qkv.get(2)?)?
+        let out = attention(&qkv.get(0)?, &qkv.get(1)?, &qkv.get(2)?, None)?
             .permute((0, 2, 1, 3))?
             .reshape((n_pad, c))?
             .index_select(&inverse, 0)?;

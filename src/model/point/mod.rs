@@ -5,7 +5,6 @@
 //! The stages are exposed one by one because the Point-Image Transformer interleaves them with
 //! its multi-modal blocks, which replace the point features between stages ([`PointState::with_feat`]).
 
-pub mod attention;
 pub mod block;
 pub mod grid;
 pub mod pooling;

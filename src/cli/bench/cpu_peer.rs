@@ -1,0 +1,270 @@
+//! `lhmpp bench cpu-peer`: the pieces of the PyTorch peer benchmark
+//! (`scripts/bench-cpu-peer` runs both) timed with our candle code: matmul 1024³, the DINOv2
+//! ViT-S/14 and ViT-B/14 with 4 registers (our `DinoEncoder`, random weights) at 224 and
+//! 518 px, and one SD3-style joint-attention layer (d = 384, 6 heads, 4,096 point tokens +
+//! 256 image tokens per view) written with candle ops and our shared attention.
+//!
+//! The table uses the peer's piece and config names and columns so the two can be joined.
+
+use std::time::Instant;
+
+use anyhow::Context;
+use candle_core::{DType, Device, Module, Tensor};
+use candle_nn::{LayerNorm, Linear, VarBuilder};
+use clap::Args;
+
+use lhmpp::model::attention::{attention, attention_reference, merge_heads, split_heads};
+use lhmpp::model::checkpoint::seeded_var_builder;
+use lhmpp::model::config::EncoderConfig;
+use lhmpp::model::encoder::DinoEncoder;
+
+/// Arguments of `lhmpp bench cpu-peer`.
+#[derive(Args, Debug)]
+pub struct CpuPeerArgs {
+    /// CPU threads (0 = all).
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Timed runs per config (the median is printed); one warm-up run precedes them.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Comma list of pieces: matmul, vit, joint (the peer's), and `attn` (ours only: the fused
+    /// attention against the plain candle ops at the joint layer's shape).
+    #[arg(long, value_delimiter = ',', default_value = "matmul,vit,joint")]
+    only: Vec<String>,
+    /// Smallest config of each piece only, 2 timed runs (smoke test).
+    #[arg(long)]
+    quick: bool,
+}
+
+/// One timed config: median and minimum milliseconds over `runs`.
+struct Timing {
+    median_ms: f64,
+    min_ms: f64,
+    runs: usize,
+}
+
+/// Runs `f` once to warm up, then `runs` times.
+fn time_runs(runs: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::Result<Timing> {
+    f()?;
+    let mut t: Vec<f64> = Vec::with_capacity(runs);
+    for _ in 0..runs.max(1) {
+        let start = Instant::now();
+        f()?;
+        t.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    t.sort_by(f64::total_cmp);
+    Ok(Timing {
+        median_ms: t[t.len() / 2],
+        min_ms: t[0],
+        runs: t.len(),
+    })
+}
+
+/// Collects rows and prints them as the peer script does.
+struct Table {
+    rows: Vec<(String, String, Timing, f64)>,
+}
+
+impl Table {
+    fn report(&mut self, piece: &str, config: String, gflop: f64, t: Timing) {
+        eprintln!("  done: {piece:14} {config:36} {:10.2} ms", t.median_ms);
+        self.rows.push((piece.to_string(), config, t, gflop));
+    }
+
+    fn print(&self) {
+        println!(
+            "{:14} {:36} {:>10} {:>10} {:>4} {:>8} {:>8}",
+            "piece", "config", "ms(med)", "ms(min)", "runs", "GFLOP", "GFLOP/s"
+        );
+        for (piece, config, t, gflop) in &self.rows {
+            println!(
+                "{piece:14} {config:36} {:10.2} {:10.2} {:4} {:8.2} {:8.1}",
+                t.median_ms,
+                t.min_ms,
+                t.runs,
+                gflop,
+                gflop / (t.median_ms / 1e3)
+            );
+        }
+    }
+}
+
+/// A DINOv2-style encoder config with 4 registers and a 37×37 position table.
+fn vit_config(dim: usize, heads: usize) -> EncoderConfig {
+    EncoderConfig {
+        embed_dim: dim,
+        depth: 12,
+        num_heads: heads,
+        patch_size: 14,
+        num_register_tokens: 4,
+        pos_embed_grid: 37,
+        mlp_ratio: 4.0,
+        layer_norm_eps: 1e-6,
+    }
+}
+
+/// Matmul and attention GFLOP of a ViT forward (the peer's count).
+fn vit_gflop(dim: usize, depth: usize, patches: usize, views: usize) -> f64 {
+    let t = (1 + 4 + patches) as f64;
+    let d = dim as f64;
+    let per_block = 24.0 * t * d * d + 4.0 * t * t * d;
+    views as f64 * (depth as f64 * per_block + 2.0 * patches as f64 * 3.0 * 196.0 * d) / 1e9
+}
+
+/// One modality's weights of the peer's joint-attention layer.
+struct Modality {
+    ln1: LayerNorm,
+    qkv: Linear,
+    out: Linear,
+    ln2: LayerNorm,
+    fc1: Linear,
+    fc2: Linear,
+}
+
+impl Modality {
+    fn new(d: usize, vb: VarBuilder) -> candle_core::Result<Self> {
+        Ok(Self {
+            ln1: candle_nn::layer_norm(d, 1e-6, vb.pp("ln1"))?,
+            qkv: candle_nn::linear(d, 3 * d, vb.pp("qkv"))?,
+            out: candle_nn::linear(d, d, vb.pp("out"))?,
+            ln2: candle_nn::layer_norm(d, 1e-6, vb.pp("ln2"))?,
+            fc1: candle_nn::linear(d, 4 * d, vb.pp("fc1"))?,
+            fc2: candle_nn::linear(4 * d, d, vb.pp("fc2"))?,
+        })
+    }
+
+    /// `x + fc2(gelu(fc1(ln2(x + out(o)))))` after the attention output `o`.
+    fn finish(&self, x: &Tensor, o: &Tensor) -> candle_core::Result<Tensor> {
+        let x = (x + self.out.forward(o)?)?;
+        let h = self.fc1.forward(&self.ln2.forward(&x)?)?.gelu_erf()?;
+        x + self.fc2.forward(&h)?
+    }
+}
+
+/// The peer's SD3-style joint layer: per-modality LN + qkv, one softmax over
+/// [points; image], per-modality output projection, LN + MLP ×4.
+fn joint_forward(
+    pt: &Modality,
+    im: &Modality,
+    xp: &Tensor,
+    xi: &Tensor,
+    heads: usize,
+) -> candle_core::Result<(Tensor, Tensor)> {
+    let p = xp.dim(1)?;
+    let qkv = Tensor::cat(
+        &[
+            pt.qkv.forward(&pt.ln1.forward(xp)?)?,
+            im.qkv.forward(&im.ln1.forward(xi)?)?,
+        ],
+        1,
+    )?;
+    let d = xp.dim(2)?;
+    let part = |i: usize| split_heads(&qkv.narrow(2, i * d, d)?, heads);
+    let o = merge_heads(&attention(&part(0)?, &part(1)?, &part(2)?, None)?)?;
+    let t = o.dim(1)?;
+    Ok((
+        pt.finish(xp, &o.narrow(1, 0, p)?)?,
+        im.finish(xi, &o.narrow(1, p, t - p)?)?,
+    ))
+}
+
+/// Runs `lhmpp bench cpu-peer`.
+pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
+    if a.threads > 0 {
+        std::env::set_var("RAYON_NUM_THREADS", a.threads.to_string());
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(a.threads)
+            .build_global()
+            .ok();
+    }
+    let runs = if a.quick { a.runs.min(2) } else { a.runs };
+    let dev = Device::Cpu;
+    let has = |p: &str| a.only.iter().any(|o| o == p);
+    println!(
+        "# lhmpp bench cpu-peer: candle 0.11.1, f32, random weights, {} rayon threads, gemm avx512 kernels {}",
+        rayon::current_num_threads(),
+        if cfg!(feature = "avx512") { "compiled in" } else { "not compiled" }
+    );
+    let mut table = Table { rows: Vec::new() };
+    if has("matmul") {
+        let n = 1024;
+        let x = Tensor::randn(0f32, 1.0, (n, n), &dev)?;
+        let y = Tensor::randn(0f32, 1.0, (n, n), &dev)?;
+        let t = time_runs(runs.max(5), || Ok(x.matmul(&y).map(|_| ())?))?;
+        table.report(
+            "matmul",
+            format!("{n}x{n}x{n} f32"),
+            2.0 * (n as f64).powi(3) / 1e9,
+            t,
+        );
+    }
+    if has("vit") {
+        let (sizes, views): (&[usize], &[usize]) = if a.quick {
+            (&[224], &[1])
+        } else {
+            (&[224, 518], &[1, 4])
+        };
+        for (name, dim, heads) in [("ViT-S/14+reg4", 384, 6), ("ViT-B/14+reg4", 768, 12)] {
+            let enc = DinoEncoder::new(
+                &vit_config(dim, heads),
+                seeded_var_builder(3, DType::F32, &dev),
+            )
+            .with_context(|| format!("building {name}"))?;
+            for &res in sizes {
+                let patches = (res / 14) * (res / 14);
+                for &v in views {
+                    let img = Tensor::rand(0f32, 1.0, (v, 3, res, res), &dev)?;
+                    let t = time_runs(runs, || Ok(enc.forward(&img).map(|_| ())?))?;
+                    table.report(
+                        name,
+                        format!("{res}px views={v} tokens={}", 1 + 4 + patches),
+                        vit_gflop(dim, 12, patches, v),
+                        t,
+                    );
+                }
+            }
+        }
+    }
+    if has("joint") {
+        let (d, heads, p) = (384usize, 6usize, 4096usize);
+        let vb = seeded_var_builder(5, DType::F32, &dev);
+        let pt = Modality::new(d, vb.pp("pt"))?;
+        let im = Modality::new(d, vb.pp("im"))?;
+        let views: &[usize] = if a.quick { &[1] } else { &[1, 4, 8] };
+        for &v in views {
+            let i = 256 * v;
+            let xp = Tensor::randn(0f32, 1.0, (1, p, d), &dev)?;
+            let xi = Tensor::randn(0f32, 1.0, (1, i, d), &dev)?;
+            let t = time_runs(runs, || {
+                Ok(joint_forward(&pt, &im, &xp, &xi, heads).map(|_| ())?)
+            })?;
+            let tokens = (p + i) as f64;
+            let gflop = (24.0 * tokens * (d * d) as f64 + 4.0 * tokens * tokens * d as f64) / 1e9;
+            table.report(
+                "joint-attn",
+                format!("d={d} h={heads} P={p} I={i} (views={v})"),
+                gflop,
+                t,
+            );
+        }
+    }
+    if has("attn") {
+        let views: &[usize] = if a.quick { &[1] } else { &[1, 4, 8] };
+        for &v in views {
+            let l = 4096 + 256 * v;
+            let q = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
+            let k = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
+            let w = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
+            let gflop = 4.0 * 6.0 * (l * l * 64) as f64 / 1e9;
+            let t = time_runs(runs, || Ok(attention(&q, &k, &w, None).map(|_| ())?))?;
+            table.report("attn-fused", format!("B=1 H=6 L={l} D=64"), gflop, t);
+            let t = time_runs(runs, || {
+                Ok(attention_reference(&q, &k, &w, None).map(|_| ())?)
+            })?;
+            table.report("attn-candle", format!("B=1 H=6 L={l} D=64"), gflop, t);
+        }
+    }
+    println!();
+    table.print();
+    Ok(())
+}
