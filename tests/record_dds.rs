@@ -81,9 +81,9 @@ fn lines_of(
             .map_while(Result::ok)
         {
             eprintln!("{tag}: {line}");
-            if tx.send(line).is_err() {
-                break;
-            }
+            // Keep draining after the receiver is gone, so the child never writes to a
+            // closed pipe.
+            let _ = tx.send(line);
         }
     });
     rx

@@ -7,6 +7,7 @@ use lhmpp::config::NodeConfig;
 use lhmpp::node::record::{self, RecordOptions};
 use lhmpp::node::ros::{InputQos, ResolvedTopics, RosNodeOptions};
 use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -82,14 +83,18 @@ pub fn run(args: RecordArgs) -> Result<()> {
         &options,
         record::interrupt_or_terminate(),
     ))?;
-    println!(
+    // The bag is complete at this point: a closed stdout (e.g. `| head`) must not turn the
+    // summary into a panic, so write errors are ignored.
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(
+        out,
         "recorded {} messages in {:.1} s into {}",
         summary.total,
         summary.elapsed.as_secs_f64(),
         output.display()
     );
     for (topic, n) in &summary.per_topic {
-        println!("  {topic}: {n}");
+        let _ = writeln!(out, "  {topic}: {n}");
     }
     Ok(())
 }

@@ -17,12 +17,9 @@ import struct
 import sys
 import time
 import zlib
-from dataclasses import dataclass
 
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float32, float64, int32, sequence, uint8, uint32
 
 import numpy as np
 from cyclonedds.pub import DataWriter
@@ -31,34 +28,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32
-    nanosec: uint32
-
-
-@dataclass
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time
-    frame_id: str
-
-
-@dataclass
-class Image(IdlStruct, typename="sensor_msgs::msg::dds_::Image_"):
-    header: Header
-    height: uint32
-    width: uint32
-    encoding: str
-    is_bigendian: uint8
-    step: uint32
-    data: sequence[uint8]
-
-
-@dataclass
-class CompressedImage(IdlStruct, typename="sensor_msgs::msg::dds_::CompressedImage_"):
-    header: Header
-    format: str
-    data: sequence[uint8]
+from ros_idl import Time, Header, Image, CompressedImage, Point, PointField, PointCloud2, GaussianAvatar
 
 
 def png_rgb8(width, height, rgb):
@@ -72,50 +42,7 @@ def png_rgb8(width, height, rgb):
             + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
 
 
-@dataclass
-class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
-    x: float64
-    y: float64
-    z: float64
-
-
-@dataclass
-class PointField(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
-    name: str
-    offset: uint32
-    datatype: uint8
-    count: uint32
-
-
-@dataclass
-class PointCloud2(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
-    header: Header
-    height: uint32
-    width: uint32
-    fields: sequence[PointField]
-    is_bigendian: bool
-    point_step: uint32
-    row_step: uint32
-    data: sequence[uint8]
-    is_dense: bool
-
-
 # Field order as in msg/msg/GaussianAvatar.msg.
-@dataclass
-class GaussianAvatar(IdlStruct, typename="lhmpp_msgs::msg::dds_::GaussianAvatar_"):
-    header: Header
-    person_id: str
-    revision: uint32
-    views_used: uint32
-    body_model: str
-    shape_params: sequence[float32]
-    sh_degree: uint8
-    bone_names: sequence[str]
-    bone_parents: sequence[int32]
-    bone_rest_positions: sequence[Point]
-    gaussians: PointCloud2
-
-
 FLOAT32, UINT16 = 7, 4
 RGB_FIELDS = ["x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2",
               "rot_3", "opacity", "r", "g", "b"]
