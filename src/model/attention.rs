@@ -7,7 +7,7 @@
 //! the score matrix never exceeds [`SCORE_BUDGET_BYTES`].
 
 use super::ops::fused_attention::fused_attention;
-use candle_core::{DType, Result, Tensor, D};
+use candle_core::{DType, Result, Tensor};
 
 /// Upper bound for one chunk's score matrix (f32 bytes).
 pub const SCORE_BUDGET_BYTES: usize = 256 << 20;
@@ -98,19 +98,11 @@ pub fn merge_heads(x: &Tensor) -> Result<Tensor> {
     x.transpose(1, 2)?.reshape((b, l, h * d))
 }
 
-/// Mean over the last dimension, kept: helper for the norms below.
-fn mean_last(x: &Tensor) -> Result<Tensor> {
-    x.mean_keepdim(D::Minus1)
-}
-
-/// LayerNorm over the last dimension without affine parameters.
+/// LayerNorm over the last dimension without affine parameters (the fused CPU kernel of
+/// [`super::ops::layer_norm`] for f32 on the CPU, candle ops in f32 otherwise).
 pub fn layer_norm_plain(x: &Tensor, eps: f64) -> Result<Tensor> {
-    let dtype = x.dtype();
-    let x = x.to_dtype(DType::F32)?;
-    let mu = mean_last(&x)?;
-    let xc = x.broadcast_sub(&mu)?;
-    let var = mean_last(&xc.sqr()?)?;
-    xc.broadcast_div(&(var + eps)?.sqrt()?)?.to_dtype(dtype)
+    use candle_core::Module;
+    super::ops::layer_norm::LayerNorm::plain(eps).forward(x)
 }
 
 #[cfg(test)]

@@ -3,7 +3,10 @@
 //! `attn.qkv`, `attn.proj`, residual) and an MLP (`norm2`, `mlp.0.fc1`, GELU, `mlp.0.fc2`, residual).
 
 use candle_core::{Result, Tensor};
-use candle_nn::{layer_norm, linear, LayerNorm, Linear, Module, VarBuilder};
+use candle_nn::{Module, VarBuilder};
+
+use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
+use crate::model::ops::linear::{linear, Linear};
 
 use super::serialization::Serialized;
 use super::sparse_conv::{NeighbourMap, SubMConv3d};
@@ -139,7 +142,7 @@ impl PtBlock {
         let order = &orders[self.order_index % orders.len()];
         let a = self.attn.forward(&self.norm1.forward(&x)?, order)?;
         let x = (x + a)?;
-        let hdn = self.fc1.forward(&self.norm2.forward(&x)?)?.gelu_erf()?;
+        let hdn = self.fc1.forward_gelu(&self.norm2.forward(&x)?)?;
         x + self.fc2.forward(&hdn)?
     }
 }
