@@ -72,7 +72,7 @@ fn attention_in_chunks(
             };
             scores = scores.broadcast_add(&m.to_dtype(DType::F32)?)?;
         }
-        let probs = candle_nn::ops::softmax_last_dim(&scores)?;
+        let probs = super::ops::softmax::softmax_last_dim(&scores)?;
         outs.push(probs.matmul(&v)?);
         start += len;
     }

@@ -190,12 +190,18 @@ mod tests {
 
     #[test]
     fn dispatched_gelu_equals_the_portable_loop() {
-        let xs: Vec<f32> = (0..1037).map(|i| ((i * 37) % 101) as f32 * 0.1 - 5.0).collect();
+        let xs: Vec<f32> = (0..1037)
+            .map(|i| ((i * 37) % 101) as f32 * 0.1 - 5.0)
+            .collect();
         let mut a = xs.clone();
         gelu_portable(&mut a);
         let mut b = xs;
         gelu_in_place(&mut b);
-        let worst = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+        let worst = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max);
         assert!(worst < 1e-6, "{worst}");
     }
 }

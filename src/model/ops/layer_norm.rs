@@ -234,7 +234,13 @@ mod tests {
     fn normalised_rows_have_zero_mean_and_unit_variance() {
         let x = Tensor::randn(5f32, 3.0, (4, 9, 64), &Device::Cpu).unwrap();
         let y = LayerNorm::plain(1e-6).forward(&x).unwrap();
-        let mean = y.mean_keepdim(D::Minus1).unwrap().abs().unwrap().max_all().unwrap();
+        let mean = y
+            .mean_keepdim(D::Minus1)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap();
         let var = y.sqr().unwrap().mean_keepdim(D::Minus1).unwrap();
         let var_err = (var - 1.0).unwrap().abs().unwrap().max_all().unwrap();
         assert!(mean.to_scalar::<f32>().unwrap() < 1e-5);

@@ -230,7 +230,10 @@ impl FusedLinear<'_> {
             Some((s, l)) => {
                 let r = f32_data(s, l, "residual")?;
                 if r.len() != m * n {
-                    candle_core::bail!("fused linear: residual has {} values, expected {m}×{n}", r.len());
+                    candle_core::bail!(
+                        "fused linear: residual has {} values, expected {m}×{n}",
+                        r.len()
+                    );
                 }
                 Some(r)
             }
@@ -306,7 +309,9 @@ pub fn linear_f32(
     if n > 0 {
         match act {
             Activation::Identity => {}
-            Activation::GeluErf => out.par_chunks_mut(EPILOGUE_ROWS * n).for_each(gelu_in_place),
+            Activation::GeluErf => out
+                .par_chunks_mut(EPILOGUE_ROWS * n)
+                .for_each(gelu_in_place),
             Activation::GeluTanh => out
                 .par_chunks_mut(EPILOGUE_ROWS * n)
                 .for_each(gelu_tanh_in_place),
@@ -437,7 +442,11 @@ mod tests {
             let x = Tensor::randn(0f32, 1.0, xs, &dev).unwrap();
             let w = Tensor::randn(0f32, 0.2, (n, k), &dev).unwrap();
             let b = Tensor::randn(0f32, 1.0, n, &dev).unwrap();
-            for act in [Activation::Identity, Activation::GeluErf, Activation::GeluTanh] {
+            for act in [
+                Activation::Identity,
+                Activation::GeluErf,
+                Activation::GeluTanh,
+            ] {
                 for bias in [true, false] {
                     let l = Linear::new(w.clone(), bias.then(|| b.clone()));
                     let got = l.forward_act(&x, act).unwrap();
@@ -487,7 +496,10 @@ mod tests {
         let x = Tensor::randn(0f32, 1.0, (3, 4), &dev).unwrap();
         let w = Tensor::randn(0f32, 1.0, (2, 4), &dev).unwrap();
         let b = Tensor::randn(0f32, 1.0, 2, &dev).unwrap();
-        let l = Linear::new(w.to_dtype(DType::F64).unwrap(), Some(b.to_dtype(DType::F64).unwrap()));
+        let l = Linear::new(
+            w.to_dtype(DType::F64).unwrap(),
+            Some(b.to_dtype(DType::F64).unwrap()),
+        );
         let got = l
             .forward_gelu(&x.to_dtype(DType::F64).unwrap())
             .unwrap()
