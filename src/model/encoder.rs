@@ -93,9 +93,9 @@ impl SelfAttention {
     }
 }
 
-/// One pre-norm ViT block with LayerScale.
+/// One pre-norm ViT block with LayerScale (`encoder.model.blocks.{i}`).
 #[derive(Debug, Clone)]
-struct EncoderBlock {
+pub struct EncoderBlock {
     norm1: LayerNorm,
     attn: SelfAttention,
     ls1: LayerScale,
@@ -105,7 +105,8 @@ struct EncoderBlock {
 }
 
 impl EncoderBlock {
-    fn new(cfg: &EncoderConfig, vb: VarBuilder) -> Result<Self> {
+    /// Builds one block of `cfg`'s width from `vb = ….blocks.{i}`.
+    pub fn new(cfg: &EncoderConfig, vb: VarBuilder) -> Result<Self> {
         let c = cfg.embed_dim;
         let hidden = (c as f64 * cfg.mlp_ratio) as usize;
         Ok(Self {
@@ -118,7 +119,8 @@ impl EncoderBlock {
         })
     }
 
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+    /// `x [B, N, C]` → `x + ls1·attn(norm1 x)`, then `+ ls2·mlp(norm2 x)`.
+    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let x = (x + self
             .ls1
             .forward(&self.attn.forward(&self.norm1.forward(x)?)?)?)?;
