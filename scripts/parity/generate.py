@@ -10,14 +10,38 @@ LHMPP-700M widths for single blocks (hundreds of MB: keep it out of the reposito
 """
 
 import argparse
+import ctypes
 import copy
 import json
 import os
 
+import struct
+
 import torch
-from safetensors.torch import save_file
 
 import reference as R
+
+DTYPES = {torch.float32: "F32", torch.int64: "I64"}
+
+
+def save_file(tensors, path, metadata):
+    """Minimal safetensors writer (the GPU machine may lack the `safetensors` package):
+    u64 header size, JSON header (dtype, shape, data_offsets; `__metadata__`), raw data."""
+    header, blobs, offset = {"__metadata__": metadata}, [], 0
+    for name in sorted(tensors):
+        t = tensors[name].contiguous().cpu()
+        raw = ctypes.string_at(t.data_ptr(), t.numel() * t.element_size())
+        header[name] = {"dtype": DTYPES[t.dtype], "shape": list(t.shape),
+                        "data_offsets": [offset, offset + len(raw)]}
+        blobs.append(raw)
+        offset += len(raw)
+    head = json.dumps(header, separators=(",", ":")).encode()
+    head += b" " * (-len(head) % 8)
+    with open(path, "wb") as f:
+        f.write(struct.pack("<Q", len(head)))
+        f.write(head)
+        for raw in blobs:
+            f.write(raw)
 
 SIZES = {
     "small": {
