@@ -108,3 +108,17 @@ fn gaussian_head_activations_match_pytorch() {
 fn dpt_neural_renderer_matches_pytorch_patchify_and_dpt_head() {
     assert_matches_pytorch("dpt", &["rgb", "mask"]);
 }
+
+#[test]
+fn ptv3_block_and_serialization_orders_match_pytorch_reference() {
+    assert_matches_pytorch(
+        "ptv3_block",
+        &[
+            "y",
+            "order_z",
+            "order_z_trans",
+            "order_hilbert",
+            "order_hilbert_trans",
+        ],
+    );
+}

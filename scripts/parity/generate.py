@@ -55,6 +55,8 @@ SIZES = {
         "gs_head": dict(q=32, n=64, hidden_layers=2, clip_scaling=0.05, max_step=1.0, points=100),
         "dpt": dict(c=8, patch=7, embed=64, features=16, oc=[8, 16, 32, 32], batch=1,
                     height=28, width=21),
+        "ptv3_block": dict(c=32, heads=2, patch=64, mlp_ratio=4.0, order_index=2, box=[10, 9, 8],
+                           occupancy=0.4),
     },
     "700m": {
         "dino_block": dict(dim=1024, heads=16, mlp_ratio=4.0, batch=1, tokens=1 + 4 + 60 * 36),
@@ -68,6 +70,8 @@ SIZES = {
         "gs_head": dict(q=128, n=512, hidden_layers=2, clip_scaling=0.05, max_step=1.0, points=20000),
         "dpt": dict(c=128, patch=7, embed=1024, features=128, oc=[128, 256, 512, 512], batch=1,
                     height=140, width=84),
+        "ptv3_block": dict(c=64, heads=4, patch=4096, mlp_ratio=4.0, order_index=3, box=[40, 40, 40],
+                           occupancy=0.16),
     },
 }
 
@@ -79,6 +83,7 @@ PREFIX = {
     "joint_block": "transformer.pi_transformer_enc.0.",
     "joint_block_pre_only": "transformer.pi_transformer_dec.2.",
     "sparse_conv": "transformer.point_backbone.enc.enc0.block0.cpe.0.",
+    "ptv3_block": "transformer.point_backbone.enc.enc0.block0.",
     "gs_head": "renderer.",
     "dpt": "neural_renderer.",
 }
@@ -102,6 +107,15 @@ def randomize(module, gen):
             else:
                 v = 0.5 * n
             p.copy_(v)
+
+
+def random_voxels(box, occupancy, gen):
+    """Distinct random cells of a box [N, 3] (int64), shuffled as after hashing."""
+    bx, by, bz = box
+    cells = torch.stack(torch.meshgrid(torch.arange(bx), torch.arange(by), torch.arange(bz),
+                                       indexing="ij"), -1).reshape(-1, 3)
+    grid = cells[torch.rand(cells.shape[0], generator=gen) < occupancy]
+    return grid[torch.randperm(grid.shape[0], generator=gen)].to(torch.int64)
 
 
 def build(kind, c, gen):
@@ -144,14 +158,20 @@ def build(kind, c, gen):
             return out
     elif kind == "sparse_conv":
         m = R.SubMConv3d(c["c_in"], c["c_out"])
-        bx, by, bz = c["box"]
-        cells = torch.stack(torch.meshgrid(torch.arange(bx), torch.arange(by), torch.arange(bz),
-                                           indexing="ij"), -1).reshape(-1, 3)
-        keep = torch.rand(cells.shape[0], generator=gen) < c["occupancy"]
-        grid = cells[keep]
-        grid = grid[torch.randperm(grid.shape[0], generator=gen)]  # unordered, as after hashing
-        inputs = {"grid": grid.to(torch.int64), "x": rn(grid.shape[0], c["c_in"])}
+        grid = random_voxels(c["box"], c["occupancy"], gen)
+        inputs = {"grid": grid, "x": rn(grid.shape[0], c["c_in"])}
         fwd = lambda m, i: {"y": m(i["x"], i["grid"])}  # noqa: E731
+    elif kind == "ptv3_block":
+        m = R.PtBlock(c["c"], c["heads"], c["patch"], c["mlp_ratio"], c["order_index"])
+        grid = random_voxels(c["box"], c["occupancy"], gen)
+        inputs = {"grid": grid, "x": rn(grid.shape[0], c["c"])}
+        names = ["z", "z_trans", "hilbert", "hilbert_trans"]
+
+        def fwd(m, i):
+            orders = R.serialize(i["grid"].cpu())
+            out = {"y": m(i["x"], i["grid"], orders)}
+            out.update({f"order_{n}": o for n, (o, _) in zip(names, orders)})
+            return out
     elif kind == "gs_head":
         m = R.GsHead(c["q"], c["n"], c["hidden_layers"], c["clip_scaling"], c["max_step"])
         inputs = {"features": rn(c["points"], c["q"]), "anchors": rn(c["points"], 3)}
@@ -192,7 +212,7 @@ def main():
     for idx, (kind, cfg) in enumerate(SIZES[args.size].items()):
         if args.block and kind not in args.block:
             continue
-        gen = torch.Generator().manual_seed(args.seed * 1000 + idx)
+        gen = torch.Generator().manual_seed(args.seed * 1000 + idx)  # idx: append new blocks last
         m, inputs, fwd = build(kind, cfg, gen)
         m = m.to(dev).eval()
         ins = {k: v.to(dev) for k, v in inputs.items()}
@@ -201,10 +221,11 @@ def main():
             m16 = copy.deepcopy(m).to(torch.bfloat16)  # Module.to works in place: keep m in f32
             ins16 = {k: (v.to(torch.bfloat16) if v.is_floating_point() else v) for k, v in ins.items()}
             outs16 = fwd(m16, ins16)
-        bf16 = {k: rel_err(outs16[k].float(), outs[k]) for k in outs}
+        bf16 = {k: rel_err(outs16[k].float(), outs[k]) for k in outs if outs[k].is_floating_point()}
         tensors = {PREFIX[kind] + k: v.detach().float().cpu().contiguous() for k, v in m.state_dict().items()}
         tensors.update({f"parity.input.{k}": v.cpu().contiguous() for k, v in inputs.items()})
-        tensors.update({f"parity.output.{k}": v.float().cpu().contiguous() for k, v in outs.items()})
+        tensors.update({f"parity.output.{k}": (v.float() if v.is_floating_point() else v).cpu().contiguous()
+                        for k, v in outs.items()})
         meta = {
             "block": kind,
             "config": json.dumps(cfg),

@@ -357,6 +357,108 @@ class SubMConv3d(nn.Module):
 
 
 # --------------------------------------------------------------------------------------------
+# PTv3 serialization and block (transformer.point_backbone.{enc,dec}.*.block{i})
+
+
+def morton_code(g):
+    """Z-order of grid cells [N, 3] (int64): bit i of x -> 3i+2, of y -> 3i+1, of z -> 3i."""
+    code = torch.zeros(g.shape[0], dtype=torch.int64)
+    for i in range(21):
+        code |= ((g[:, 0] >> i) & 1) << (3 * i + 2)
+        code |= ((g[:, 1] >> i) & 1) << (3 * i + 1)
+        code |= ((g[:, 2] >> i) & 1) << (3 * i)
+    return code
+
+
+def hilbert_code(g, depth):
+    """Skilling's transform on MSB-first bit planes, interleave bit-major / dim-minor, then
+    Gray decode (prefix XOR) and pack MSB first."""
+    n = g.shape[0]
+    bits = torch.stack([(g >> (depth - 1 - b)) & 1 for b in range(depth)], dim=-1).bool()
+    for bit in range(depth):
+        for d in range(3):
+            m = bits[:, d, bit].clone()[:, None]
+            bits[:, 0, bit + 1 :] ^= m
+            t = ~m & (bits[:, 0, bit + 1 :] ^ bits[:, d, bit + 1 :])
+            bits[:, d, bit + 1 :] ^= t
+            bits[:, 0, bit + 1 :] ^= t
+    gray = bits.transpose(1, 2).reshape(n, 3 * depth).to(torch.int64)
+    binary = torch.cumsum(gray, dim=1) % 2
+    weights = torch.tensor([1 << (3 * depth - 1 - i) for i in range(3 * depth)], dtype=torch.int64)
+    return (binary * weights).sum(1)
+
+
+def serialize(grid):
+    """The official order list [z, z-trans, hilbert, hilbert-trans] as (order, inverse) pairs;
+    depth = bit_length(max(grid) + 1)."""
+    depth = int(grid.max() + 1).bit_length()
+    trans = grid[:, [1, 0, 2]]
+    codes = [morton_code(grid), morton_code(trans), hilbert_code(grid, depth), hilbert_code(trans, depth)]
+    out = []
+    for code in codes:
+        order = torch.argsort(code)
+        inverse = torch.empty_like(order)
+        inverse[order] = torch.arange(order.shape[0])
+        out.append((order, inverse))
+    return out
+
+
+class PatchAttention(nn.Module):
+    """PTv3 SerializedAttention (no RPE): patches of K consecutive points of the order, the
+    tail of the last patch padded with the previous patch's slots."""
+
+    def __init__(self, c, heads, patch):
+        super().__init__()
+        self.heads, self.patch = heads, patch
+        self.qkv = nn.Linear(c, 3 * c)
+        self.proj = nn.Linear(c, c)
+
+    def forward(self, x, order, inverse):
+        n, c = x.shape
+        k = min(n, self.patch)
+        n_pad = n if n <= self.patch else -(-n // self.patch) * self.patch
+        pad = torch.arange(n_pad)
+        if n_pad != n:
+            r = n % self.patch
+            pad[n_pad - self.patch + r : n_pad] = pad[n_pad - 2 * self.patch + r : n_pad - self.patch].clone()
+        qkv = self.qkv(x)[order[pad]]
+        q, kk, v = qkv.reshape(-1, k, 3, self.heads, c // self.heads).permute(2, 0, 3, 1, 4)
+        attn = torch.softmax((q * (c // self.heads) ** -0.5) @ kk.transpose(-2, -1), dim=-1)
+        feat = (attn @ v).transpose(1, 2).reshape(-1, c)
+        return self.proj(feat[inverse])
+
+
+class PtMlp(nn.Module):
+    def __init__(self, c, hidden):
+        super().__init__()
+        self.fc1 = nn.Linear(c, hidden)
+        self.fc2 = nn.Linear(hidden, c)
+
+    def forward(self, x):
+        return self.fc2(F.gelu(self.fc1(x)))
+
+
+class PtBlock(nn.Module):
+    """Sonata Block, pre-norm: x += cpe(x) [SubMConv3d, Linear, LayerNorm];
+    x += attn(norm1 x); x += mlp(norm2 x)."""
+
+    def __init__(self, c, heads, patch, mlp_ratio, order_index):
+        super().__init__()
+        self.order_index = order_index
+        self.cpe = nn.ModuleList([SubMConv3d(c, c), nn.Linear(c, c), nn.LayerNorm(c)])
+        self.norm1 = nn.ModuleList([nn.LayerNorm(c)])
+        self.attn = PatchAttention(c, heads, patch)
+        self.norm2 = nn.ModuleList([nn.LayerNorm(c)])
+        self.mlp = nn.ModuleList([PtMlp(c, int(c * mlp_ratio))])
+
+    def forward(self, x, grid, orders):
+        x = x + self.cpe[2](self.cpe[1](self.cpe[0](x, grid)))
+        order, inverse = orders[self.order_index % len(orders)]
+        x = x + self.attn(self.norm1[0](x), order.to(x.device), inverse.to(x.device))
+        return x + self.mlp[0](self.norm2[0](x))
+
+
+# --------------------------------------------------------------------------------------------
 # Gaussian head (renderer.*)
 
 

@@ -23,6 +23,8 @@ use lhmpp::model::encoder::{DinoEncoder, EncoderBlock};
 use lhmpp::model::frame_block::{FrameBlock, RopeTables, SPECIAL_TOKENS};
 use lhmpp::model::gs_head::GsHead;
 use lhmpp::model::joint_block::JointBlock;
+use lhmpp::model::point::block::PtBlock;
+use lhmpp::model::point::serialization::{serialize_all, SerializationOrder};
 use lhmpp::model::point::sparse_conv::{NeighbourMap, SubMConv3d};
 
 /// Arguments of `lhmpp model parity`.
@@ -164,6 +166,17 @@ impl Fixture {
         Ok(t.to_device(dev)?)
     }
 
+    /// The voxel cells of input `grid` (`[N, 3]` integers).
+    fn grid(&self) -> anyhow::Result<Vec<[u32; 3]>> {
+        Ok(self
+            .input("grid", DType::F32, &Device::Cpu)?
+            .to_dtype(DType::I64)?
+            .to_vec2::<i64>()?
+            .into_iter()
+            .map(|r| [r[0] as u32, r[1] as u32, r[2] as u32])
+            .collect())
+    }
+
     /// PyTorch's output `name` (f32, CPU).
     fn expected(&self, name: &str) -> anyhow::Result<&Tensor> {
         let key = format!("parity.output.{name}");
@@ -248,15 +261,35 @@ fn run_block(fx: &Fixture, dtype: DType, dev: &Device) -> anyhow::Result<Vec<(St
         }
         "sparse_conv" => {
             let conv = SubMConv3d::new(fx.usize("c_in")?, fx.usize("c_out")?, vb)?;
-            let grid: Vec<[u32; 3]> = fx
-                .input("grid", dtype, &Device::Cpu)?
-                .to_dtype(DType::I64)?
-                .to_vec2::<i64>()?
-                .into_iter()
-                .map(|r| [r[0] as u32, r[1] as u32, r[2] as u32])
-                .collect();
-            let map = NeighbourMap::new(&grid, dev)?;
+            let map = NeighbourMap::new(&fx.grid()?, dev)?;
             vec![out("y", conv.forward(&fx.input("x", dtype, dev)?, &map)?)]
+        }
+        "ptv3_block" => {
+            let block = PtBlock::new(
+                fx.usize("c")?,
+                fx.usize("heads")?,
+                fx.usize("patch")?,
+                fx.f64("mlp_ratio")?,
+                fx.usize("order_index")?,
+                vb,
+            )?;
+            let grid = fx.grid()?;
+            let orders = serialize_all(&grid, &SerializationOrder::official());
+            let map = NeighbourMap::new(&grid, dev)?;
+            let y = block.forward(&fx.input("x", dtype, dev)?, &orders, &map)?;
+            let mut v = vec![out("y", y)];
+            for (name, o) in ["z", "z_trans", "hilbert", "hilbert_trans"]
+                .iter()
+                .zip(&orders)
+            {
+                let perm: Vec<i64> = o.order.iter().map(|&i| i64::from(i)).collect();
+                let n = perm.len();
+                v.push(out(
+                    &format!("order_{name}"),
+                    Tensor::from_vec(perm, n, &Device::Cpu)?,
+                ));
+            }
+            v
         }
         "gs_head" => {
             let cfg = GsHeadConfig {
@@ -441,7 +474,7 @@ pub fn run(args: ParityArgs) -> anyhow::Result<()> {
 
 fn print_table(rows: &[Row]) {
     println!(
-        "{:<22} {:<6} {:<5} {:<13} {:>11} {:>11} {:>11} {:>5}",
+        "{:<22} {:<6} {:<5} {:<19} {:>11} {:>11} {:>11} {:>5}",
         "block", "device", "dtype", "output", "max abs", "max rel", "torch bf16", "ok"
     );
     let mut last_block = String::new();
@@ -454,7 +487,7 @@ fn print_table(rows: &[Row]) {
             .torch_bf16_rel
             .map_or_else(|| "-".to_string(), |v| format!("{v:.3e}"));
         println!(
-            "{:<22} {:<6} {:<5} {:<13} {:>11.3e} {:>11.3e} {:>11} {:>5}",
+            "{:<22} {:<6} {:<5} {:<19} {:>11.3e} {:>11.3e} {:>11} {:>5}",
             r.block,
             r.device,
             r.dtype,
