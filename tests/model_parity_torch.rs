@@ -14,12 +14,15 @@ use serde_json::Value;
 /// The f32 limit of issues 4 and 10.
 const MAX_REL_F32: f64 = 1e-4;
 
-/// Runs the parity command on one fixture and returns its rows.
-fn parity_rows(block: &str) -> Vec<Value> {
+/// The bf16 limit of issue 4, raised to twice PyTorch's own bf16 error where that is larger.
+const MAX_REL_BF16: f64 = 1e-2;
+
+/// Runs the parity command on one fixture in `dtype` and returns its rows.
+fn parity_rows_in(block: &str, dtype: &str) -> Vec<Value> {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/parity");
     let out = Command::new(env!("CARGO_BIN_EXE_lhmpp"))
         .args([
-            "model", "parity", "--json", "--dtype", "f32", "--block", block,
+            "model", "parity", "--json", "--dtype", dtype, "--block", block,
         ])
         .arg("--fixtures")
         .arg(&fixtures)
@@ -33,6 +36,11 @@ fn parity_rows(block: &str) -> Vec<Value> {
     let rows: Vec<Value> = serde_json::from_slice(&out.stdout).expect("JSON rows");
     assert!(!rows.is_empty(), "no rows for {block}");
     rows
+}
+
+/// Runs the parity command on one fixture in f32.
+fn parity_rows(block: &str) -> Vec<Value> {
+    parity_rows_in(block, "f32")
 }
 
 /// Asserts that `block` reports exactly `outputs`, each within the f32 limit.
@@ -121,4 +129,35 @@ fn ptv3_block_and_serialization_orders_match_pytorch_reference() {
             "order_hilbert_trans",
         ],
     );
+}
+
+#[test]
+fn blocks_in_bf16_on_the_cpu_stay_within_the_bf16_limit() {
+    // Blocks with 2D convolutions (encoder patch embed, DPT) are left out: candle's CPU conv2d
+    // has no bf16 kernel. CUDA runs them all (`scripts/parity/run --device cuda`).
+    for block in [
+        "dino_block",
+        "frame_block",
+        "joint_block",
+        "joint_block_pre_only",
+        "sparse_conv",
+        "ptv3_block",
+        "gs_head",
+    ] {
+        for r in parity_rows_in(block, "bf16") {
+            assert!(
+                r["error"].is_null(),
+                "{block} failed in bf16: {}",
+                r["error"]
+            );
+            let rel = r["max_rel"].as_f64().expect("max_rel");
+            let torch = r["torch_bf16_rel"].as_f64().unwrap_or(0.0);
+            let limit = MAX_REL_BF16.max(2.0 * torch);
+            assert!(
+                rel < limit,
+                "{block}.{} in bf16: max rel {rel:.3e} >= {limit:.3e} (PyTorch bf16 {torch:.3e})",
+                r["output"]
+            );
+        }
+    }
 }

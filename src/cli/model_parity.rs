@@ -27,6 +27,9 @@ use lhmpp::model::point::block::PtBlock;
 use lhmpp::model::point::serialization::{serialize_all, SerializationOrder};
 use lhmpp::model::point::sparse_conv::{NeighbourMap, SubMConv3d};
 
+/// A bf16 output passes below `max(--max-rel-bf16, BF16_TORCH_FACTOR × PyTorch's own bf16 error)`.
+const BF16_TORCH_FACTOR: f64 = 2.0;
+
 /// Arguments of `lhmpp model parity`.
 #[derive(Args, Debug)]
 pub struct ParityArgs {
@@ -45,7 +48,7 @@ pub struct ParityArgs {
     /// Relative-error limit in f32.
     #[arg(long, default_value_t = 1e-4)]
     max_rel_f32: f64,
-    /// Relative-error limit in bf16.
+    /// Relative-error limit in bf16 (raised to twice PyTorch's own bf16 error where that is larger).
     #[arg(long, default_value_t = 1e-2)]
     max_rel_bf16: f64,
     /// Print the rows as one JSON array instead of a table.
@@ -438,14 +441,18 @@ pub fn run(args: ParityArgs) -> anyhow::Result<()> {
             for (name, ours) in outputs {
                 let (max_abs, max_rel) = errors(&ours, fx.expected(&name)?)
                     .with_context(|| format!("{}: output `{name}`", path.display()))?;
+                let torch_bf16_rel = (*dtype != DType::F32)
+                    .then(|| fx.torch_bf16.get(&name).copied())
+                    .flatten();
+                // Where PyTorch's own bf16 run is further off than the limit (normalised
+                // quaternions of short vectors, exp-clamped scales), allow twice its error.
+                let limit = torch_bf16_rel.map_or(limit, |t| limit.max(BF16_TORCH_FACTOR * t));
                 rows.push(Row {
                     block: fx.block.clone(),
                     dims: fx.dims(),
                     device: args.device.clone(),
                     dtype: dname.clone(),
-                    torch_bf16_rel: (*dtype != DType::F32)
-                        .then(|| fx.torch_bf16.get(&name).copied())
-                        .flatten(),
+                    torch_bf16_rel,
                     output: name,
                     max_abs,
                     max_rel,
@@ -474,8 +481,8 @@ pub fn run(args: ParityArgs) -> anyhow::Result<()> {
 
 fn print_table(rows: &[Row]) {
     println!(
-        "{:<22} {:<6} {:<5} {:<19} {:>11} {:>11} {:>11} {:>5}",
-        "block", "device", "dtype", "output", "max abs", "max rel", "torch bf16", "ok"
+        "{:<22} {:<6} {:<5} {:<19} {:>11} {:>11} {:>11} {:>9} {:>5}",
+        "block", "device", "dtype", "output", "max abs", "max rel", "torch bf16", "limit", "ok"
     );
     let mut last_block = String::new();
     for r in rows {
@@ -487,7 +494,7 @@ fn print_table(rows: &[Row]) {
             .torch_bf16_rel
             .map_or_else(|| "-".to_string(), |v| format!("{v:.3e}"));
         println!(
-            "{:<22} {:<6} {:<5} {:<19} {:>11.3e} {:>11.3e} {:>11} {:>5}",
+            "{:<22} {:<6} {:<5} {:<19} {:>11.3e} {:>11.3e} {:>11} {:>9.1e} {:>5}",
             r.block,
             r.device,
             r.dtype,
@@ -495,6 +502,7 @@ fn print_table(rows: &[Row]) {
             r.max_abs,
             r.max_rel,
             torch,
+            r.limit,
             if r.pass { "yes" } else { "NO" }
         );
         if let Some(e) = &r.error {
