@@ -114,9 +114,9 @@ impl SelfAttention {
     }
 }
 
-/// One pre-norm ViT block with LayerScale.
+/// One pre-norm ViT block with LayerScale (`encoder.model.blocks.{i}`).
 #[derive(Debug, Clone)]
-struct EncoderBlock {
+pub struct EncoderBlock {
     norm1: LayerNorm,
     attn: SelfAttention,
     ls1: LayerScale,
@@ -126,7 +126,8 @@ struct EncoderBlock {
 }
 
 impl EncoderBlock {
-    fn new(cfg: &EncoderConfig, vb: VarBuilder) -> Result<Self> {
+    /// Builds one block of `cfg`'s width from `vb = ….blocks.{i}`.
+    pub fn new(cfg: &EncoderConfig, vb: VarBuilder) -> Result<Self> {
         let c = cfg.embed_dim;
         let hidden = (c as f64 * cfg.mlp_ratio) as usize;
         Ok(Self {
@@ -139,7 +140,8 @@ impl EncoderBlock {
         })
     }
 
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+    /// `x [B, N, C]` → `x + ls1·attn(norm1 x)`, then `+ ls2·mlp(norm2 x)`.
+    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let x = self
             .attn
             .forward_residual(&self.norm1.forward(x)?, x, self.ls1.gamma())?;
