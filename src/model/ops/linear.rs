@@ -65,7 +65,20 @@ pub fn linear_b(in_dim: usize, out_dim: usize, bias: bool, vb: VarBuilder) -> Re
 
 impl Linear {
     /// Wraps `weight [out, in]` and an optional `bias [out]`.
+    ///
+    /// On the CPU in f32 the weight is re-laid out once as `[in, out]` in memory (the tensor
+    /// stays the logical `[out, in]`): `gemm` then streams it without repacking, which measured
+    /// up to 1.35× faster for the few-row products of a ViT (`fc2`, 261 × 384 × 1536).
     pub fn new(weight: Tensor, bias: Option<Tensor>) -> Self {
+        let weight = if weight.device().is_cpu() && weight.dtype() == DType::F32 {
+            weight
+                .t()
+                .and_then(|t| t.contiguous())
+                .and_then(|t| t.t())
+                .unwrap_or(weight)
+        } else {
+            weight
+        };
         let cpu_bias = bias
             .as_ref()
             .filter(|b| b.device().is_cpu() && b.dtype() == DType::F32)
@@ -83,7 +96,7 @@ impl Linear {
         x.device().is_cpu()
             && x.dtype() == DType::F32
             && self.weight.dtype() == DType::F32
-            && self.weight.is_contiguous()
+            && weight_strides(self.weight.layout()).is_some()
             && self.bias.is_some() == self.cpu_bias.is_some()
     }
 
@@ -194,6 +207,21 @@ struct FusedLinear<'a> {
     gate: Option<&'a [f32]>,
 }
 
+/// `(out, in)` element strides of a `[out, in]` weight stored row-major or transposed
+/// (`[in, out]` in memory), or `None` for other layouts.
+fn weight_strides(l: &Layout) -> Option<(usize, usize)> {
+    let (&[n, k], &[s0, s1]) = (l.shape().dims(), l.stride()) else {
+        return None;
+    };
+    if (s0 == k || n == 1) && s1 == 1 {
+        Some((k, 1))
+    } else if s0 == 1 && (s1 == n || k == 1) {
+        Some((1, n))
+    } else {
+        None
+    }
+}
+
 /// The f32 data of a contiguous operand from its start offset.
 fn f32_data<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {
     let CpuStorage::F32(data) = s else {
@@ -225,7 +253,16 @@ impl FusedLinear<'_> {
             }
         }
         let xd = f32_data(x.0, x.1, "input")?;
-        let wd = f32_data(w.0, w.1, "weight")?;
+        let CpuStorage::F32(wdata) = w.0 else {
+            candle_core::bail!("fused linear: weight is {:?}, expected f32", w.0.dtype());
+        };
+        let Some(w_strides) = weight_strides(w.1) else {
+            candle_core::bail!("fused linear: weight layout {:?} is not dense", w.1.stride());
+        };
+        let wd = Weight {
+            data: &wdata[w.1.start_offset()..w.1.start_offset() + n * k],
+            strides: w_strides,
+        };
         let rd = match residual {
             Some((s, l)) => {
                 let r = f32_data(s, l, "residual")?;
@@ -257,15 +294,26 @@ fn parallelism(m: usize, n: usize, k: usize) -> Parallelism {
     }
 }
 
-/// `out += x Wᵀ` on raw row-major slices (`out [m, n]`, `x [m, k]`, `w [n, k]`).
-fn accumulate_product(out: &mut [f32], x: &[f32], w: &[f32], m: usize, n: usize, k: usize) {
-    assert!(out.len() == m * n && x.len() == m * k && w.len() == n * k);
+/// A dense `[n, k]` weight: its `n·k` values and the element strides of its two axes
+/// (`(k, 1)` row-major, `(1, n)` stored transposed).
+#[derive(Debug, Clone, Copy)]
+pub struct Weight<'a> {
+    /// The values.
+    pub data: &'a [f32],
+    /// Strides of the output axis and of the input axis.
+    pub strides: (usize, usize),
+}
+
+/// `out += x Wᵀ` on raw slices (`out [m, n]`, `x [m, k]` row-major).
+fn accumulate_product(out: &mut [f32], x: &[f32], w: Weight, m: usize, n: usize, k: usize) {
+    assert!(out.len() == m * n && x.len() == m * k && w.data.len() == n * k);
+    assert!(w.strides == (k, 1) || w.strides == (1, n) || n == 1 || k == 1);
     if m == 0 || n == 0 || k == 0 {
         return;
     }
     // SAFETY: dst `m × n` row-major in `out` (m·n long); lhs `m × k` row-major in `x`
-    // (m·k long); rhs `k × n` read as the transpose of the row-major `n × k` weight (n·k
-    // long) — all lengths asserted above.
+    // (m·k long); rhs `k × n` is the weight read with its strides, which address only its
+    // n·k values (dense layouts asserted above).
     unsafe {
         gemm::gemm(
             m,
@@ -278,9 +326,9 @@ fn accumulate_product(out: &mut [f32], x: &[f32], w: &[f32], m: usize, n: usize,
             x.as_ptr(),
             1,
             k as isize,
-            w.as_ptr(),
-            k as isize,
-            1,
+            w.data.as_ptr(),
+            w.strides.0 as isize,
+            w.strides.1 as isize,
             1.0,
             1.0,
             false,
@@ -291,10 +339,10 @@ fn accumulate_product(out: &mut [f32], x: &[f32], w: &[f32], m: usize, n: usize,
     }
 }
 
-/// `act(x Wᵀ + b)` on raw row-major slices: `x [m, k]`, `w [n, k]`, `b [n]` → `[m, n]`.
+/// `act(x Wᵀ + b)` on raw slices: `x [m, k]` row-major, `w [n, k]`, `b [n]` → `[m, n]`.
 pub fn linear_f32(
     x: &[f32],
-    w: &[f32],
+    w: Weight,
     bias: Option<&[f32]>,
     m: usize,
     n: usize,
@@ -324,7 +372,7 @@ pub fn linear_f32(
 #[allow(clippy::too_many_arguments)]
 pub fn residual_linear_f32(
     x: &[f32],
-    w: &[f32],
+    w: Weight,
     bias: Option<&[f32]>,
     gate: Option<&[f32]>,
     residual: &[f32],
@@ -476,6 +524,26 @@ mod tests {
             let got = l.forward_residual(&x, &r, None).unwrap();
             let want = (&r + &lin).unwrap();
             assert!(max_abs_diff(&got, &want) < 1e-4, "ungated, bias={bias}");
+        }
+    }
+
+    #[test]
+    fn row_major_and_transposed_weight_storage_give_the_same_result() {
+        let dev = Device::Cpu;
+        let x = Tensor::randn(0f32, 1.0, (19, 33), &dev).unwrap();
+        let w = Tensor::randn(0f32, 0.2, (21, 33), &dev).unwrap();
+        let b = Tensor::randn(0f32, 1.0, 21, &dev).unwrap();
+        let transposed = Linear::new(w.clone(), Some(b.clone()));
+        assert_eq!(transposed.weight().stride(), &[1, 21]);
+        let row_major = Linear {
+            weight: w.clone(),
+            ..transposed.clone()
+        };
+        assert_eq!(row_major.weight().stride(), &[33, 1]);
+        let want = reference(&x, &w, Some(&b), Activation::GeluErf);
+        for l in [transposed, row_major] {
+            let got = l.forward_gelu(&x).unwrap();
+            assert!(max_abs_diff(&got, &want) < 1e-4);
         }
     }
 
