@@ -183,14 +183,7 @@ mod tests {
         let mask = Tensor::randn(0f32, 1.0, (1, 1, 10, 9), &dev).unwrap();
         let whole = attention_in_chunks(&q, &k, &v, Some(&mask), 10).unwrap();
         let chunked = attention_in_chunks(&q, &k, &v, Some(&mask), 3).unwrap();
-        let diff = (whole - chunked)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::model::testing::max_abs_diff(&whole, &chunked);
         assert!(diff < 1e-6);
     }
 
@@ -211,14 +204,7 @@ mod tests {
             None,
         )
         .unwrap();
-        let diff = (got - reference)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::model::testing::max_abs_diff(&got, &reference);
         assert!(diff < 1e-6);
         let naive_out = naive(&q, &k, &v, Some(&mask));
         let got = attention(&q, &k, &v, Some(&mask))

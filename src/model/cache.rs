@@ -108,14 +108,7 @@ mod tests {
     use candle_core::{DType, Device};
 
     fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
-        (a - b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
+        crate::model::testing::max_abs_diff(&a, &b)
     }
 
     #[test]

@@ -312,14 +312,10 @@ mod tests {
         let img = Tensor::rand(0f32, 1.0, (2, 3, 56, 56), &Device::Cpu).unwrap();
         let both = enc.forward(&img).unwrap();
         let second = enc.forward(&img.narrow(0, 1, 1).unwrap()).unwrap();
-        let diff = (both.patch_tokens.narrow(0, 1, 1).unwrap() - second.patch_tokens)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::model::testing::max_abs_diff(
+            &both.patch_tokens.narrow(0, 1, 1).unwrap(),
+            &second.patch_tokens,
+        );
         assert!(diff < 1e-5);
     }
 

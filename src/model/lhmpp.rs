@@ -334,14 +334,10 @@ mod tests {
         .unwrap();
         assert_eq!(p.dims(), &[50, pv]);
         assert_eq!(t.dims(), tokens.dims());
-        let specials = (t.narrow(1, 0, 5).unwrap() - tokens.narrow(1, 0, 5).unwrap())
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let specials = crate::model::testing::max_abs_diff(
+            &t.narrow(1, 0, 5).unwrap(),
+            &tokens.narrow(1, 0, 5).unwrap(),
+        );
         assert_eq!(specials, 0.0);
     }
 }

@@ -257,7 +257,10 @@ impl FusedLinear<'_> {
             candle_core::bail!("fused linear: weight is {:?}, expected f32", w.0.dtype());
         };
         let Some(w_strides) = weight_strides(w.1) else {
-            candle_core::bail!("fused linear: weight layout {:?} is not dense", w.1.stride());
+            candle_core::bail!(
+                "fused linear: weight layout {:?} is not dense",
+                w.1.stride()
+            );
         };
         let wd = Weight {
             data: &wdata[w.1.start_offset()..w.1.start_offset() + n * k],
@@ -447,20 +450,8 @@ impl CustomOp3 for FusedLinear<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use candle_core::{Device, D};
-
-    fn max_abs_diff(a: &Tensor, b: &Tensor) -> f32 {
-        (a - b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .max(D::Minus1)
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
-    }
+    use crate::model::testing::max_abs_diff;
+    use candle_core::Device;
 
     fn reference(x: &Tensor, w: &Tensor, b: Option<&Tensor>, act: Activation) -> Tensor {
         let y = x.broadcast_matmul(&w.t().unwrap()).unwrap();
