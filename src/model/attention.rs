@@ -98,13 +98,6 @@ pub fn merge_heads(x: &Tensor) -> Result<Tensor> {
     x.transpose(1, 2)?.reshape((b, l, h * d))
 }
 
-/// LayerNorm over the last dimension without affine parameters (the fused CPU kernel of
-/// [`super::ops::layer_norm`] for f32 on the CPU, candle ops in f32 otherwise).
-pub fn layer_norm_plain(x: &Tensor, eps: f64) -> Result<Tensor> {
-    use candle_core::Module;
-    super::ops::layer_norm::LayerNorm::plain(eps).forward(x)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -18,7 +18,8 @@ use candle_nn::{Init, RmsNorm, VarBuilder};
 
 use super::ops::linear::{linear, Activation, Linear};
 
-use super::attention::{attention, layer_norm_plain, merge_heads, split_heads};
+use super::attention::{attention, merge_heads, split_heads};
+use super::ops::layer_norm::LayerNorm;
 use super::config::PitBlockSpec;
 
 /// LayerNorm epsilon inside AdaLN (no affine).
@@ -96,10 +97,10 @@ impl Modulation {
 }
 
 /// `norm(x)·(1 + scale) + shift` for `x [N, D]`, `scale, shift [1, D]`.
+/// One pass: a LayerNorm whose affine weight is `1 + scale` and bias `shift`.
 fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor, eps: f64) -> Result<Tensor> {
-    layer_norm_plain(x, eps)?
-        .broadcast_mul(&(scale + 1.0)?)?
-        .broadcast_add(shift)
+    let weight = (scale + 1.0)?.flatten_all()?;
+    LayerNorm::new(weight, shift.flatten_all()?, eps).forward(x)
 }
 
 /// Joint attention (`attn.*`).
