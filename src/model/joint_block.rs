@@ -19,8 +19,8 @@ use candle_nn::{Init, RmsNorm, VarBuilder};
 use super::ops::linear::{linear, Activation, Linear};
 
 use super::attention::{attention, merge_heads, split_heads};
-use super::ops::layer_norm::LayerNorm;
 use super::config::PitBlockSpec;
+use super::ops::layer_norm::LayerNorm;
 
 /// LayerNorm epsilon inside AdaLN (no affine).
 const ADALN_EPS: f64 = 1e-6;
