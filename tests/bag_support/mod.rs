@@ -1,5 +1,5 @@
-//! Shared by the bag and message tests: one sample message of every type, written to a bag, with the field
-//! values an independent reader must find.
+//! Shared by the bag and message tests: one sample message of every type, written to a bag,
+//! with the field values an independent reader must find.
 
 #![allow(dead_code)]
 
