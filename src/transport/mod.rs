@@ -18,6 +18,7 @@ mod node;
 pub mod options;
 mod publisher;
 mod subscriber;
+pub mod udp_buffers;
 
 pub use error::ShmError;
 pub use layout::{AvatarView, Decoded, FrameShape, FrameView, PayloadBody, PayloadKind, Stamp};
