@@ -3,7 +3,7 @@
 
 use lhmpp::bag::BagReader;
 use lhmpp::msgs::{BodyPose, CameraInfo, Image, TFMessage};
-use lhmpp::synth::{write_synthetic_bag, SynthOptions};
+use lhmpp::synth::{write_synthetic_bag, SynthOptions, SynthPose};
 
 fn demo_options() -> SynthOptions {
     SynthOptions {
@@ -42,7 +42,8 @@ fn synthetic_bag_carries_views_calibration_poses_and_heldout_masks() {
         heldout: 2,
         size: 96,
         points: 8000,
-        walk_frame: Some(3.0),
+        pose: SynthPose::Walk(3.0),
+        ..SynthOptions::default()
     };
     write_synthetic_bag(&path, &options).unwrap();
     let bag = BagReader::open(&path).unwrap();

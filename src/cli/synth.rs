@@ -1,7 +1,7 @@
 //! `lhmpp synth`: render a seeded synthetic person into a rosbag2-layout MCAP bag.
 
 use anyhow::{Context, Result};
-use lhmpp::synth::{write_synthetic_bag, SynthOptions};
+use lhmpp::synth::{write_synthetic_bag, CameraMode, SynthOptions, SynthPose};
 use std::path::PathBuf;
 
 /// Arguments of `lhmpp synth`.
@@ -10,9 +10,13 @@ pub struct SynthArgs {
     /// Seed of the person (shape, outfit), pose and cameras.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Input camera views.
+    /// Input camera views (with `--camera moving`: frames of the moving camera).
     #[arg(long, default_value_t = 4)]
     views: usize,
+    /// `ring`: fixed cameras cam0.. around the person; `moving`: one camera cam0 orbiting
+    /// the person over the frames, its pose on /tf per frame.
+    #[arg(long, value_enum, default_value_t = CameraArg::Ring)]
+    camera: CameraArg,
     /// Held-out views (for `lhmpp eval`).
     #[arg(long, default_value_t = 2)]
     heldout: usize,
@@ -22,7 +26,8 @@ pub struct SynthArgs {
     /// Gaussians on the ground-truth body surface.
     #[arg(long, default_value_t = 30_000)]
     points: usize,
-    /// Walk-cycle frame of the pose (`rest` for the canonical pose).
+    /// Walk-cycle frame of the pose, `rest` for the canonical pose, or `random` for seeded
+    /// random joint rotations within limits.
     #[arg(long, default_value = "8")]
     pose: String,
     /// Output bag (`.mcap` file, or a rosbag2 directory for any other path).
@@ -30,14 +35,23 @@ pub struct SynthArgs {
     output: PathBuf,
 }
 
+/// `--camera` values.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum CameraArg {
+    /// Fixed cameras on a ring.
+    Ring,
+    /// One moving camera.
+    Moving,
+}
+
 /// Writes the bag and prints a one-line summary.
 pub fn run(args: SynthArgs) -> Result<()> {
-    let walk_frame = match args.pose.as_str() {
-        "rest" => None,
-        f => Some(
-            f.parse::<f32>()
-                .with_context(|| format!("--pose `{f}`: expected `rest` or a walk frame number"))?,
-        ),
+    let pose = match args.pose.as_str() {
+        "rest" => SynthPose::Rest,
+        "random" => SynthPose::Random,
+        f => SynthPose::Walk(f.parse::<f32>().with_context(|| {
+            format!("--pose `{f}`: expected `rest`, `random` or a walk frame number")
+        })?),
     };
     anyhow::ensure!(args.views >= 1, "--views must be at least 1");
     anyhow::ensure!(
@@ -54,7 +68,11 @@ pub fn run(args: SynthArgs) -> Result<()> {
         heldout: args.heldout,
         size: args.size,
         points: args.points,
-        walk_frame,
+        pose,
+        camera: match args.camera {
+            CameraArg::Ring => CameraMode::Ring,
+            CameraArg::Moving => CameraMode::Moving,
+        },
     };
     let summary = write_synthetic_bag(&args.output, &options)
         .with_context(|| format!("writing {}", args.output.display()))?;

@@ -3,14 +3,13 @@
 //! Failures are logged and counted by the endpoint; they never stop the pipeline.
 
 use super::pipeline::outputs::{avatar_message, frame_message};
-use super::pipeline::{AvatarUpdate, Publisher};
+use super::pipeline::{AvatarUpdate, Publisher, RenderedFrame};
 use super::ros::RosNode;
 use crate::msgs::ReconstructionStatus;
 use crate::splat::sh_dc_to_rgb;
 use crate::transport::{
-    AvatarView, FrameView, PayloadBody, ShmError, ShmNode, ShmOptions, ShmPublisher, Stamp,
+    AvatarView, FrameShape, PayloadBody, ShmError, ShmNode, ShmOptions, ShmPublisher, Stamp,
 };
-use image::RgbImage;
 use std::sync::Arc;
 
 /// Publishes on the ROS 2 endpoint.
@@ -39,8 +38,12 @@ impl Publisher for RosPublisher {
             tracing::warn!("{e}");
         }
     }
-    fn frame(&self, camera: usize, image: &RgbImage, stamp_ns: i64) {
-        let msg = frame_message(image, stamp_ns, &format!("lhmpp_virtual_cam{camera}"));
+    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
+        let msg = frame_message(
+            frame.rgb8(),
+            stamp_ns,
+            &format!("lhmpp_virtual_cam{camera}"),
+        );
         if let Err(e) = self.0.publish_frame(camera, msg) {
             tracing::warn!("{e}");
         }
@@ -106,23 +109,24 @@ impl Publisher for ShmOutputs {
         }
     }
     fn status(&self, _msg: ReconstructionStatus) {}
-    fn frame(&self, camera: usize, image: &RgbImage, stamp_ns: i64) {
+    /// Converts the render straight into a loaned shared-memory sample (no intermediate
+    /// image) and sends it; the frame sequence number is the render stamp.
+    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
         let Some(publisher) = self.frames.get(camera) else {
             return;
-        };
-        let view = FrameView {
-            width: image.width(),
-            height: image.height(),
-            channels: 3,
-            pixels: image.as_raw(),
-            alpha: None,
-            depth: None,
         };
         let stamp = Stamp {
             revision: stamp_ns as u64,
             timestamp_ns: crate::transport::layout::unix_time_ns(),
         };
-        if let Err(e) = publisher.publish(stamp, &PayloadBody::Frame(view)) {
+        let sent = publisher
+            .loan_frame(stamp, FrameShape::rgb8(frame.width(), frame.height()))
+            .and_then(|mut loan| {
+                frame.write_rgb8(loan.pixels_mut());
+                loan.set_timestamp_ns(crate::transport::layout::unix_time_ns());
+                loan.send()
+            });
+        if let Err(e) = sent {
             tracing::warn!("{e}");
         }
     }

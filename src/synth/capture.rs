@@ -1,8 +1,10 @@
 //! Renders a synthetic person from a rig and writes everything a test or the demo needs into a
-//! rosbag2-layout MCAP bag: input images, camera calibration, camera poses (`/tf_static`), the
-//! body pose, and held-out views with masks for scoring.
+//! rosbag2-layout MCAP bag: input images, camera calibration, camera poses (`/tf_static` for
+//! fixed cameras, `/tf` per frame for a moving one), the body pose, and held-out views with
+//! masks for scoring.
 
 use super::person::{SynthError, SyntheticPerson};
+use super::random_pose::grounded_random_pose;
 use super::scene::{Rig, RigCamera};
 use crate::bag::{BagWriter, BagWriterOptions};
 use crate::body::{motion, Pose};
@@ -19,6 +21,8 @@ pub const WORLD_FRAME: &str = "world";
 pub const POSE_TOPIC: &str = "/lhmpp/body_pose";
 /// Topic of the static camera poses.
 pub const TF_STATIC_TOPIC: &str = "/tf_static";
+/// Topic of the moving camera's pose, one message per frame.
+pub const TF_TOPIC: &str = "/tf";
 /// First stamp written (nanoseconds since the epoch): 2023-11-14T22:13:20Z.
 pub const START_NS: u64 = 1_700_000_000_000_000_000;
 
@@ -52,8 +56,30 @@ pub struct SynthOptions {
     pub size: u32,
     /// Gaussians on the ground-truth body.
     pub points: usize,
-    /// Walk-cycle frame of the pose; `None` keeps the canonical rest pose.
-    pub walk_frame: Option<f32>,
+    /// The person's pose.
+    pub pose: SynthPose,
+    /// How the input views are taken.
+    pub camera: CameraMode,
+}
+
+/// The pose of the synthetic person.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SynthPose {
+    /// The canonical rest pose.
+    Rest,
+    /// A frame of the built-in walk cycle.
+    Walk(f32),
+    /// Seeded random joint rotations within [`super::random_pose::JOINT_LIMITS`].
+    Random,
+}
+
+/// Where the input views come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CameraMode {
+    /// `views` fixed cameras `cam0..` on a ring (poses on `/tf_static`).
+    Ring,
+    /// One camera `cam0` moving around the person, `views` frames (pose on `/tf` per frame).
+    Moving,
 }
 
 impl Default for SynthOptions {
@@ -64,7 +90,8 @@ impl Default for SynthOptions {
             heldout: 2,
             size: 256,
             points: 30_000,
-            walk_frame: Some(8.0),
+            pose: SynthPose::Walk(8.0),
+            camera: CameraMode::Ring,
         }
     }
 }
@@ -86,12 +113,13 @@ pub struct RenderedView<'a> {
     pub output: RenderOutput,
 }
 
-/// The pose of the synthetic person for `options`.
-pub fn synth_pose(options: &SynthOptions) -> Pose {
-    options
-        .walk_frame
-        .map(motion::walk_pose)
-        .unwrap_or_else(Pose::identity)
+/// The pose of `person` (person 0 of the bag) for `options`.
+pub fn synth_pose(options: &SynthOptions, person: &SyntheticPerson) -> Pose {
+    match options.pose {
+        SynthPose::Rest => Pose::identity(),
+        SynthPose::Walk(frame) => motion::walk_pose(frame),
+        SynthPose::Random => grounded_random_pose(&person.template, options.seed, 0),
+    }
 }
 
 /// Renders the person posed by `pose` from `cameras` on a white background.
@@ -190,14 +218,13 @@ pub fn write_synthetic_bag(
     options: &SynthOptions,
 ) -> Result<SynthSummary, SynthError> {
     let person = SyntheticPerson::new(options.seed, options.points)?;
-    let rig = Rig::ring(
-        options.seed,
-        options.views,
-        options.heldout,
-        options.size,
-        person.template.height(),
-    );
-    let pose = synth_pose(options);
+    let (seed, views, heldout, size) = (options.seed, options.views, options.heldout, options.size);
+    let height = person.template.height();
+    let rig = match options.camera {
+        CameraMode::Ring => Rig::ring(seed, views, heldout, size, height),
+        CameraMode::Moving => Rig::moving(seed, views, heldout, size, height),
+    };
+    let pose = synth_pose(options, &person);
     // No time-based flushing: the same seed must give the same bytes.
     let options_bag = BagWriterOptions {
         flush_interval: None,
@@ -205,12 +232,15 @@ pub fn write_synthetic_bag(
     };
     let mut bag = BagWriter::create_with(path, options_bag)?;
     let ns = START_NS;
-    let all: Vec<&RigCamera> = rig.inputs.iter().chain(&rig.heldout).collect();
+    let fixed: Vec<&RigCamera> = match options.camera {
+        CameraMode::Ring => rig.inputs.iter().chain(&rig.heldout).collect(),
+        CameraMode::Moving => rig.heldout.iter().collect(),
+    };
     bag.write(
         TF_STATIC_TOPIC,
         ns,
         &TFMessage {
-            transforms: all.iter().map(|c| camera_transform(c, ns)).collect(),
+            transforms: fixed.iter().map(|c| camera_transform(c, ns)).collect(),
         },
     )?;
     bag.write(
@@ -218,12 +248,20 @@ pub fn write_synthetic_bag(
         ns,
         &BodyPose::from_pose(header(ns, WORLD_FRAME), "person_0", &pose),
     )?;
-    for cameras in [&rig.inputs, &rig.heldout] {
+    for (cameras, moving) in [
+        (&rig.inputs, options.camera == CameraMode::Moving),
+        (&rig.heldout, false),
+    ] {
         for (i, view) in render_views(&person, &pose, cameras)?.iter().enumerate() {
-            // Views arrive 50 ms apart, as from a camera ring triggered in sequence.
+            // Views arrive 50 ms apart, as from a camera ring triggered in sequence or one
+            // camera at 20 fps.
             let t = ns + 50_000_000 * (i as u64 + 1);
             let name = &view.rig.name;
             bag.write(&info_topic(name), t, &camera_info(view.rig, t))?;
+            if moving {
+                let transforms = vec![camera_transform(view.rig, t)];
+                bag.write(TF_TOPIC, t, &TFMessage { transforms })?;
+            }
             bag.write(&image_topic(name), t, &rgb_image(view, t))?;
             bag.write(&mask_topic(name), t, &mask_image(view, t))?;
         }

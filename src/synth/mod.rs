@@ -5,8 +5,9 @@
 pub mod capture;
 pub mod outfit;
 pub mod person;
+pub mod random_pose;
 pub mod scene;
 
-pub use capture::{write_synthetic_bag, SynthOptions, SynthSummary};
+pub use capture::{write_synthetic_bag, CameraMode, SynthOptions, SynthPose, SynthSummary};
 pub use person::{SynthError, SyntheticPerson};
 pub use scene::{Rig, RigCamera};

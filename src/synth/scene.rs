@@ -1,5 +1,5 @@
-//! Synthetic capture rigs: seeded camera rings around a person, split into input views (fed to
-//! the node) and held-out views (used only for scoring).
+//! Synthetic capture rigs: seeded camera rings around a person, or one camera moving around
+//! them, split into input views (fed to the node) and held-out views (used only for scoring).
 
 use crate::splat::{Camera, Intrinsics};
 use glam::Vec3;
@@ -68,6 +68,42 @@ impl Rig {
     }
 }
 
+impl Rig {
+    /// One input camera `cam0` moving over `frames` frames along a seeded path around the
+    /// person: one full orbit, its height rising and falling and its distance breathing,
+    /// always looking at the middle of the body. The held-out cameras are those of
+    /// [`Rig::ring`] with the same arguments, so scoring sees the same kind of views.
+    pub fn moving(seed: u64, frames: usize, heldout: usize, size: u32, height: f32) -> Self {
+        let ring = Self::ring(seed, frames, heldout, size, height);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6d6f_7669_6e67);
+        let intrinsics = Intrinsics::from_fov_y(size, size, FOV_Y);
+        let target = Vec3::new(0.0, 0.5 * height, 0.0);
+        let distance = 0.62 * height / (0.5 * FOV_Y).tan();
+        let start = rng.gen_range(0.0..std::f32::consts::TAU);
+        let direction = if rng.gen_bool(0.5) { 1.0 } else { -1.0 };
+        let rise = rng.gen_range(0.1..0.25) * height;
+        let phase = rng.gen_range(0.0..std::f32::consts::TAU);
+        let inputs = (0..frames)
+            .map(|k| {
+                let t = k as f32 / frames.max(1) as f32;
+                let wave = (std::f32::consts::TAU * t + phase).sin();
+                let angle = start + direction * std::f32::consts::TAU * t;
+                let r = distance * (1.02 + 0.04 * wave);
+                let up = 0.1 * height + rise * wave;
+                let eye = target + Vec3::new(angle.sin() * r, up, angle.cos() * r);
+                RigCamera {
+                    name: "cam0".into(),
+                    camera: Camera::look_at(eye, target, Vec3::Y, intrinsics),
+                }
+            })
+            .collect();
+        Self {
+            inputs,
+            heldout: ring.heldout,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -93,5 +129,31 @@ mod tests {
                 "{px}"
             );
         }
+    }
+
+    #[test]
+    fn moving_camera_orbits_once_and_keeps_the_body_centred() {
+        let rig = Rig::moving(3, 8, 2, 128, 1.7);
+        assert_eq!(rig.inputs.len(), 8);
+        assert!(rig.inputs.iter().all(|c| c.name == "cam0"));
+        let eyes: Vec<Vec3> = rig
+            .inputs
+            .iter()
+            .map(|c| c.camera.world_from_camera.translation.into())
+            .collect();
+        for (i, a) in eyes.iter().enumerate() {
+            for b in &eyes[i + 1..] {
+                assert!(a.distance(*b) > 0.3, "{a} vs {b}");
+            }
+        }
+        for cam in &rig.inputs {
+            let p = cam
+                .camera
+                .camera_from_world()
+                .transform_point3(Vec3::new(0.0, 0.85, 0.0));
+            let px = cam.camera.project_camera_point(p);
+            assert!((px.x - 64.0).abs() < 4.0, "{px}");
+        }
+        assert_eq!(rig.heldout.len(), 2);
     }
 }

@@ -172,6 +172,9 @@ pub struct BenchRow {
     pub msgs_per_s: f64,
     /// Payload megabytes (10^6) per second.
     pub mb_per_s: f64,
+    /// UDP datagrams the kernel dropped for full receive buffers during the run (DDS rows;
+    /// `None` where not measured).
+    pub udp_drops: Option<u64>,
 }
 
 /// The `q` quantile (0..=1) of sorted values, nearest rank.
@@ -230,28 +233,51 @@ pub fn run_case(
         p99_us: quantile(&latencies, 0.99),
         msgs_per_s,
         mb_per_s: msgs_per_s * case.payload.len() as f64 / 1e6,
+        udp_drops: None,
     })
 }
 
 /// Formats rows as a fixed-width text table.
 pub fn render_table(rows: &[BenchRow]) -> String {
     let mut out = format!(
-        "{:<10} {:<24} {:>12} {:>6} {:>10} {:>10} {:>9} {:>9}\n",
-        "transport", "payload", "bytes", "n", "p50 µs", "p99 µs", "msg/s", "MB/s"
+        "{:<14} {:<24} {:>12} {:>6} {:>10} {:>10} {:>9} {:>9} {:>9}\n",
+        "transport", "payload", "bytes", "n", "p50 µs", "p99 µs", "msg/s", "MB/s", "UDP drops"
     );
     for r in rows {
+        let drops = r.udp_drops.map_or("-".to_owned(), |d| d.to_string());
         out.push_str(&format!(
-            "{:<10} {:<24} {:>12} {:>6} {:>10.1} {:>10.1} {:>9.1} {:>9.1}\n",
-            r.transport, r.case, r.bytes, r.samples, r.p50_us, r.p99_us, r.msgs_per_s, r.mb_per_s
+            "{:<14} {:<24} {:>12} {:>6} {:>10.1} {:>10.1} {:>9.1} {:>9.1} {:>9}\n",
+            r.transport,
+            r.case,
+            r.bytes,
+            r.samples,
+            r.p50_us,
+            r.p99_us,
+            r.msgs_per_s,
+            r.mb_per_s,
+            drops
         ));
     }
     out
+}
+
+/// How the iceoryx2 bench puts a payload into shared memory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShmWrite {
+    /// `publish_encoded`: stamped in the producer's buffer, then copied into a loaned sample,
+    /// so latency includes that copy (row `iceoryx2`).
+    Copy,
+    /// `loan_bytes`: the producer writes the payload into the loaned sample (as the node
+    /// writes frames), stamps it there and sends it, so latency is send → receive alone (row
+    /// `iceoryx2 loan`).
+    Loan,
 }
 
 /// iceoryx2 under [`TransportBench`]: a publisher in the calling thread and a subscriber in a
 /// second thread (own node), which stamps each sample's arrival and reports it on a channel.
 #[derive(Debug)]
 pub struct Iceoryx2Bench {
+    write: ShmWrite,
     publisher: ShmPublisher,
     receipts: mpsc::Receiver<Result<Receipt, String>>,
     stop: Arc<AtomicBool>,
@@ -262,7 +288,12 @@ pub struct Iceoryx2Bench {
 impl Iceoryx2Bench {
     /// Opens `person`'s stream of `kind` (camera `bench` for frames) with `options`, and starts
     /// the subscriber thread; returns once the subscriber is connected.
-    pub fn new(person: &str, kind: PayloadKind, options: ShmOptions) -> Result<Self, BenchError> {
+    pub fn new(
+        person: &str,
+        kind: PayloadKind,
+        options: ShmOptions,
+        write: ShmWrite,
+    ) -> Result<Self, BenchError> {
         let fail = |e: super::ShmError| BenchError::Transport {
             transport: "iceoryx2".into(),
             message: e.to_string(),
@@ -298,6 +329,7 @@ impl Iceoryx2Bench {
         }
         .map_err(fail)?;
         Ok(Self {
+            write,
             publisher,
             receipts,
             stop,
@@ -366,17 +398,30 @@ fn subscriber_loop(
 
 impl TransportBench for Iceoryx2Bench {
     fn name(&self) -> &str {
-        "iceoryx2"
+        match self.write {
+            ShmWrite::Copy => "iceoryx2",
+            ShmWrite::Loan => "iceoryx2 loan",
+        }
     }
 
     fn publish(&mut self, payload: &[u8]) -> Result<(), BenchError> {
-        self.publisher
-            .publish_encoded(payload)
-            .map(drop)
-            .map_err(|e| BenchError::Transport {
-                transport: "iceoryx2".into(),
-                message: e.to_string(),
-            })
+        let sent = match self.write {
+            ShmWrite::Copy => self.publisher.publish_encoded(payload),
+            ShmWrite::Loan => self
+                .publisher
+                .loan_bytes(payload.len())
+                .and_then(|mut loan| {
+                    let bytes = loan.bytes_mut();
+                    bytes.copy_from_slice(payload);
+                    bytes[TIMESTAMP_OFFSET..TIMESTAMP_OFFSET + 8]
+                        .copy_from_slice(&unix_time_ns().to_le_bytes());
+                    loan.send()
+                }),
+        };
+        sent.map(drop).map_err(|e| BenchError::Transport {
+            transport: self.name().to_owned(),
+            message: e.to_string(),
+        })
     }
 
     fn receive(&mut self, timeout: Duration) -> Result<Option<Receipt>, BenchError> {
@@ -428,12 +473,15 @@ mod tests {
     #[test]
     fn iceoryx2_bench_delivers_every_revision_in_lock_step() {
         let person = format!("benchtest{}", std::process::id());
-        let mut bench =
-            Iceoryx2Bench::new(&person, PayloadKind::Frame, ShmOptions::default()).unwrap();
-        let mut case = BenchCase::frame(64, 32, 4);
-        let row = run_case(&mut bench, &mut case, 20, 2).unwrap();
-        assert_eq!(row.samples, 20);
-        assert!(row.p50_us > 0.0 && row.p50_us <= row.p99_us);
-        assert!(render_table(&[row]).contains("frame 64x32 rgba8"));
+        for write in [ShmWrite::Copy, ShmWrite::Loan] {
+            let options = ShmOptions::default();
+            let mut bench =
+                Iceoryx2Bench::new(&person, PayloadKind::Frame, options, write).unwrap();
+            let mut case = BenchCase::frame(64, 32, 4);
+            let row = run_case(&mut bench, &mut case, 20, 2).unwrap();
+            assert_eq!(row.samples, 20);
+            assert!(row.p50_us > 0.0 && row.p50_us <= row.p99_us);
+            assert!(render_table(&[row]).contains("frame 64x32 rgba8"));
+        }
     }
 }

@@ -37,13 +37,16 @@ fn bench_qos() -> QosProfile {
         })
 }
 
-fn participant(domain_id: u16) -> ParticipantOptions {
+fn participant(domain_id: u16, receive_buffer: usize) -> ParticipantOptions {
     ParticipantOptions {
         domain_id,
         only_networks: vec![IpAddr::from([127, 0, 0, 1])],
-        socket_receive_buffer: 16 * 1024 * 1024,
+        socket_receive_buffer: receive_buffer,
     }
 }
+
+/// `SO_RCVBUF` the bench asks for by default (the kernel caps it at `net.core.rmem_max`).
+pub const DEFAULT_RECEIVE_BUFFER: usize = 16 * 1024 * 1024;
 
 fn image_type() -> MessageTypeName {
     MessageTypeName::new("sensor_msgs", "Image")
@@ -68,9 +71,10 @@ impl std::fmt::Debug for DdsBench {
 fn spinning_node(
     runtime: &tokio::runtime::Runtime,
     domain_id: u16,
+    receive_buffer: usize,
     name: &str,
 ) -> Result<ros2_client::Node, BenchError> {
-    let context = create_context(&participant(domain_id)).map_err(fail)?;
+    let context = create_context(&participant(domain_id, receive_buffer)).map_err(fail)?;
     let mut node = context
         .new_node(
             NodeName::new("/", name).map_err(|e| fail(format!("node {name}: {e:?}")))?,
@@ -89,16 +93,17 @@ fn spinning_node(
 }
 
 impl DdsBench {
-    /// Creates both ends on topic `/lhmpp_bench/<topic>` in `domain_id` and returns once the
-    /// publisher has matched the subscriber (at most 10 s).
-    pub fn new(domain_id: u16, topic: &str) -> Result<Self, BenchError> {
+    /// Creates both ends on topic `/lhmpp_bench/<topic>` in `domain_id`, their UDP sockets
+    /// asking for `receive_buffer` bytes of `SO_RCVBUF`, and returns once the publisher has
+    /// matched the subscriber (at most 10 s).
+    pub fn new(domain_id: u16, topic: &str, receive_buffer: usize) -> Result<Self, BenchError> {
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()
             .build()
             .map_err(|e| fail(format!("tokio runtime: {e}")))?;
         let name = Name::new("/lhmpp_bench", topic).map_err(|e| fail(format!("{e:?}")))?;
-        let mut sub_node = spinning_node(&runtime, domain_id, "lhmpp_bench_sub")?;
+        let mut sub_node = spinning_node(&runtime, domain_id, receive_buffer, "lhmpp_bench_sub")?;
         let t = sub_node
             .create_topic(&name, image_type(), &bench_qos())
             .map_err(|e| fail(format!("topic {topic}: {e}")))?;
@@ -108,7 +113,7 @@ impl DdsBench {
         let (tx, receipts) = mpsc::channel();
         runtime.spawn(read_receipts(sub, tx));
 
-        let mut pub_node = spinning_node(&runtime, domain_id, "lhmpp_bench_pub")?;
+        let mut pub_node = spinning_node(&runtime, domain_id, receive_buffer, "lhmpp_bench_pub")?;
         let t = pub_node
             .create_topic(&name, image_type(), &bench_qos())
             .map_err(|e| fail(format!("topic {topic}: {e}")))?;
@@ -210,7 +215,7 @@ mod tests {
     #[test]
     fn dds_bench_delivers_every_revision_in_lock_step() {
         let domain = 221 + (std::process::id() % 12) as u16;
-        let mut bench = DdsBench::new(domain, "unit").unwrap();
+        let mut bench = DdsBench::new(domain, "unit", DEFAULT_RECEIVE_BUFFER).unwrap();
         let mut case = BenchCase::frame(64, 32, 4);
         let row = run_case(&mut bench, &mut case, 20, 2).unwrap();
         assert_eq!(row.transport, "dds");

@@ -527,6 +527,118 @@ fn align_up(value: usize) -> usize {
     value.div_ceil(ARRAY_ALIGN) * ARRAY_ALIGN
 }
 
+/// Element counts written in the header (zero where they do not apply to the kind).
+#[derive(Debug, Clone, Copy, Default)]
+struct Counts {
+    gaussians: u32,
+    sh_coeffs: u32,
+    width: u32,
+    height: u32,
+    channels: u32,
+}
+
+/// The header of a payload whose arrays have the byte lengths `lens` (0 = absent), each
+/// placed after the previous one on the next 8-byte boundary.
+fn lay_out(
+    person: &PersonId,
+    stamp: Stamp,
+    kind: PayloadKind,
+    lens: [usize; ARRAY_SLOTS],
+    counts: Counts,
+) -> PayloadHeader {
+    let mut refs = [ArrayRef::default(); ARRAY_SLOTS];
+    let mut cursor = HEADER_LEN;
+    for (slot, len) in lens.into_iter().enumerate() {
+        if len == 0 {
+            continue;
+        }
+        refs[slot] = ArrayRef {
+            offset: cursor as u64,
+            len: len as u64,
+        };
+        cursor = align_up(cursor + len);
+    }
+    PayloadHeader {
+        magic: MAGIC,
+        version: LAYOUT_VERSION,
+        kind: kind as u16,
+        header_len: HEADER_LEN as u32,
+        array_slots: ARRAY_SLOTS as u32,
+        person_id: person.bytes,
+        revision: stamp.revision,
+        timestamp_ns: stamp.timestamp_ns,
+        total_len: cursor as u64,
+        gaussians: counts.gaussians,
+        sh_coeffs: counts.sh_coeffs,
+        width: counts.width,
+        height: counts.height,
+        channels: counts.channels,
+        reserved: 0,
+        arrays: refs,
+    }
+}
+
+/// The shape of a frame to be written in place (see `ShmPublisher::loan_frame`): its size,
+/// bytes per pixel and which optional float maps it carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameShape {
+    /// Pixels per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// Bytes per pixel: 3 (rgb8) or 4 (rgba8).
+    pub channels: u32,
+    /// Whether the payload carries an f32 alpha map.
+    pub alpha: bool,
+    /// Whether the payload carries an f32 depth map.
+    pub depth: bool,
+}
+
+impl FrameShape {
+    /// An rgb8 frame without alpha or depth.
+    pub fn rgb8(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            channels: 3,
+            alpha: false,
+            depth: false,
+        }
+    }
+
+    /// The header of a frame of this shape: the same bytes [`Encoder::new`] writes for a
+    /// [`FrameView`] with these sizes. Fails on a channel count other than 3 or 4 or a
+    /// size whose byte length overflows.
+    pub fn header(&self, person: &PersonId, stamp: Stamp) -> Result<PayloadHeader, LayoutError> {
+        if self.channels != 3 && self.channels != 4 {
+            return Err(LayoutError::BadCount {
+                field: "channels",
+                value: self.channels as u64,
+                why: "3 (rgb8) or 4 (rgba8)",
+            });
+        }
+        let pixels = (self.width as usize)
+            .checked_mul(self.height as usize)
+            .filter(|p| p.checked_mul(4 * 3).is_some())
+            .ok_or(LayoutError::BadCount {
+                field: "width × height",
+                value: self.width as u64 * self.height as u64,
+                why: "byte size must fit in memory",
+            })?;
+        let mut lens = [0; ARRAY_SLOTS];
+        lens[frame_slot::PIXELS] = pixels * self.channels as usize;
+        lens[frame_slot::ALPHA] = if self.alpha { 4 * pixels } else { 0 };
+        lens[frame_slot::DEPTH] = if self.depth { 4 * pixels } else { 0 };
+        let counts = Counts {
+            width: self.width,
+            height: self.height,
+            channels: self.channels,
+            ..Counts::default()
+        };
+        Ok(lay_out(person, stamp, PayloadKind::Frame, lens, counts))
+    }
+}
+
 /// A checked payload ready to be written: header computed, arrays borrowed.
 #[derive(Debug, Clone, Copy)]
 pub struct Encoder<'a> {
@@ -543,40 +655,20 @@ impl<'a> Encoder<'a> {
     ) -> Result<Self, LayoutError> {
         body.validate()?;
         let arrays = body.arrays();
-        let mut refs = [ArrayRef::default(); ARRAY_SLOTS];
-        let mut cursor = HEADER_LEN;
-        for (slot, array) in arrays.iter().enumerate() {
-            if array.is_empty() {
-                continue;
-            }
-            refs[slot] = ArrayRef {
-                offset: cursor as u64,
-                len: array.len() as u64,
-            };
-            cursor = align_up(cursor + array.len());
-        }
-        let (gaussians, sh_coeffs, width, height, channels) = match body {
-            PayloadBody::Avatar(a) => (a.gaussians() as u32, a.sh_coeffs, 0, 0, 0),
-            PayloadBody::Frame(f) => (0, 0, f.width, f.height, f.channels),
+        let counts = match body {
+            PayloadBody::Avatar(a) => Counts {
+                gaussians: a.gaussians() as u32,
+                sh_coeffs: a.sh_coeffs,
+                ..Counts::default()
+            },
+            PayloadBody::Frame(f) => Counts {
+                width: f.width,
+                height: f.height,
+                channels: f.channels,
+                ..Counts::default()
+            },
         };
-        let header = PayloadHeader {
-            magic: MAGIC,
-            version: LAYOUT_VERSION,
-            kind: body.kind() as u16,
-            header_len: HEADER_LEN as u32,
-            array_slots: ARRAY_SLOTS as u32,
-            person_id: person.bytes,
-            revision: stamp.revision,
-            timestamp_ns: stamp.timestamp_ns,
-            total_len: cursor as u64,
-            gaussians,
-            sh_coeffs,
-            width,
-            height,
-            channels,
-            reserved: 0,
-            arrays: refs,
-        };
+        let header = lay_out(person, stamp, body.kind(), arrays.map(|a| a.len()), counts);
         Ok(Self { header, arrays })
     }
 

@@ -13,13 +13,16 @@ pub mod dds_bench;
 mod error;
 pub mod footprint;
 pub mod layout;
+mod loan;
 mod node;
 pub mod options;
 mod publisher;
 mod subscriber;
+pub mod udp_buffers;
 
 pub use error::ShmError;
-pub use layout::{AvatarView, Decoded, FrameView, PayloadBody, PayloadKind, Stamp};
+pub use layout::{AvatarView, Decoded, FrameShape, FrameView, PayloadBody, PayloadKind, Stamp};
+pub use loan::{FrameArraysMut, FrameLoan, PayloadLoan};
 pub use node::ShmNode;
 pub use options::ShmOptions;
 pub use publisher::ShmPublisher;

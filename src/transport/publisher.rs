@@ -8,7 +8,8 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
 
 use super::error::{iceoryx, ShmError};
-use super::layout::{read_header, Encoder, PayloadBody, PayloadKind, PersonId, Stamp};
+use super::layout::{read_header, Encoder, FrameShape, PayloadBody, PayloadKind, PersonId, Stamp};
+use super::loan::{FrameLoan, PayloadLoan};
 use super::node::{ShmNode, Svc};
 use super::options::event_service;
 
@@ -96,6 +97,35 @@ impl ShmPublisher {
         Ok(delivered)
     }
 
+    /// Loans a zero-filled sample of `len` bytes (rounded up to whole `u64`s) for the caller
+    /// to write a complete payload into; see [`PayloadLoan`].
+    pub fn loan_bytes(&self, len: usize) -> Result<PayloadLoan<'_>, ShmError> {
+        let mut sample = self
+            .publisher
+            .loan_slice_uninit(len.div_ceil(8))
+            .map_err(iceoryx(&self.service, "loan"))?;
+        for word in sample.payload_mut() {
+            word.write(0);
+        }
+        // SAFETY: every word was written above.
+        let sample = unsafe { sample.assume_init() };
+        Ok(PayloadLoan::new(self, sample, len))
+    }
+
+    /// Loans a sample for a frame of `shape` with its header written (person, `stamp`,
+    /// sizes, array offsets) and zeroed arrays, so a renderer can write pixels straight into
+    /// shared memory and [`FrameLoan::send`] it: no intermediate image buffer, no copy.
+    pub fn loan_frame(&self, stamp: Stamp, shape: FrameShape) -> Result<FrameLoan<'_>, ShmError> {
+        if self.kind != PayloadKind::Frame {
+            return Err(self.wrong_kind(PayloadKind::Frame));
+        }
+        let header = shape
+            .header(&self.person, stamp)
+            .map_err(|e| self.layout(e))?;
+        let loan = self.loan_bytes(header.total_len as usize)?;
+        Ok(FrameLoan::new(loan, header))
+    }
+
     /// Sends an already encoded payload (checked header, then one copy into shared memory).
     /// For forwarding and for benchmarks that share one byte buffer between transports.
     pub fn publish_encoded(&self, payload: &[u8]) -> Result<usize, ShmError> {
@@ -127,21 +157,21 @@ impl ShmPublisher {
         Ok(delivered)
     }
 
-    fn notify(&self) {
+    pub(crate) fn notify(&self) {
         if let Err(e) = self.notifier.notify() {
             // A listener whose socket is full or gone must not stop the publisher.
             tracing::debug!(service = %self.service, error = %e, "wake-up notification failed");
         }
     }
 
-    fn layout(&self, source: super::layout::LayoutError) -> ShmError {
+    pub(crate) fn layout(&self, source: super::layout::LayoutError) -> ShmError {
         ShmError::Layout {
             service: self.service.clone(),
             source,
         }
     }
 
-    fn wrong_kind(&self, found: PayloadKind) -> ShmError {
+    pub(crate) fn wrong_kind(&self, found: PayloadKind) -> ShmError {
         ShmError::WrongKind {
             service: self.service.clone(),
             expected: self.kind.name(),

@@ -17,6 +17,7 @@ use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use image::GrayImage;
 use outputs::{status_message, FileOutputs};
 use reconstructor::{ReconstructError, Reconstructor};
+pub use render::RenderedFrame;
 use render::{display_pose, render_frames, VirtualCameras};
 use std::collections::VecDeque;
 use std::path::Path;
@@ -54,7 +55,7 @@ pub trait Publisher {
     /// Publishes the reconstruction status.
     fn status(&self, msg: ReconstructionStatus);
     /// Publishes a rendered frame of virtual camera `camera`.
-    fn frame(&self, camera: usize, image: &image::RgbImage, stamp_ns: i64);
+    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64);
 }
 
 /// Several publishers behind one (ROS 2 and shared memory at once).
@@ -67,8 +68,8 @@ impl Publisher for Fanout {
     fn status(&self, msg: ReconstructionStatus) {
         self.0.iter().for_each(|p| p.status(msg.clone()));
     }
-    fn frame(&self, camera: usize, image: &image::RgbImage, stamp_ns: i64) {
-        self.0.iter().for_each(|p| p.frame(camera, image, stamp_ns));
+    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
+        self.0.iter().for_each(|p| p.frame(camera, frame, stamp_ns));
     }
 }
 
@@ -431,7 +432,7 @@ impl Pipeline {
             let images =
                 render_frames(&current.avatar, self.recon.template(), &pose, &self.cameras);
             for (c, image) in images.iter().enumerate() {
-                match files.write_frame(&format!("{}_cam{c}_{f:03}", self.person), image) {
+                match files.write_frame(&format!("{}_cam{c}_{f:03}", self.person), image.rgb8()) {
                     Ok(_) => written += 1,
                     Err(e) => tracing::error!("frame file: {e}"),
                 }

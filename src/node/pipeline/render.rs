@@ -1,11 +1,14 @@
 //! Rendered outputs of the node: virtual cameras orbiting the person, the pose that drives the
-//! avatar (latest BodyPose, or the built-in walk for demos), splatting into RGB frames.
+//! avatar (latest BodyPose, or the built-in walk for demos), splatting into [`RenderedFrame`]s
+//! that publishers convert to 8-bit wherever they need it (a `Vec` for ROS 2 and PNG, a loaned
+//! shared-memory sample for iceoryx2).
 
 use crate::avatar::Avatar;
 use crate::body::{motion, BodyTemplate, Pose};
-use crate::splat::{render, Camera, Intrinsics, RenderOptions};
+use crate::splat::{render, Camera, Intrinsics, RenderOptions, RenderOutput};
 use glam::Vec3;
 use image::RgbImage;
+use std::sync::OnceLock;
 
 /// Frames per second of the built-in walk cycle (its keys are 24 fps Blender frames).
 const WALK_FPS: f32 = 24.0;
@@ -53,6 +56,58 @@ pub fn display_pose(latest: Option<&Pose>, time_s: f32) -> Pose {
         .unwrap_or_else(|| motion::walk_pose(time_s * WALK_FPS))
 }
 
+/// One virtual camera's render: the rasteriser's float image, converted to rgb8 only on
+/// demand (at most once), or straight into a caller's buffer.
+#[derive(Debug)]
+pub struct RenderedFrame {
+    output: RenderOutput,
+    rgb8: OnceLock<RgbImage>,
+}
+
+impl RenderedFrame {
+    /// Wraps a render.
+    pub fn new(output: RenderOutput) -> Self {
+        Self {
+            output,
+            rgb8: OnceLock::new(),
+        }
+    }
+
+    /// Pixels per row.
+    pub fn width(&self) -> u32 {
+        self.output.width
+    }
+
+    /// Rows.
+    pub fn height(&self) -> u32 {
+        self.output.height
+    }
+
+    /// The rasteriser's output (linear RGB floats, alpha, depth).
+    pub fn output(&self) -> &RenderOutput {
+        &self.output
+    }
+
+    /// The frame as an rgb8 image (converted on first use, then cached).
+    pub fn rgb8(&self) -> &RgbImage {
+        self.rgb8.get_or_init(|| self.output.to_rgb8())
+    }
+
+    /// Writes the rgb8 pixels (`width × height × 3` bytes, the same values as
+    /// [`RenderedFrame::rgb8`]) into `dest`, e.g. a loaned shared-memory sample.
+    /// Panics if `dest` has another length.
+    pub fn write_rgb8(&self, dest: &mut [u8]) {
+        assert_eq!(dest.len(), self.output.rgb.len(), "rgb8 destination size");
+        if let Some(image) = self.rgb8.get() {
+            dest.copy_from_slice(image.as_raw());
+            return;
+        }
+        for (d, v) in dest.iter_mut().zip(&self.output.rgb) {
+            *d = (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+        }
+    }
+}
+
 /// Poses `avatar` with `pose` on `template`'s skeleton and renders every virtual camera on a
 /// white background.
 pub fn render_frames(
@@ -60,7 +115,7 @@ pub fn render_frames(
     template: &BodyTemplate,
     pose: &Pose,
     cameras: &VirtualCameras,
-) -> Vec<RgbImage> {
+) -> Vec<RenderedFrame> {
     let matrices = template.skeleton.skinning_matrices(pose);
     let posed = avatar.animate(&matrices);
     let options = RenderOptions {
@@ -70,6 +125,6 @@ pub fn render_frames(
     cameras
         .cameras()
         .iter()
-        .map(|c| render(&posed, c, &options).to_rgb8())
+        .map(|c| RenderedFrame::new(render(&posed, c, &options)))
         .collect()
 }
