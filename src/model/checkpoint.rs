@@ -275,67 +275,105 @@ pub fn load_var_builder(
     dtype: DType,
     device: &Device,
 ) -> Result<VarBuilder<'static>, CheckpointError> {
+    load_var_builder_from_files(&[path.to_path_buf()], path, cfg, dtype, device)
+}
+
+/// Validates the union of the tensors in `files` (one file, or the shards of a sharded
+/// checkpoint; memory-mapped) against `cfg` and returns a `VarBuilder` over them in `dtype`
+/// on `device`. Every missing, unexpected, duplicated, wrong-shape or wrong-dtype tensor is
+/// reported at once in one error naming `origin` (the file or hub folder).
+pub fn load_var_builder_from_files(
+    files: &[PathBuf],
+    origin: &Path,
+    cfg: &LhmppConfig,
+    dtype: DType,
+    device: &Device,
+) -> Result<VarBuilder<'static>, CheckpointError> {
     let expected = expected_tensors(cfg)?;
-    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let st =
-        safetensors::SafeTensors::deserialize(&bytes).map_err(|e| CheckpointError::Format {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
+    let mut maps = Vec::with_capacity(files.len());
+    for file in files {
+        if let Err(source) = std::fs::metadata(file) {
+            return Err(CheckpointError::Io {
+                path: file.clone(),
+                source,
+            });
+        }
+        // SAFETY: the file is only read; a concurrent writer could change the mapped bytes,
+        // which safetensors' bounds checks turn into a format error at worst.
+        let map = unsafe { candle_core::safetensors::MmapedFile::new(file) }.map_err(|e| {
+            CheckpointError::Format {
+                path: file.clone(),
+                reason: e.to_string(),
+            }
         })?;
+        maps.push((file, map));
+    }
     let mut problems = Vec::new();
     let mut tensors = HashMap::with_capacity(expected.len());
-    let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
-    names.sort();
-    for name in &names {
-        if IGNORED_PREFIXES.iter().any(|p| name.starts_with(p)) && !expected.contains_key(name) {
-            continue;
-        }
-        let view = st.tensor(name).map_err(|e| CheckpointError::Format {
-            path: path.to_path_buf(),
+    let mut seen: HashMap<String, &PathBuf> = HashMap::new();
+    for (file, map) in &maps {
+        let st = map.deserialize().map_err(|e| CheckpointError::Format {
+            path: file.to_path_buf(),
             reason: e.to_string(),
         })?;
-        let Some(want) = expected.get(name) else {
-            problems.push(format!("unexpected tensor `{name}` {:?}", view.shape()));
-            continue;
-        };
-        let mut ok = true;
-        if view.shape() != want.as_slice() {
-            problems.push(format!(
-                "wrong shape for `{name}`: file {:?}, expected {:?}",
-                view.shape(),
-                want
-            ));
-            ok = false;
-        }
-        let dt = view.dtype();
-        if !matches!(
-            dt,
-            safetensors::Dtype::F32 | safetensors::Dtype::F16 | safetensors::Dtype::BF16
-        ) {
-            problems.push(format!(
-                "wrong dtype for `{name}`: file {dt:?}, expected F32, F16 or BF16"
-            ));
-            ok = false;
-        }
-        if ok {
-            let t = candle_core::safetensors::Load::load(&view, &Device::Cpu)?
-                .to_dtype(dtype)?
-                .to_device(device)?;
-            tensors.insert(name.clone(), t);
+        let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
+        names.sort();
+        for name in names {
+            if let Some(first) = seen.insert(name.clone(), file) {
+                problems.push(format!(
+                    "tensor `{name}` is in both {} and {}",
+                    first.display(),
+                    file.display()
+                ));
+                continue;
+            }
+            if IGNORED_PREFIXES.iter().any(|p| name.starts_with(p)) && !expected.contains_key(&name)
+            {
+                continue;
+            }
+            let view = st.tensor(&name).map_err(|e| CheckpointError::Format {
+                path: file.to_path_buf(),
+                reason: e.to_string(),
+            })?;
+            let Some(want) = expected.get(&name) else {
+                problems.push(format!("unexpected tensor `{name}` {:?}", view.shape()));
+                continue;
+            };
+            let mut ok = true;
+            if view.shape() != want.as_slice() {
+                problems.push(format!(
+                    "wrong shape for `{name}`: file {:?}, expected {:?}",
+                    view.shape(),
+                    want
+                ));
+                ok = false;
+            }
+            let dt = view.dtype();
+            if !matches!(
+                dt,
+                safetensors::Dtype::F32 | safetensors::Dtype::F16 | safetensors::Dtype::BF16
+            ) {
+                problems.push(format!(
+                    "wrong dtype for `{name}`: file {dt:?}, expected F32, F16 or BF16"
+                ));
+                ok = false;
+            }
+            if ok {
+                let t = candle_core::safetensors::Load::load(&view, &Device::Cpu)?
+                    .to_dtype(dtype)?
+                    .to_device(device)?;
+                tensors.insert(name, t);
+            }
         }
     }
-    let present: std::collections::HashSet<&String> = names.iter().collect();
     for (name, dims) in &expected {
-        if !present.contains(name) {
+        if !seen.contains_key(name) {
             problems.push(format!("missing tensor `{name}` {dims:?}"));
         }
     }
     if !problems.is_empty() {
         return Err(CheckpointError::Mismatch {
-            path: path.to_path_buf(),
+            path: origin.to_path_buf(),
             preset: cfg.preset.clone(),
             problems,
         });

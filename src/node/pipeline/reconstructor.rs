@@ -5,7 +5,8 @@ use crate::avatar::Avatar;
 use crate::body::{AnchorPoints, BodyTemplate};
 use crate::config::ModelConfig;
 use crate::model::cache::ViewTokenCache;
-use crate::model::checkpoint::{load_var_builder, seeded_var_builder};
+use crate::model::checkpoint::seeded_var_builder;
+use crate::model::hub::load_checkpoint;
 use crate::model::{Lhmpp, LhmppConfig};
 use crate::node::preprocess::Preprocessed;
 use crate::splat::Gaussians;
@@ -89,7 +90,7 @@ impl Reconstructor {
     /// Builds the network (checkpoint or embedded default), samples the anchors on the template.
     /// `max_views` bounds the token cache.
     pub fn new(config: &ModelConfig, max_views: usize) -> Result<Self, ReconstructError> {
-        let cfg = LhmppConfig::preset(&config.preset)
+        let mut cfg = LhmppConfig::preset(&config.preset)
             .map_err(|e| ReconstructError::Model(e.to_string()))?;
         let device = select_device(&config.device)?;
         let dtype = parse_dtype(&config.dtype)?;
@@ -99,10 +100,10 @@ impl Reconstructor {
                 format!("embedded default (seeded random weights, seed {DEFAULT_WEIGHTS_SEED})"),
             )
         } else {
-            let path = Path::new(&config.checkpoint);
-            let vb = load_var_builder(path, &cfg, dtype, &device)
+            let loaded = load_checkpoint(Path::new(&config.checkpoint), &cfg, dtype, &device)
                 .map_err(|e| ReconstructError::Model(e.to_string()))?;
-            (vb, path.display().to_string())
+            cfg = loaded.config;
+            (loaded.var_builder, loaded.description)
         };
         let model = Lhmpp::new(&cfg, vb)?;
         let template = BodyTemplate::load_default()?;
