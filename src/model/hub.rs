@@ -413,7 +413,12 @@ pub fn derive_config(
     };
     match dinov2_variant(&o.encoder_model_name) {
         Some((dim, depth, heads)) => {
-            set(&mut d, "encoder_model_name", &mut cfg.encoder.embed_dim, dim);
+            set(
+                &mut d,
+                "encoder_model_name",
+                &mut cfg.encoder.embed_dim,
+                dim,
+            );
             cfg.encoder.depth = depth;
             cfg.encoder.num_heads = heads;
         }
@@ -470,7 +475,12 @@ pub fn derive_config(
     }
     let p = &mut cfg.point_backbone;
     let name = |f: &str| format!("transformer_decoder.point_backbone.{f}");
-    set(&mut d, &name("in_channels"), &mut p.in_channels, pb.in_channels);
+    set(
+        &mut d,
+        &name("in_channels"),
+        &mut p.in_channels,
+        pb.in_channels,
+    );
     set(
         &mut d,
         &name("order"),
@@ -478,18 +488,48 @@ pub fn derive_config(
         orders.into_iter().flatten().collect(),
     );
     set(&mut d, &name("stride"), &mut p.stride, pb.stride.clone());
-    set(&mut d, &name("enc_depths"), &mut p.enc_depths, pb.enc_depths.clone());
-    set(&mut d, &name("enc_channels"), &mut p.enc_channels, pb.enc_channels.clone());
-    set(&mut d, &name("enc_num_head"), &mut p.enc_num_head, pb.enc_num_head.clone());
+    set(
+        &mut d,
+        &name("enc_depths"),
+        &mut p.enc_depths,
+        pb.enc_depths.clone(),
+    );
+    set(
+        &mut d,
+        &name("enc_channels"),
+        &mut p.enc_channels,
+        pb.enc_channels.clone(),
+    );
+    set(
+        &mut d,
+        &name("enc_num_head"),
+        &mut p.enc_num_head,
+        pb.enc_num_head.clone(),
+    );
     set(
         &mut d,
         &name("enc_patch_size"),
         &mut p.enc_patch_size,
         pb.enc_patch_size.clone(),
     );
-    set(&mut d, &name("dec_depths"), &mut p.dec_depths, pb.dec_depths.clone());
-    set(&mut d, &name("dec_channels"), &mut p.dec_channels, pb.dec_channels.clone());
-    set(&mut d, &name("dec_num_head"), &mut p.dec_num_head, pb.dec_num_head.clone());
+    set(
+        &mut d,
+        &name("dec_depths"),
+        &mut p.dec_depths,
+        pb.dec_depths.clone(),
+    );
+    set(
+        &mut d,
+        &name("dec_channels"),
+        &mut p.dec_channels,
+        pb.dec_channels.clone(),
+    );
+    set(
+        &mut d,
+        &name("dec_num_head"),
+        &mut p.dec_num_head,
+        pb.dec_num_head.clone(),
+    );
     set(
         &mut d,
         &name("dec_patch_size"),
@@ -534,7 +574,12 @@ pub fn derive_config(
         &mut cfg.transformer.transformer_dim,
         o.transformer_dim,
     );
-    set(&mut d, "gs_query_dim", &mut cfg.gs_head.gs_query_dim, o.gs_query_dim);
+    set(
+        &mut d,
+        "gs_query_dim",
+        &mut cfg.gs_head.gs_query_dim,
+        o.gs_query_dim,
+    );
     set(&mut d, "gs_use_rgb", &mut cfg.gs_head.use_rgb, o.gs_use_rgb);
     let mlp = &o.gs_mlp_network_config;
     require(
@@ -563,7 +608,12 @@ pub fn derive_config(
     );
     match o.gs_clip_scaling.inference_value() {
         Some(v) => set(&mut d, "gs_clip_scaling", &mut cfg.gs_head.clip_scaling, v),
-        None => require(false, "gs_clip_scaling", &o.gs_clip_scaling, "a number or [a, b, c, steps]"),
+        None => require(
+            false,
+            "gs_clip_scaling",
+            &o.gs_clip_scaling,
+            "a number or [a, b, c, steps]",
+        ),
     }
     let nr = &o.neural_renderer;
     require(
