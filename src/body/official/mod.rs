@@ -1,0 +1,28 @@
+//! The body prior of the official LHM++ checkpoints, loaded from the user's `LHMPP-Prior`
+//! download (SMPL-X licence terms): the SMPL-X neutral model, the 160K canonical query points
+//! (`dense_sample_points/1_160000.ply`) and the diffused skinning volume
+//! (`voxel_grid/cano_1_volume.npz`).
+//!
+//! The official pipeline (reference §1.3(c), (g)): the query points are stored in the SMPL-X
+//! zero pose; they are posed into the canonical "neutral" pose (hips ±π/9) with the skinning
+//! weights of their nearest template vertex and fed to the network with the normals of that
+//! vertex. Gaussians predicted in the neutral pose are taken back to the zero pose with the
+//! weights of the diffused volume (hands and head keep the nearest-vertex weights) and then
+//! posed by SMPL-X forward kinematics. Here the zero pose is the rest pose of the SMPL-X
+//! [`BodyTemplate`](crate::body::BodyTemplate), so avatars bound to it animate with
+//! [`Pose`](crate::body::Pose)s named by [`SMPLX_JOINT_NAMES`](crate::body::SMPLX_JOINT_NAMES).
+//!
+//! The free MakeHuman template stays the default body for every other model.
+
+mod nearest;
+mod ply_points;
+mod prior;
+mod volume;
+
+pub use nearest::nearest_indices;
+pub use ply_points::read_ply_points;
+pub use prior::{
+    neutral_pose, OfficialPrior, PriorPaths, BODY_FACE_RATIO, NEUTRAL_HIP_ANGLE, POINTS_FILE,
+    SMPLX_FILE, SMPLX_MODEL_ID, VOLUME_FILE,
+};
+pub use volume::BlendWeightVolume;

@@ -1,0 +1,143 @@
+//! The LHMPP-Prior body on synthetic files: missing files are named, query points are posed
+//! into the official neutral pose, skinning weights come from the volume, and Gaussians map
+//! back to the SMPL-X rest pose.
+
+mod official_support;
+
+use glam::{Quat, Vec3};
+use lhmpp::body::official::{read_ply_points, OfficialPrior, PriorPaths};
+use lhmpp::body::SMPLX_JOINT_NAMES;
+use official_support as synth;
+
+fn joint(name: &str) -> usize {
+    SMPLX_JOINT_NAMES.iter().position(|n| *n == name).unwrap()
+}
+
+#[test]
+fn each_missing_prior_file_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let paths = PriorPaths::in_dir(dir.path());
+    let err = OfficialPrior::load(&paths).unwrap_err().to_string();
+    assert!(err.contains("dense_sample_points/1_160000.ply"), "{err}");
+    synth::write_prior(dir.path(), 500);
+    std::fs::remove_file(&paths.volume).unwrap();
+    let err = OfficialPrior::load(&paths).unwrap_err().to_string();
+    assert!(err.contains("voxel_grid/cano_1_volume.npz"), "{err}");
+    synth::write_volume(&paths.volume);
+    std::fs::remove_file(&paths.smplx).unwrap();
+    let err = OfficialPrior::load(&paths).unwrap_err().to_string();
+    assert!(
+        err.contains("human_model_files/smplx/SMPLX_NEUTRAL.npz"),
+        "{err}"
+    );
+}
+
+#[test]
+fn query_points_stand_in_the_neutral_pose_with_legs_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let paths = synth::write_prior(dir.path(), 3000);
+    let prior = OfficialPrior::load(&paths).unwrap();
+    assert_eq!(prior.len(), 3000);
+    assert_eq!(prior.is_body.iter().filter(|b| **b).count(), 2250);
+    // Rest points are the file's points in the canonical frame.
+    let file = read_ply_points(&paths.points).unwrap();
+    for (r, f) in prior.rest_points.iter().zip(&file) {
+        assert!((*r + prior.model_offset).abs_diff_eq(*f, 1e-6));
+    }
+    let joints = synth::joints();
+    let neutral = synth::neutral_joints();
+    let near = |p: Vec3, j: usize| (p + prior.model_offset).distance(joints[j]) < 0.02;
+    let (mut left, mut right, mut head) = (0, 0, 0);
+    for i in 0..prior.len() {
+        let (r, q) = (prior.rest_points[i], prior.query_points[i]);
+        if near(r, joint("left_ankle")) {
+            // The ankle cluster turns rigidly with the left leg about the hip, outwards (+x).
+            let hip = joints[joint("left_hip")];
+            let rot = Quat::from_rotation_z(lhmpp::body::official::NEUTRAL_HIP_ANGLE);
+            let want = hip + rot * (r + prior.model_offset - hip) - prior.model_offset;
+            assert!(q.abs_diff_eq(want, 1e-5), "{q} vs {want}");
+            let ankle = neutral[joint("left_ankle")] - prior.model_offset;
+            assert!(q.distance(ankle) < 0.02);
+            assert!(q.x > r.x + 0.2);
+            left += 1;
+        }
+        if near(r, joint("right_ankle")) {
+            assert!(q.x < r.x - 0.2);
+            right += 1;
+        }
+        if near(r, joint("head")) {
+            assert!(q.abs_diff_eq(r, 1e-6), "the head does not move");
+            head += 1;
+        }
+        assert!((prior.query_normals[i].length() - 1.0).abs() < 1e-4);
+    }
+    assert!(left > 0 && right > 0 && head > 0);
+}
+
+#[test]
+fn skinning_comes_from_the_volume_and_gaussians_return_to_the_rest_pose() {
+    let dir = tempfile::tempdir().unwrap();
+    let paths = synth::write_prior(dir.path(), 3000);
+    let prior = OfficialPrior::load(&paths).unwrap();
+    let joints = synth::joints();
+    let mut checked = 0;
+    for i in 0..prior.len() {
+        let w = prior.skin.weights[i];
+        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        // The synthetic volume is one-hot on the nearest neutral joint; points sitting on a
+        // knee cluster get exactly that joint.
+        let r = prior.rest_points[i] + prior.model_offset;
+        if r.distance(joints[joint("left_knee")]) < 0.02 {
+            assert_eq!(prior.skin.bones[i][0] as usize, joint("left_knee"));
+            assert_eq!(w[0], 1.0);
+            // Neutral → rest: the Gaussian at the query point goes back to the file's point,
+            // and its orientation loses the hip rotation.
+            let q = Quat::from_rotation_y(0.3);
+            let (p, rot) = prior.to_rest(i, prior.query_points[i], q);
+            assert!(p.abs_diff_eq(prior.rest_points[i], 1e-5), "{p}");
+            let hip = Quat::from_rotation_z(-lhmpp::body::official::NEUTRAL_HIP_ANGLE);
+            assert!(rot.dot(hip * q).abs() > 1.0 - 1e-5);
+            checked += 1;
+        }
+    }
+    assert!(checked > 0);
+}
+
+#[test]
+fn subsampling_keeps_the_body_head_ratio() {
+    let dir = tempfile::tempdir().unwrap();
+    let paths = synth::write_prior(dir.path(), 4000);
+    let prior = OfficialPrior::load(&paths).unwrap().subsample(400);
+    assert_eq!(prior.len(), 400);
+    assert_eq!(prior.skin.len(), 400);
+    assert_eq!(prior.is_body.iter().filter(|b| **b).count(), 300);
+}
+
+#[test]
+fn ascii_and_big_endian_ply_files_are_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let ascii = dir.path().join("a.ply");
+    std::fs::write(
+        &ascii,
+        "ply\nformat ascii 1.0\ncomment pytorch3d\nelement vertex 2\nproperty float x\n\
+         property float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_index\n\
+         end_header\n1 2 3\n-1 0.5 4\n",
+    )
+    .unwrap();
+    assert_eq!(
+        read_ply_points(&ascii).unwrap(),
+        vec![Vec3::new(1., 2., 3.), Vec3::new(-1., 0.5, 4.)]
+    );
+    let be = dir.path().join("b.ply");
+    let mut bytes = b"ply\nformat binary_big_endian 1.0\nelement vertex 1\nproperty double z\n\
+property double y\nproperty double x\nend_header\n"
+        .to_vec();
+    for v in [3.0f64, 2.0, 1.0] {
+        bytes.extend_from_slice(&v.to_be_bytes());
+    }
+    std::fs::write(&be, bytes).unwrap();
+    assert_eq!(read_ply_points(&be).unwrap(), vec![Vec3::new(1., 2., 3.)]);
+    std::fs::write(&be, "ply\nformat ascii 1.0\nelement face 1\nend_header\n").unwrap();
+    let err = read_ply_points(&be).unwrap_err().to_string();
+    assert!(err.contains("b.ply") && err.contains("vertex"), "{err}");
+}
