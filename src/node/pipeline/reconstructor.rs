@@ -2,7 +2,8 @@
 //! anchor points on the body template, and turns a set of held views into an [`Avatar`].
 
 use crate::avatar::Avatar;
-use crate::body::{AnchorPoints, BodyTemplate};
+use crate::body::official::{OfficialPrior, PriorPaths, SMPLX_MODEL_ID};
+use crate::body::{BodyTemplate, SkinWeights, MAKEHUMAN_MODEL_ID};
 use crate::config::ModelConfig;
 use crate::model::cache::ViewTokenCache;
 use crate::model::checkpoint::seeded_var_builder;
@@ -80,7 +81,8 @@ pub struct Reconstructor {
     device: Device,
     cache: ViewTokenCache,
     template: BodyTemplate,
-    anchors: AnchorPoints,
+    skin: SkinWeights,
+    prior: Option<OfficialPrior>,
     anchor_positions: Tensor,
     anchor_normals: Tensor,
     weights: String,
@@ -106,21 +108,33 @@ impl Reconstructor {
             (loaded.var_builder, loaded.description)
         };
         let model = Lhmpp::new(&cfg, vb)?;
-        let template = BodyTemplate::load_default()?;
-        let anchors = template.sample_anchors(config.num_points, config.seed);
+        let prior = load_prior(config, &cfg)?;
+        let (template, positions, normals, skin) = match &prior {
+            Some(p) => (
+                p.template.clone(),
+                p.query_points.clone(),
+                p.query_normals.clone(),
+                p.skin.clone(),
+            ),
+            None => {
+                let template = BodyTemplate::load_default()?;
+                let anchors = template.sample_anchors(config.num_points, config.seed);
+                (template, anchors.positions, anchors.normals, anchors.skin)
+            }
+        };
         let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
-        let n = anchors.len();
+        let n = positions.len();
         let anchor_positions =
-            Tensor::from_vec(flat(&anchors.positions), (n, 3), &device)?.to_dtype(dtype)?;
-        let anchor_normals =
-            Tensor::from_vec(flat(&anchors.normals), (n, 3), &device)?.to_dtype(dtype)?;
+            Tensor::from_vec(flat(&positions), (n, 3), &device)?.to_dtype(dtype)?;
+        let anchor_normals = Tensor::from_vec(flat(&normals), (n, 3), &device)?.to_dtype(dtype)?;
         Ok(Self {
             model,
             cfg,
             device,
             cache: ViewTokenCache::new(max_views + 4),
             template,
-            anchors,
+            skin,
+            prior,
             anchor_positions,
             anchor_normals,
             weights,
@@ -199,21 +213,64 @@ impl Reconstructor {
         let a = out.to_cpu_arrays()?;
         let n = a.opacities.len();
         let v3 = |v: &[f32], i: usize| Vec3::new(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
-        let positions = (0..n).map(|i| v3(&a.positions, i)).collect();
+        let mut positions: Vec<Vec3> = (0..n).map(|i| v3(&a.positions, i)).collect();
         let scales = (0..n).map(|i| v3(&a.scales, i)).collect();
-        let rotations = (0..n)
+        let mut rotations: Vec<Quat> = (0..n)
             .map(|i| {
                 let r = &a.rotations[4 * i..4 * i + 4];
                 Quat::from_xyzw(r[1], r[2], r[3], r[0]).normalize()
             })
             .collect();
+        if let Some(prior) = &self.prior {
+            // Predicted in the official neutral pose; avatars live in the template's rest pose.
+            for i in 0..n {
+                (positions[i], rotations[i]) = prior.to_rest(i, positions[i], rotations[i]);
+            }
+        }
         let colors: Vec<Vec3> = (0..n).map(|i| v3(&a.colors, i)).collect();
         let gaussians = Gaussians::from_rgb(positions, scales, rotations, a.opacities, &colors)?
             .with_features(a.feature_dim, a.features)?;
-        Ok(Avatar::new(
-            gaussians,
-            self.anchors.skin.clone(),
-            crate::body::MAKEHUMAN_MODEL_ID,
-        )?)
+        let model_id = match self.prior {
+            Some(_) => SMPLX_MODEL_ID,
+            None => MAKEHUMAN_MODEL_ID,
+        };
+        Ok(Avatar::new(gaussians, self.skin.clone(), model_id)?)
     }
+}
+
+/// The official LHMPP-Prior body when `model.prior_dir` is set (only for the official
+/// network: preset `lhmpp-700m` or a hub-folder checkpoint), `num_points` of its points.
+fn load_prior(
+    config: &ModelConfig,
+    cfg: &LhmppConfig,
+) -> Result<Option<OfficialPrior>, ReconstructError> {
+    let official = cfg.preset == "lhmpp-700m" || cfg.preset.starts_with("hub:");
+    if config.prior_dir.is_empty() {
+        if official {
+            tracing::warn!(
+                "model `{}` was trained on the SMPL-X prior; set model.prior_dir to the \
+                 LHMPP-Prior folder (using the MakeHuman body instead)",
+                cfg.preset
+            );
+        }
+        return Ok(None);
+    }
+    if !official {
+        return Err(ReconstructError::Model(format!(
+            "model.prior_dir is only used with the official network (preset lhmpp-700m or a \
+             hub-folder checkpoint), not preset `{}`",
+            cfg.preset
+        )));
+    }
+    let mut paths = PriorPaths::in_dir(Path::new(&config.prior_dir));
+    if !config.smplx_model.is_empty() {
+        paths.smplx = config.smplx_model.clone().into();
+    }
+    let prior = OfficialPrior::load(&paths)?.subsample(config.num_points);
+    tracing::info!(
+        "body prior: {} ({} of its query points)",
+        config.prior_dir,
+        prior.len()
+    );
+    Ok(Some(prior))
 }
