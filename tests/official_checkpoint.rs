@@ -178,4 +178,27 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
     assert_eq!(g.features.len(), 1200 * 128);
     assert!(g.features.iter().all(|f| f.is_finite()));
     assert!(g.sh.iter().flatten().all(|c| c.is_finite()));
+
+    // `lhmpp model info FOLDER` summarises the hub folder from the headers alone.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+        .args(["model", "info"])
+        .arg(&hub)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("equals preset lhmpp-700m"), "{text}");
+    assert!(
+        text.contains("valid: 1287 tensors, 738.64M parameters (1287 BF16)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("ignored: neural_renderer.transformer_block.* (170 tensors, 146.40M)"),
+        "{text}"
+    );
+    eprintln!("{text}");
 }

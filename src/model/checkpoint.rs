@@ -289,6 +289,48 @@ pub fn load_var_builder_from_files(
     dtype: DType,
     device: &Device,
 ) -> Result<VarBuilder<'static>, CheckpointError> {
+    let (tensors, _) = scan_files(files, origin, cfg, Some((dtype, device)))?;
+    Ok(VarBuilder::from_tensors(tensors, dtype, device))
+}
+
+/// What a checkpoint holds (from the file headers only).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CheckpointSummary {
+    /// Tensors the network uses.
+    pub tensors: usize,
+    /// Their parameters.
+    pub parameters: usize,
+    /// Ignored official extras: (prefix, tensors, parameters) per [`IGNORED_PREFIXES`] entry.
+    pub ignored: Vec<(String, usize, usize)>,
+    /// Used tensors per stored dtype (`BF16`, `F32`, ...).
+    pub dtypes: BTreeMap<String, usize>,
+}
+
+/// Validates `files` against `cfg` like [`load_var_builder_from_files`] but reads only the
+/// headers (no tensor data), and summarises what they hold.
+pub fn check_files(
+    files: &[PathBuf],
+    origin: &Path,
+    cfg: &LhmppConfig,
+) -> Result<CheckpointSummary, CheckpointError> {
+    Ok(scan_files(files, origin, cfg, None)?.1)
+}
+
+/// Checks every tensor of `files` against `cfg`; loads them when `load` gives a dtype and
+/// device.
+fn scan_files(
+    files: &[PathBuf],
+    origin: &Path,
+    cfg: &LhmppConfig,
+    load: Option<(DType, &Device)>,
+) -> Result<(HashMap<String, Tensor>, CheckpointSummary), CheckpointError> {
+    let mut summary = CheckpointSummary {
+        ignored: IGNORED_PREFIXES
+            .iter()
+            .map(|p| (p.to_string(), 0, 0))
+            .collect(),
+        ..Default::default()
+    };
     let expected = expected_tensors(cfg)?;
     let mut maps = Vec::with_capacity(files.len());
     for file in files {
@@ -327,14 +369,18 @@ pub fn load_var_builder_from_files(
                 ));
                 continue;
             }
-            if IGNORED_PREFIXES.iter().any(|p| name.starts_with(p)) && !expected.contains_key(&name)
-            {
-                continue;
-            }
             let view = st.tensor(&name).map_err(|e| CheckpointError::Format {
                 path: file.to_path_buf(),
                 reason: e.to_string(),
             })?;
+            let count = view.shape().iter().product::<usize>();
+            if let Some(k) = IGNORED_PREFIXES.iter().position(|p| name.starts_with(p)) {
+                if !expected.contains_key(&name) {
+                    summary.ignored[k].1 += 1;
+                    summary.ignored[k].2 += count;
+                    continue;
+                }
+            }
             let Some(want) = expected.get(&name) else {
                 problems.push(format!("unexpected tensor `{name}` {:?}", view.shape()));
                 continue;
@@ -359,10 +405,15 @@ pub fn load_var_builder_from_files(
                 ok = false;
             }
             if ok {
-                let t = candle_core::safetensors::Load::load(&view, &Device::Cpu)?
-                    .to_dtype(dtype)?
-                    .to_device(device)?;
-                tensors.insert(name, t);
+                summary.tensors += 1;
+                summary.parameters += count;
+                *summary.dtypes.entry(format!("{dt:?}")).or_default() += 1;
+                if let Some((dtype, device)) = load {
+                    let t = candle_core::safetensors::Load::load(&view, &Device::Cpu)?
+                        .to_dtype(dtype)?
+                        .to_device(device)?;
+                    tensors.insert(name, t);
+                }
             }
         }
     }
@@ -378,7 +429,7 @@ pub fn load_var_builder_from_files(
             problems,
         });
     }
-    Ok(VarBuilder::from_tensors(tensors, dtype, device))
+    Ok((tensors, summary))
 }
 
 /// Loads a validated checkpoint into a ready network (see [`load_var_builder`]).

@@ -17,7 +17,9 @@ use candle_core::{DType, Device};
 use candle_nn::VarBuilder;
 use serde::Deserialize;
 
-use super::checkpoint::{load_var_builder, load_var_builder_from_files, CheckpointError};
+use super::checkpoint::{
+    check_files, load_var_builder, load_var_builder_from_files, CheckpointError, CheckpointSummary,
+};
 use super::config::LhmppConfig;
 use super::point::SerializationOrder;
 
@@ -265,6 +267,12 @@ impl HubFolder {
             differences,
             weights,
         })
+    }
+
+    /// Validates the weights against the derived config from their headers only and
+    /// summarises them (tensor and parameter counts, ignored extras, stored dtypes).
+    pub fn check(&self) -> Result<CheckpointSummary, HubError> {
+        Ok(check_files(&self.weights, &self.dir, &self.config)?)
     }
 
     /// Validates the weights against the derived config (all mismatches at once) and returns a
