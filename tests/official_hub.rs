@@ -235,3 +235,26 @@ fn mismatched_tensors_are_all_reported_at_once_and_official_extras_ignored() {
     let missing = err.matches("missing tensor").count();
     assert_eq!(missing, expected.len() - 2);
 }
+
+#[test]
+fn a_checkpoint_path_that_does_not_exist_points_to_the_expected_layout() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("LHMPP-700M");
+    let err = hub::load_checkpoint(
+        &missing,
+        &LhmppConfig::lhmpp_700m(),
+        DType::F32,
+        &Device::Cpu,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(
+        err.contains("LHMPP-700M") && err.contains("does not exist"),
+        "{err}"
+    );
+    assert!(
+        err.contains("config.json") && err.contains("model.safetensors"),
+        "{err}"
+    );
+}

@@ -41,6 +41,12 @@ pub enum HubError {
         /// What is missing (file names).
         what: String,
     },
+    /// The checkpoint path does not exist.
+    #[error(
+        "checkpoint {0} does not exist (expected a safetensors file, or a hub folder with \
+             config.json and model.safetensors: see the README section \"Official LHM++ weights\")"
+    )]
+    NotFound(PathBuf),
     /// Reading a file failed.
     #[error("{path}: {source}")]
     Io {
@@ -310,6 +316,9 @@ pub fn load_checkpoint(
     dtype: DType,
     device: &Device,
 ) -> Result<LoadedCheckpoint, HubError> {
+    if !path.exists() {
+        return Err(HubError::NotFound(path.to_path_buf()));
+    }
     if path.is_dir() {
         let hub = HubFolder::open(path)?;
         for d in &hub.differences {
