@@ -149,7 +149,7 @@ pub fn neutral_joints() -> Vec<Vec3> {
     let mut out = j.clone();
     for (hip, angle) in [(1usize, NEUTRAL_HIP_ANGLE), (2, -NEUTRAL_HIP_ANGLE)] {
         let r = Quat::from_rotation_z(angle);
-        let mut in_leg = vec![false; 55];
+        let mut in_leg = [false; 55];
         in_leg[hip] = true;
         for i in hip + 1..55 {
             in_leg[i] = in_leg[SMPLX_PARENTS[i] as usize];
