@@ -173,6 +173,12 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
         assert!(s.is_finite() && s.min_element() >= 0.0 && s.max_element() <= 0.05 + 1e-6);
     }
     assert!(g.opacities.iter().all(|o| (0.0..=1.0).contains(o)));
+    // The official inference rules ran: hand Gaussians have opacity 0.95 exactly (random
+    // weights never produce it), and the 0.02 m upper-body clamp holds for some Gaussians.
+    assert!(g.opacities.iter().filter(|o| **o == 0.95).count() > 10);
+    assert!(g.scales.iter().any(|s| s.max_element() <= 0.02));
+    // Every Gaussian is skinned to SMPL-X joints.
+    assert!(avatar.skin.bones.iter().flatten().all(|b| *b < 55));
     // Features for the neural renderer: 128 per Gaussian, finite.
     assert_eq!(g.feature_channels, 128);
     assert_eq!(g.features.len(), 1200 * 128);

@@ -93,7 +93,8 @@ fn skinning_comes_from_the_volume_and_gaussians_return_to_the_rest_pose() {
             // Neutral → rest: the Gaussian at the query point goes back to the file's point,
             // and its orientation loses the hip rotation.
             let q = Quat::from_rotation_y(0.3);
-            let (p, rot) = prior.to_rest(i, prior.query_points[i], q);
+            let (p, rot, row) = prior.to_rest(i, prior.query_points[i], q);
+            assert_eq!(row.0[0] as usize, joint("left_knee"));
             assert!(p.abs_diff_eq(prior.rest_points[i], 1e-5), "{p}");
             let hip = Quat::from_rotation_z(-lhmpp::body::official::NEUTRAL_HIP_ANGLE);
             assert!(rot.dot(hip * q).abs() > 1.0 - 1e-5);
@@ -140,4 +141,73 @@ property double y\nproperty double x\nend_header\n"
     std::fs::write(&be, "ply\nformat ascii 1.0\nelement face 1\nend_header\n").unwrap();
     let err = read_ply_points(&be).unwrap_err().to_string();
     assert!(err.contains("b.ply") && err.contains("vertex"), "{err}");
+}
+
+#[test]
+fn gaussians_take_the_volume_weights_where_they_land_except_on_hands_and_head() {
+    let dir = tempfile::tempdir().unwrap();
+    let paths = synth::write_prior(dir.path(), 3000);
+    let prior = OfficialPrior::load(&paths).unwrap();
+    let joints = synth::joints();
+    let neutral = synth::neutral_joints();
+    let off = prior.model_offset;
+    let find = |j: usize| {
+        (0..prior.len())
+            .find(|&i| (prior.rest_points[i] + off).distance(joints[j]) < 0.015)
+            .unwrap()
+    };
+    // A knee Gaussian predicted at the (neutral) ankle follows the ankle.
+    let knee = find(joint("left_knee"));
+    let at_ankle = neutral[joint("left_ankle")] - off;
+    let (_, _, row) = prior.to_rest(knee, at_ankle, Quat::IDENTITY);
+    assert_eq!(row.0[0] as usize, joint("left_ankle"));
+    // A hand Gaussian keeps its vertex's weights wherever it lands.
+    let finger = find(joint("right_index2"));
+    assert!(prior.is_hand[finger]);
+    let (_, _, row) = prior.to_rest(finger, at_ankle, Quat::IDENTITY);
+    assert_eq!(row.0[0] as usize, joint("right_index2"));
+    // all_to_rest applies the same per Gaussian and returns one row each.
+    let mut pos = prior.query_points.clone();
+    let mut rot = vec![Quat::IDENTITY; prior.len()];
+    let skin = prior.all_to_rest(&mut pos, &mut rot);
+    assert_eq!(skin.len(), prior.len());
+    assert!(pos[knee].abs_diff_eq(prior.rest_points[knee], 1e-5));
+}
+
+#[test]
+fn official_part_rules_fix_hand_opacity_and_clamp_upper_body_scales() {
+    let dir = tempfile::tempdir().unwrap();
+    let paths = synth::write_prior(dir.path(), 3000);
+    let prior = OfficialPrior::load(&paths).unwrap();
+    let n = prior.len();
+    let mut scales = vec![Vec3::splat(0.04); n];
+    let mut opacities = vec![0.3; n];
+    prior.apply_part_rules(&mut scales, &mut opacities);
+    let (mut hands, mut upper, mut other) = (0, 0, 0);
+    let joints = synth::joints();
+    for i in 0..n {
+        let dominant = prior.skin.bones[i][0] as usize;
+        let r = prior.rest_points[i] + prior.model_offset;
+        if prior.is_hand[i] {
+            assert_eq!(opacities[i], 0.95);
+            hands += 1;
+        } else {
+            assert_eq!(opacities[i], 0.3);
+        }
+        if prior.is_upper_body[i] {
+            assert_eq!(scales[i], Vec3::splat(0.02));
+            upper += 1;
+        } else {
+            assert_eq!(scales[i], Vec3::splat(0.04));
+        }
+        // Elbows are upper body; knees are not.
+        if r.distance(joints[joint("left_elbow")]) < 0.015 {
+            assert!(prior.is_upper_body[i] && dominant == joint("left_elbow"));
+        }
+        if r.distance(joints[joint("left_knee")]) < 0.015 {
+            assert!(!prior.is_upper_body[i] && !prior.is_hand[i]);
+            other += 1;
+        }
+    }
+    assert!(hands > 0 && upper > 0 && other > 0);
 }

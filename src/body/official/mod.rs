@@ -7,7 +7,8 @@
 //! zero pose; they are posed into the canonical "neutral" pose (hips ±π/9) with the skinning
 //! weights of their nearest template vertex and fed to the network with the normals of that
 //! vertex. Gaussians predicted in the neutral pose are taken back to the zero pose with the
-//! weights of the diffused volume (hands and head keep the nearest-vertex weights) and then
+//! weights of the diffused volume at their predicted positions (hands and head keep the
+//! nearest-vertex weights; the 55 dense weights are reduced to the strongest 4) and then
 //! posed by SMPL-X forward kinematics. Here the zero pose is the rest pose of the SMPL-X
 //! [`BodyTemplate`](crate::body::BodyTemplate), so avatars bound to it animate with
 //! [`Pose`](crate::body::Pose)s named by [`SMPLX_JOINT_NAMES`](crate::body::SMPLX_JOINT_NAMES).
@@ -22,7 +23,8 @@ mod volume;
 pub use nearest::nearest_indices;
 pub use ply_points::read_ply_points;
 pub use prior::{
-    neutral_pose, OfficialPrior, PriorPaths, BODY_FACE_RATIO, NEUTRAL_HIP_ANGLE, POINTS_FILE,
-    SMPLX_FILE, SMPLX_MODEL_ID, VOLUME_FILE,
+    neutral_pose, OfficialPrior, PriorPaths, SkinRow, BODY_FACE_RATIO, HAND_OPACITY,
+    NEUTRAL_HIP_ANGLE, POINTS_FILE, SMPLX_FILE, SMPLX_MODEL_ID, UPPER_BODY_JOINTS,
+    UPPER_BODY_MAX_SCALE, VOLUME_FILE,
 };
 pub use volume::BlendWeightVolume;

@@ -3,6 +3,7 @@
 //! and diffused-volume skinning weights.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use candle_core::{npy::NpzTensors, DType};
 use glam::{Mat4, Quat, Vec3};
@@ -11,7 +12,20 @@ use rayon::prelude::*;
 use super::nearest::nearest_indices;
 use super::ply_points::read_ply_points;
 use super::volume::BlendWeightVolume;
-use crate::body::{load_smplx, vertex_normals, BodyError, BodyTemplate, Pose, SkinWeights};
+use crate::body::{
+    load_smplx, vertex_normals, BodyError, BodyTemplate, Pose, SkinWeights, MAX_INFLUENCES,
+};
+
+/// One sparse skinning row: bones and weights.
+pub type SkinRow = ([u16; MAX_INFLUENCES], [f32; MAX_INFLUENCES]);
+
+/// SMPL-X joints whose vertices form the official "upper body" (spine 1–3, collars,
+/// shoulders, elbows, wrists; `base_skinning.py` `joint_part["upper_body"]`).
+pub const UPPER_BODY_JOINTS: [usize; 11] = [3, 6, 9, 13, 14, 16, 17, 18, 19, 20, 21];
+/// Upper-body Gaussians have their scales clamped to this at inference (metres).
+pub const UPPER_BODY_MAX_SCALE: f32 = 0.02;
+/// Opacity the official decoder forces on hand Gaussians.
+pub const HAND_OPACITY: f32 = 0.95;
 
 /// Query points, relative to the prior folder (`cano_pose_type` 1, 160000 points).
 pub const POINTS_FILE: &str = "dense_sample_points/1_160000.ply";
@@ -88,13 +102,24 @@ pub struct OfficialPrior {
     pub query_points: Vec<Vec3>,
     /// Unit normals at the query points (nearest template vertex, posed).
     pub query_normals: Vec<Vec3>,
-    /// Skinning weights per point: the volume at the neutral-pose point; hand and head points
-    /// keep their nearest vertex's weights.
+    /// Skinning weights at the query points: the volume; hand and head points keep their
+    /// nearest vertex's weights.
     pub skin: SkinWeights,
     /// True for body points (the first 3/4 of the file), false for head points.
     pub is_body: Vec<bool>,
-    /// Per point: maps neutral-pose positions back to the zero (rest) pose.
-    rest_from_neutral: Vec<Mat4>,
+    /// Points on the hands (nearest vertex labelled `hand.*`): opacity fixed to
+    /// [`HAND_OPACITY`].
+    pub is_hand: Vec<bool>,
+    /// Points whose nearest vertex is dominated by an [`UPPER_BODY_JOINTS`] joint: scales
+    /// clamped to [`UPPER_BODY_MAX_SCALE`].
+    pub is_upper_body: Vec<bool>,
+    /// Points skinned by their nearest vertex instead of the volume (hands and head).
+    fixed: Vec<bool>,
+    /// Nearest-vertex skinning row per point.
+    nearest_rows: Vec<SkinRow>,
+    /// Per joint: rest (zero) pose → neutral pose.
+    neutral_mats: Vec<Mat4>,
+    volume: Arc<BlendWeightVolume>,
 }
 
 impl OfficialPrior {
@@ -117,7 +142,7 @@ impl OfficialPrior {
             ));
         }
         let rest: Vec<Vec3> = points.iter().map(|p| *p - model_offset).collect();
-        Ok(Self::from_parts(template, model_offset, rest, &volume))
+        Ok(Self::from_parts(template, model_offset, rest, volume))
     }
 
     /// Builds the prior from a template, its model offset, zero-pose points (canonical
@@ -126,57 +151,71 @@ impl OfficialPrior {
         template: BodyTemplate,
         model_offset: Vec3,
         rest_points: Vec<Vec3>,
-        volume: &BlendWeightVolume,
+        volume: BlendWeightVolume,
     ) -> Self {
         let n = rest_points.len();
         let nearest = nearest_indices(&rest_points, &template.vertices);
         let normals = vertex_normals(&template.vertices, &template.triangles);
-        let mats = template.skeleton.skinning_matrices(&neutral_pose());
-        let head = template.part_names.iter().position(|p| p == "head");
-        let is_hand_or_head = |label: u8| {
-            let name = template.part_names.get(label as usize).map(String::as_str);
-            Some(label as usize) == head || name.is_some_and(|n| n.starts_with("hand"))
+        let neutral_mats = template.skeleton.skinning_matrices(&neutral_pose());
+        let part = |v: usize| {
+            template
+                .part_names
+                .get(template.part_labels[v] as usize)
+                .map_or("", String::as_str)
         };
-        let rows: Vec<_> = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let v = nearest[i] as usize;
-                let m_nn = template.skin.blended(v, &mats);
-                let q = m_nn.transform_point3(rest_points[i]);
-                let normal = m_nn.transform_vector3(normals[v]).normalize_or_zero();
-                let nn_row = (template.skin.bones[v], template.skin.weights[v]);
-                let row = if is_hand_or_head(template.part_labels[v]) {
-                    nn_row
-                } else {
-                    volume.top_weights(q + model_offset).unwrap_or(nn_row)
-                };
-                (q, normal, row)
-            })
-            .collect();
-        let mut skin = SkinWeights::default();
-        let mut query_points = Vec::with_capacity(n);
-        let mut query_normals = Vec::with_capacity(n);
-        for (q, normal, (b, w)) in rows {
-            query_points.push(q);
-            query_normals.push(normal);
-            skin.bones.push(b);
-            skin.weights.push(w);
-        }
-        let rest_from_neutral = (0..n)
-            .into_par_iter()
-            .map(|i| skin.blended(i, &mats).inverse())
-            .collect();
-        let body_points = n / (BODY_FACE_RATIO + 1) * BODY_FACE_RATIO;
-        Self {
-            template,
+        let mut prior = Self {
             model_offset,
             rest_points,
-            query_points,
-            query_normals,
-            skin,
-            is_body: (0..n).map(|i| i < body_points).collect(),
-            rest_from_neutral,
+            query_points: Vec::with_capacity(n),
+            query_normals: Vec::with_capacity(n),
+            skin: SkinWeights::default(),
+            is_body: Vec::with_capacity(n),
+            is_hand: Vec::with_capacity(n),
+            is_upper_body: Vec::with_capacity(n),
+            fixed: Vec::with_capacity(n),
+            nearest_rows: Vec::with_capacity(n),
+            neutral_mats,
+            volume: Arc::new(volume),
+            template: BodyTemplate::default(),
+        };
+        let body_points = n / (BODY_FACE_RATIO + 1) * BODY_FACE_RATIO;
+        for (i, &v) in nearest.iter().enumerate() {
+            let v = v as usize;
+            let m = template.skin.blended(v, &prior.neutral_mats);
+            prior
+                .query_points
+                .push(m.transform_point3(prior.rest_points[i]));
+            prior
+                .query_normals
+                .push(m.transform_vector3(normals[v]).normalize_or_zero());
+            let row = (template.skin.bones[v], template.skin.weights[v]);
+            let hand = part(v).starts_with("hand");
+            prior.is_body.push(i < body_points);
+            prior.is_hand.push(hand);
+            prior
+                .is_upper_body
+                .push(UPPER_BODY_JOINTS.contains(&(row.0[0] as usize)));
+            prior.fixed.push(hand || part(v) == "head");
+            prior.nearest_rows.push(row);
         }
+        prior.template = template;
+        let rows: Vec<SkinRow> = (0..n)
+            .into_par_iter()
+            .map(|i| prior.row_at(i, prior.query_points[i]))
+            .collect();
+        (prior.skin.bones, prior.skin.weights) = rows.into_iter().unzip();
+        prior
+    }
+
+    /// Skinning row of a Gaussian of point `i` at neutral-pose position `p`: the volume there,
+    /// or the nearest vertex's row for hand and head points.
+    pub fn row_at(&self, i: usize, p: Vec3) -> SkinRow {
+        if self.fixed[i] {
+            return self.nearest_rows[i];
+        }
+        self.volume
+            .top_weights(p + self.model_offset)
+            .unwrap_or(self.nearest_rows[i])
     }
 
     /// Number of query points.
@@ -197,28 +236,79 @@ impl OfficialPrior {
             return self.clone();
         }
         let idx: Vec<usize> = (0..n).map(|k| k * len / n).collect();
-        let pick = |v: &[Vec3]| idx.iter().map(|&i| v[i]).collect::<Vec<_>>();
+        fn pick<T: Copy>(v: &[T], idx: &[usize]) -> Vec<T> {
+            idx.iter().map(|&i| v[i]).collect()
+        }
         Self {
             template: self.template.clone(),
             model_offset: self.model_offset,
-            rest_points: pick(&self.rest_points),
-            query_points: pick(&self.query_points),
-            query_normals: pick(&self.query_normals),
+            rest_points: pick(&self.rest_points, &idx),
+            query_points: pick(&self.query_points, &idx),
+            query_normals: pick(&self.query_normals, &idx),
             skin: SkinWeights {
-                bones: idx.iter().map(|&i| self.skin.bones[i]).collect(),
-                weights: idx.iter().map(|&i| self.skin.weights[i]).collect(),
+                bones: pick(&self.skin.bones, &idx),
+                weights: pick(&self.skin.weights, &idx),
             },
-            is_body: idx.iter().map(|&i| self.is_body[i]).collect(),
-            rest_from_neutral: idx.iter().map(|&i| self.rest_from_neutral[i]).collect(),
+            is_body: pick(&self.is_body, &idx),
+            is_hand: pick(&self.is_hand, &idx),
+            is_upper_body: pick(&self.is_upper_body, &idx),
+            fixed: pick(&self.fixed, &idx),
+            nearest_rows: pick(&self.nearest_rows, &idx),
+            neutral_mats: self.neutral_mats.clone(),
+            volume: self.volume.clone(),
         }
     }
 
-    /// Moves a Gaussian of point `i` from the neutral pose (where the network predicts it) to
-    /// the template's rest pose: position and rotation.
-    pub fn to_rest(&self, i: usize, position: Vec3, rotation: Quat) -> (Vec3, Quat) {
-        let m = self.rest_from_neutral[i];
+    /// Moves a Gaussian of point `i` predicted at neutral-pose `position` with `rotation` to
+    /// the template's rest pose, as the official `transform_to_posed_verts_from_neutral_pose`
+    /// does: the skinning row at its position ([`OfficialPrior::row_at`]) blends the inverse
+    /// neutral-pose joint transforms. Returns the rest position, rotation and that row (the
+    /// Gaussian's skinning weights from then on).
+    pub fn to_rest(&self, i: usize, position: Vec3, rotation: Quat) -> (Vec3, Quat, SkinRow) {
+        let row = self.row_at(i, position);
+        let mut m = Mat4::ZERO;
+        for (b, w) in row.0.iter().zip(&row.1) {
+            if *w > 0.0 {
+                m += self.neutral_mats[*b as usize] * *w;
+            }
+        }
+        let m = m.inverse();
         let (_, r, _) = m.to_scale_rotation_translation();
-        (m.transform_point3(position), (r * rotation).normalize())
+        (
+            m.transform_point3(position),
+            (r * rotation).normalize(),
+            row,
+        )
+    }
+
+    /// [`OfficialPrior::to_rest`] for every Gaussian (one per point), in place, in parallel;
+    /// returns their skinning weights.
+    pub fn all_to_rest(&self, positions: &mut [Vec3], rotations: &mut [Quat]) -> SkinWeights {
+        let rows: Vec<SkinRow> = positions
+            .par_iter_mut()
+            .zip(rotations.par_iter_mut())
+            .enumerate()
+            .map(|(i, (p, q))| {
+                let (np, nq, row) = self.to_rest(i, *p, *q);
+                (*p, *q) = (np, nq);
+                row
+            })
+            .collect();
+        let (bones, weights) = rows.into_iter().unzip();
+        SkinWeights { bones, weights }
+    }
+
+    /// Applies the official inference rules of the Gaussian decoder: hand opacities fixed to
+    /// [`HAND_OPACITY`], upper-body scales clamped to [`UPPER_BODY_MAX_SCALE`].
+    pub fn apply_part_rules(&self, scales: &mut [Vec3], opacities: &mut [f32]) {
+        for i in 0..self.len().min(scales.len()).min(opacities.len()) {
+            if self.is_hand[i] {
+                opacities[i] = HAND_OPACITY;
+            }
+            if self.is_upper_body[i] {
+                scales[i] = scales[i].min(Vec3::splat(UPPER_BODY_MAX_SCALE));
+            }
+        }
     }
 }
 

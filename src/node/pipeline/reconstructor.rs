@@ -214,27 +214,30 @@ impl Reconstructor {
         let n = a.opacities.len();
         let v3 = |v: &[f32], i: usize| Vec3::new(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
         let mut positions: Vec<Vec3> = (0..n).map(|i| v3(&a.positions, i)).collect();
-        let scales = (0..n).map(|i| v3(&a.scales, i)).collect();
+        let mut scales: Vec<Vec3> = (0..n).map(|i| v3(&a.scales, i)).collect();
+        let mut opacities = a.opacities;
         let mut rotations: Vec<Quat> = (0..n)
             .map(|i| {
                 let r = &a.rotations[4 * i..4 * i + 4];
                 Quat::from_xyzw(r[1], r[2], r[3], r[0]).normalize()
             })
             .collect();
-        if let Some(prior) = &self.prior {
-            // Predicted in the official neutral pose; avatars live in the template's rest pose.
-            for i in 0..n {
-                (positions[i], rotations[i]) = prior.to_rest(i, positions[i], rotations[i]);
+        let skin = match &self.prior {
+            Some(prior) => {
+                prior.apply_part_rules(&mut scales, &mut opacities);
+                // Predicted in the official neutral pose; avatars live in the rest pose.
+                prior.all_to_rest(&mut positions, &mut rotations)
             }
-        }
+            None => self.skin.clone(),
+        };
         let colors: Vec<Vec3> = (0..n).map(|i| v3(&a.colors, i)).collect();
-        let gaussians = Gaussians::from_rgb(positions, scales, rotations, a.opacities, &colors)?
+        let gaussians = Gaussians::from_rgb(positions, scales, rotations, opacities, &colors)?
             .with_features(a.feature_dim, a.features)?;
         let model_id = match self.prior {
             Some(_) => SMPLX_MODEL_ID,
             None => MAKEHUMAN_MODEL_ID,
         };
-        Ok(Avatar::new(gaussians, self.skin.clone(), model_id)?)
+        Ok(Avatar::new(gaussians, skin, model_id)?)
     }
 }
 
