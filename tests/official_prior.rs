@@ -211,3 +211,49 @@ fn official_part_rules_fix_hand_opacity_and_clamp_upper_body_scales() {
     }
     assert!(hands > 0 && upper > 0 && other > 0);
 }
+
+#[test]
+fn motion_frames_pose_the_prior_where_smplx_puts_the_body_in_camera_space() {
+    use lhmpp::body::motion::official::SmplxFrame;
+    let dir = tempfile::tempdir().unwrap();
+    let paths = synth::write_prior(dir.path(), 500);
+    let prior = OfficialPrior::load(&paths).unwrap();
+    let mut body = vec![[0.0f32; 3]; 21];
+    body[3] = [0.7, 0.0, 0.0]; // left_knee
+    let json = serde_json::json!({
+        "betas": vec![0.0f32; 10], "root_pose": [std::f32::consts::PI, 0.0, 0.0], "body_pose": body,
+        "jaw_pose": [0.0, 0.0, 0.0], "leye_pose": [0.0, 0.0, 0.0], "reye_pose": [0.0, 0.0, 0.0],
+        "lhand_pose": vec![[0.0f32; 3]; 15], "rhand_pose": vec![[0.0f32; 3]; 15],
+        "trans": [0.1, 0.2, 3.0], "focal": [1000.0, 1000.0], "princpt": [256.0, 256.0]
+    });
+    let path = dir.path().join("frame.json");
+    std::fs::write(&path, json.to_string()).unwrap();
+    let frame = SmplxFrame::from_file(&path).unwrap();
+    let pose = prior.motion_pose(&frame);
+    let t = &prior.template;
+    let posed = t
+        .skeleton
+        .posed_joints(&t.skeleton.skinning_matrices(&pose));
+    // SMPL-X: joints rotate about the pelvis by root_pose, then move by trans.
+    let j = synth::joints();
+    let root = Quat::from_rotation_x(std::f32::consts::PI);
+    let trans = Vec3::new(0.1, 0.2, 3.0);
+    let pelvis = j[0];
+    for name in ["pelvis", "head", "left_wrist", "left_knee"] {
+        let k = joint(name);
+        let want = root * (j[k] - pelvis) + pelvis + trans;
+        assert!(
+            posed[k].abs_diff_eq(want, 1e-5),
+            "{name}: {} vs {want}",
+            posed[k]
+        );
+    }
+    // The knee bend moves the ankle: rotate the shin about the knee, then the root.
+    let k = joint("left_ankle");
+    let knee = joint("left_knee");
+    let local = j[knee] + Quat::from_rotation_x(0.7) * (j[k] - j[knee]);
+    let want = root * (local - pelvis) + pelvis + trans;
+    assert!(posed[k].abs_diff_eq(want, 1e-5), "{} vs {want}", posed[k]);
+    // Upside-down SMPL-X body in the camera frame: the head is above (smaller y) the pelvis.
+    assert!(posed[joint("head")].y < posed[0].y);
+}

@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use super::nearest::nearest_indices;
 use super::ply_points::read_ply_points;
 use super::volume::BlendWeightVolume;
+use crate::body::motion::official::SmplxFrame;
 use crate::body::{
     load_smplx, vertex_normals, BodyError, BodyTemplate, Pose, SkinWeights, MAX_INFLUENCES,
 };
@@ -296,6 +297,16 @@ impl OfficialPrior {
             .collect();
         let (bones, weights) = rows.into_iter().unzip();
         SkinWeights { bones, weights }
+    }
+
+    /// The [`Pose`] of the SMPL-X template for one official motion frame: the frame's
+    /// rotations, and its `trans` moved into our canonical frame, so that posed points land
+    /// where SMPL-X puts them (the frame's camera space: x right, y down, z forward).
+    /// Shape (`betas`) and expressions are not applied (zero-beta template).
+    pub fn motion_pose(&self, frame: &SmplxFrame) -> Pose {
+        let mut pose = frame.pose();
+        pose.root_translation += self.model_offset;
+        pose
     }
 
     /// Applies the official inference rules of the Gaussian decoder: hand opacities fixed to
