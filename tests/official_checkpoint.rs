@@ -10,6 +10,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use lhmpp::config::ModelConfig;
+use lhmpp::model::{hub, Lhmpp, LhmppConfig};
 use lhmpp::node::pipeline::reconstructor::Reconstructor;
 use lhmpp::node::preprocess::{BBox, Preprocessed};
 
@@ -185,6 +186,29 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
     assert!(g.features.iter().all(|f| f.is_finite()));
     assert!(g.sh.iter().flatten().all(|c| c.is_finite()));
 
+    drop(recon);
+
+    // The neural renderer (not used by the node yet) runs on the same weights: a 131-channel
+    // splat is reduced to its 128 features, patchified 7×7 and decoded to RGB + mask.
+    let loaded = hub::load_checkpoint(
+        &hub,
+        &LhmppConfig::lhmpp_700m(),
+        candle_core::DType::F32,
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    let model = Lhmpp::new(&loaded.config, loaded.var_builder).unwrap();
+    let features =
+        candle_core::Tensor::randn(0f32, 1.0, (1, 128, 56, 70), &candle_core::Device::Cpu).unwrap();
+    let (rgb, mask) = model.neural_renderer().forward(&features).unwrap();
+    assert_eq!(rgb.dims(), &[1, 3, 56, 70]);
+    assert_eq!(mask.dims(), &[1, 1, 56, 70]);
+    for t in [rgb, mask] {
+        let v = t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert!(v.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x)));
+    }
+    drop(model);
+
     // `lhmpp model info FOLDER` summarises the hub folder from the headers alone.
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_lhmpp"))
         .args(["model", "info"])
@@ -207,4 +231,30 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
         "{text}"
     );
     eprintln!("{text}");
+}
+
+#[test]
+fn prior_settings_fail_fast_with_the_file_or_key_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    // The prior is for the official network only.
+    let tiny = ModelConfig {
+        preset: "tiny".into(),
+        prior_dir: tmp.path().display().to_string(),
+        ..ModelConfig::default()
+    };
+    let err = Reconstructor::new(&tiny, 4).err().unwrap().to_string();
+    assert!(
+        err.contains("model.prior_dir") && err.contains("tiny"),
+        "{err}"
+    );
+    // A missing prior file is reported before any weights are built or read.
+    let official = ModelConfig {
+        preset: "lhmpp-700m".into(),
+        prior_dir: tmp.path().display().to_string(),
+        ..ModelConfig::default()
+    };
+    let t = Instant::now();
+    let err = Reconstructor::new(&official, 4).err().unwrap().to_string();
+    assert!(err.contains("dense_sample_points/1_160000.ply"), "{err}");
+    assert!(t.elapsed().as_secs_f64() < 2.0, "failed fast");
 }

@@ -96,6 +96,9 @@ impl Reconstructor {
             .map_err(|e| ReconstructError::Model(e.to_string()))?;
         let device = select_device(&config.device)?;
         let dtype = parse_dtype(&config.dtype)?;
+        // The prior first: a missing prior file fails before gigabytes of weights are read.
+        let official = cfg.preset == "lhmpp-700m" || Path::new(&config.checkpoint).is_dir();
+        let prior = load_prior(config, official, &cfg.preset)?;
         let (vb, weights) = if config.checkpoint.is_empty() {
             (
                 seeded_var_builder(DEFAULT_WEIGHTS_SEED, dtype, &device),
@@ -108,7 +111,6 @@ impl Reconstructor {
             (loaded.var_builder, loaded.description)
         };
         let model = Lhmpp::new(&cfg, vb)?;
-        let prior = load_prior(config, &cfg)?;
         let (template, positions, normals, skin) = match &prior {
             Some(p) => (
                 p.template.clone(),
@@ -245,15 +247,14 @@ impl Reconstructor {
 /// network: preset `lhmpp-700m` or a hub-folder checkpoint), `num_points` of its points.
 fn load_prior(
     config: &ModelConfig,
-    cfg: &LhmppConfig,
+    official: bool,
+    preset: &str,
 ) -> Result<Option<OfficialPrior>, ReconstructError> {
-    let official = cfg.preset == "lhmpp-700m" || cfg.preset.starts_with("hub:");
     if config.prior_dir.is_empty() {
         if official {
             tracing::warn!(
-                "model `{}` was trained on the SMPL-X prior; set model.prior_dir to the \
-                 LHMPP-Prior folder (using the MakeHuman body instead)",
-                cfg.preset
+                "the official network was trained on the SMPL-X prior; set model.prior_dir to \
+                 the LHMPP-Prior folder (using the MakeHuman body instead)"
             );
         }
         return Ok(None);
@@ -261,8 +262,7 @@ fn load_prior(
     if !official {
         return Err(ReconstructError::Model(format!(
             "model.prior_dir is only used with the official network (preset lhmpp-700m or a \
-             hub-folder checkpoint), not preset `{}`",
-            cfg.preset
+             hub-folder checkpoint), not preset `{preset}`"
         )));
     }
     let mut paths = PriorPaths::in_dir(Path::new(&config.prior_dir));
