@@ -10,7 +10,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use lhmpp::config::ModelConfig;
-use lhmpp::model::{hub, Lhmpp, LhmppConfig};
+use lhmpp::model::dpt::NeuralRenderer;
+use lhmpp::model::hub;
 use lhmpp::node::pipeline::reconstructor::Reconstructor;
 use lhmpp::node::preprocess::{BBox, Preprocessed};
 
@@ -52,24 +53,25 @@ fn tensor_bytes(seed: u64, name: &str, dims: &[usize]) -> Vec<u8> {
         return vec![0u8; 2 * n];
     }
     let fan_in: usize = dims.iter().skip(1).product::<usize>().max(1);
-    let (center, half) = match dims.len() {
+    let (center, spread) = match dims.len() {
         0 | 1 if name.contains("norm") => (1.0f32, 0.1f32),
         0 | 1 => (0.0, 0.02),
         _ => (0.0, (3.0 / fan_in as f32).sqrt()),
     };
     let base = name.bytes().fold(seed, |h, b| splitmix(h ^ u64::from(b)));
-    let mut out = vec![0u8; 2 * n];
-    out.par_chunks_mut(2 * 4096)
-        .enumerate()
-        .for_each(|(c, chunk)| {
-            let mut s = splitmix(base ^ c as u64);
-            for b in chunk.chunks_exact_mut(2) {
-                s = splitmix(s);
-                let u = (s >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
-                b.copy_from_slice(&half::bf16::from_f32(center + half * u).to_le_bytes());
+    let mut out = vec![0u16; n];
+    out.par_chunks_mut(4096).enumerate().for_each(|(c, chunk)| {
+        let mut s = splitmix(base ^ c as u64);
+        for four in chunk.chunks_mut(4) {
+            s = splitmix(s);
+            for (k, v) in four.iter_mut().enumerate() {
+                // 16 random bits → uniform in [-1, 1).
+                let u = ((s >> (16 * k)) & 0xffff) as f32 / 32768.0 - 1.0;
+                *v = half::bf16::from_f32(center + spread * u).to_bits();
             }
-        });
-    out
+        }
+    });
+    bytemuck::cast_slice::<u16, u8>(&out).to_vec()
 }
 
 /// Writes the hub folder; returns (tensors, parameters).
@@ -190,24 +192,28 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
 
     // The neural renderer (not used by the node yet) runs on the same weights: a 131-channel
     // splat is reduced to its 128 features, patchified 7×7 and decoded to RGB + mask.
-    let loaded = hub::load_checkpoint(
-        &hub,
-        &LhmppConfig::lhmpp_700m(),
-        candle_core::DType::F32,
-        &candle_core::Device::Cpu,
-    )
+    // The folder was validated above; map only the renderer's tensors.
+    let folder = hub::HubFolder::open(&hub).unwrap();
+    // SAFETY: the files are not modified while mapped.
+    let vb = unsafe {
+        candle_nn::VarBuilder::from_mmaped_safetensors(
+            &folder.weights,
+            candle_core::DType::F32,
+            &candle_core::Device::Cpu,
+        )
+    }
     .unwrap();
-    let model = Lhmpp::new(&loaded.config, loaded.var_builder).unwrap();
+    let renderer =
+        NeuralRenderer::new(&folder.config.neural_renderer, vb.pp("neural_renderer")).unwrap();
     let features =
         candle_core::Tensor::randn(0f32, 1.0, (1, 128, 56, 70), &candle_core::Device::Cpu).unwrap();
-    let (rgb, mask) = model.neural_renderer().forward(&features).unwrap();
+    let (rgb, mask) = renderer.forward(&features).unwrap();
     assert_eq!(rgb.dims(), &[1, 3, 56, 70]);
     assert_eq!(mask.dims(), &[1, 1, 56, 70]);
     for t in [rgb, mask] {
         let v = t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         assert!(v.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x)));
     }
-    drop(model);
 
     // `lhmpp model info FOLDER` summarises the hub folder from the headers alone.
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_lhmpp"))
