@@ -258,3 +258,22 @@ fn a_checkpoint_path_that_does_not_exist_points_to_the_expected_layout() {
         "{err}"
     );
 }
+
+#[test]
+fn a_release_folder_with_step_checkpoints_opens_the_latest_step() {
+    let dir = tempfile::tempdir().unwrap();
+    for step in ["step_000900", "step_001200", "step_notes"] {
+        let d = dir.path().join(step);
+        std::fs::create_dir_all(&d).unwrap();
+        if step != "step_notes" {
+            write_config(&d, &config_value());
+            write_weights(&d.join("model.safetensors"), &[]);
+        }
+    }
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.dir, dir.path().join("step_001200"));
+    assert_eq!(
+        hub.weights,
+        vec![dir.path().join("step_001200/model.safetensors")]
+    );
+}

@@ -255,7 +255,11 @@ pub struct HubFolder {
 
 impl HubFolder {
     /// Opens `dir`: parses `config.json`, derives the network config and finds the weights.
+    /// A folder without `config.json` but with `step_N/` checkpoints (the LHM release layout)
+    /// opens the highest step.
     pub fn open(dir: &Path) -> Result<Self, HubError> {
+        let resolved = latest_step(dir);
+        let dir = resolved.as_deref().unwrap_or(dir);
         let config_path = dir.join(CONFIG_FILE);
         if !config_path.is_file() {
             return Err(HubError::Missing {
@@ -731,4 +735,23 @@ pub fn find_weights(dir: &Path) -> Result<Vec<PathBuf>, HubError> {
         });
     }
     Ok(shards.into_iter().map(|s| dir.join(s)).collect())
+}
+
+/// The `step_N` subfolder of `dir` with the highest N holding a `config.json`, when `dir`
+/// itself has none.
+fn latest_step(dir: &Path) -> Option<PathBuf> {
+    if dir.join(CONFIG_FILE).is_file() {
+        return None;
+    }
+    std::fs::read_dir(dir)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let step: u64 = name.strip_prefix("step_")?.parse().ok()?;
+            let path = e.path();
+            path.join(CONFIG_FILE).is_file().then_some((step, path))
+        })
+        .max_by_key(|(step, _)| *step)
+        .map(|(_, path)| path)
 }
