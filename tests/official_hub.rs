@@ -277,3 +277,31 @@ fn a_release_folder_with_step_checkpoints_opens_the_latest_step() {
         vec![dir.path().join("step_001200/model.safetensors")]
     );
 }
+
+#[test]
+fn a_smaller_dinov2_is_named_as_a_difference_and_its_width_must_match_the_joint_width() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = config_value();
+    v["encoder_model_name"] = serde_json::json!("dinov2_vitb14_reg");
+    v["encoder_feat_dim"] = serde_json::json!(768);
+    write_config(dir.path(), &v);
+    write_weights(&dir.path().join("model.safetensors"), &[]);
+    // transformer_dim stays 1024: the derived config is invalid, and says why.
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(
+        err.contains("transformer_dim 1024") && err.contains("768"),
+        "{err}"
+    );
+    v["transformer_dim"] = serde_json::json!(768);
+    v["transformer_heads"] = serde_json::json!(12);
+    v["neural_renderer"]["img_dim"] = serde_json::json!(768);
+    write_config(dir.path(), &v);
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.config.encoder.embed_dim, 768);
+    assert_eq!(hub.config.encoder.depth, 12);
+    assert!(
+        hub.differences[0].starts_with("encoder_model_name: \"dinov2_vitb14_reg\""),
+        "{:?}",
+        hub.differences
+    );
+}

@@ -434,12 +434,13 @@ pub fn derive_config(
     };
     match dinov2_variant(&o.encoder_model_name) {
         Some((dim, depth, heads)) => {
-            set(
-                &mut d,
-                "encoder_model_name",
-                &mut cfg.encoder.embed_dim,
-                dim,
-            );
+            if o.encoder_model_name != "dinov2_vitl14_reg" {
+                d.push(format!(
+                    "encoder_model_name: {:?} (lhmpp-700m preset: \"dinov2_vitl14_reg\")",
+                    o.encoder_model_name
+                ));
+            }
+            cfg.encoder.embed_dim = dim;
             cfg.encoder.depth = depth;
             cfg.encoder.num_heads = heads;
         }
