@@ -1,6 +1,9 @@
 //! CDR encoding of every message: round trips, the exact bytes of one Image, and clean errors
 //! (never panics) on truncated or garbage buffers.
 
+mod bag_support;
+
+use bag_support::{avatar, transform_stamped};
 use lhmpp::msgs::*;
 use rand::{Rng, SeedableRng};
 use std::fmt::Debug;
@@ -15,66 +18,6 @@ fn header(frame: &str) -> Header {
     )
 }
 
-fn transform_stamped() -> TransformStamped {
-    TransformStamped {
-        header: header("world"),
-        child_frame_id: "camera_0".into(),
-        transform: Transform {
-            translation: Vector3 {
-                x: 1.0,
-                y: -2.0,
-                z: 0.5,
-            },
-            rotation: Quaternion {
-                x: 0.0,
-                y: 0.0,
-                z: std::f64::consts::FRAC_1_SQRT_2,
-                w: std::f64::consts::FRAC_1_SQRT_2,
-            },
-        },
-    }
-}
-
-fn avatar() -> GaussianAvatar {
-    let cloud = GaussianCloud {
-        positions: vec![[0.0, 1.0, 0.1], [0.2, 1.5, -0.1]],
-        scales: vec![[0.01, 0.02, 0.03]; 2],
-        rotations: vec![[1.0, 0.0, 0.0, 0.0]; 2],
-        opacities: vec![0.9, 0.5],
-        colors: GaussianColors::Rgb(vec![[1.0, 0.5, 0.25], [0.0, 0.0, 1.0]]),
-        skin: lhmpp::body::SkinWeights {
-            bones: vec![[0, 1, 0, 0], [1, 0, 0, 0]],
-            weights: vec![[0.6, 0.4, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]],
-        },
-    };
-    GaussianAvatar {
-        header: header("avatar"),
-        person_id: "person_7".into(),
-        revision: 3,
-        views_used: 4,
-        body_model: "makehuman-cc0".into(),
-        shape_params: vec![0.1, -0.2, 0.3],
-        sh_degree: 0,
-        bone_names: vec!["root".into(), "spine".into()],
-        bone_parents: vec![-1, 0],
-        bone_rest_positions: vec![
-            Point {
-                x: 0.0,
-                y: 0.9,
-                z: 0.0,
-            },
-            Point {
-                x: 0.0,
-                y: 1.2,
-                z: 0.0,
-            },
-        ],
-        gaussians: cloud.to_point_cloud(header("avatar")).unwrap(),
-    }
-}
-
-/// Encodes, checks the header, decodes, compares; then checks every strict prefix and a few
-/// corrupted copies decode to an error or a value, never a panic.
 fn round_trip<M: RosMessage + PartialEq + Debug>(msg: M) {
     let bytes = msg.encode_cdr();
     assert_eq!(&bytes[..4], &CDR_LE_HEADER, "{}", M::TYPE_NAME);

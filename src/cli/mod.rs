@@ -8,6 +8,7 @@ mod body;
 mod config_cmd;
 mod eval;
 mod model;
+mod model_parity;
 mod record;
 mod render;
 mod replay;

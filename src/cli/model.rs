@@ -38,11 +38,14 @@ enum ModelCommand {
         #[arg(long)]
         config: Option<String>,
     },
+    /// Compare our blocks with PyTorch reference fixtures (scripts/parity): max abs / rel error.
+    Parity(super::model_parity::ParityArgs),
 }
 
 /// Runs `lhmpp model`.
 pub fn run(args: ModelArgs) -> anyhow::Result<()> {
     match args.command {
+        ModelCommand::Parity(args) => super::model_parity::run(args),
         ModelCommand::Init {
             config,
             seed,

@@ -7,7 +7,7 @@
 //! the score matrix never exceeds [`SCORE_BUDGET_BYTES`].
 
 use super::ops::fused_attention::fused_attention;
-use candle_core::{DType, Result, Tensor, D};
+use candle_core::{DType, Result, Tensor};
 
 /// Upper bound for one chunk's score matrix (f32 bytes).
 pub const SCORE_BUDGET_BYTES: usize = 256 << 20;
@@ -72,7 +72,7 @@ fn attention_in_chunks(
             };
             scores = scores.broadcast_add(&m.to_dtype(DType::F32)?)?;
         }
-        let probs = candle_nn::ops::softmax_last_dim(&scores)?;
+        let probs = super::ops::softmax::softmax_last_dim(&scores)?;
         outs.push(probs.matmul(&v)?);
         start += len;
     }
@@ -96,21 +96,6 @@ pub fn split_heads(x: &Tensor, heads: usize) -> Result<Tensor> {
 pub fn merge_heads(x: &Tensor) -> Result<Tensor> {
     let (b, h, l, d) = x.dims4()?;
     x.transpose(1, 2)?.reshape((b, l, h * d))
-}
-
-/// Mean over the last dimension, kept: helper for the norms below.
-fn mean_last(x: &Tensor) -> Result<Tensor> {
-    x.mean_keepdim(D::Minus1)
-}
-
-/// LayerNorm over the last dimension without affine parameters.
-pub fn layer_norm_plain(x: &Tensor, eps: f64) -> Result<Tensor> {
-    let dtype = x.dtype();
-    let x = x.to_dtype(DType::F32)?;
-    let mu = mean_last(&x)?;
-    let xc = x.broadcast_sub(&mu)?;
-    let var = mean_last(&xc.sqr()?)?;
-    xc.broadcast_div(&(var + eps)?.sqrt()?)?.to_dtype(dtype)
 }
 
 #[cfg(test)]
@@ -191,14 +176,7 @@ mod tests {
         let mask = Tensor::randn(0f32, 1.0, (1, 1, 10, 9), &dev).unwrap();
         let whole = attention_in_chunks(&q, &k, &v, Some(&mask), 10).unwrap();
         let chunked = attention_in_chunks(&q, &k, &v, Some(&mask), 3).unwrap();
-        let diff = (whole - chunked)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::model::testing::max_abs_diff(&whole, &chunked);
         assert!(diff < 1e-6);
     }
 
@@ -219,14 +197,7 @@ mod tests {
             None,
         )
         .unwrap();
-        let diff = (got - reference)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::model::testing::max_abs_diff(&got, &reference);
         assert!(diff < 1e-6);
         let naive_out = naive(&q, &k, &v, Some(&mask));
         let got = attention(&q, &k, &v, Some(&mask))

@@ -104,19 +104,9 @@ impl ViewTokenCache {
 mod tests {
     use super::*;
     use crate::model::checkpoint::seeded_var_builder;
+    use crate::model::testing::max_abs_diff as max_diff;
     use crate::model::LhmppConfig;
     use candle_core::{DType, Device};
-
-    fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
-        (a - b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
-    }
 
     #[test]
     fn adding_a_view_encodes_only_the_new_image_and_matches_a_full_recompute() {

@@ -11,9 +11,12 @@
 
 use candle_core::{DType, Device, Module, Result, Tensor, D};
 use candle_nn::{
-    conv2d, conv2d_no_bias, conv_transpose2d, layer_norm, linear_no_bias, Conv2d, Conv2dConfig,
-    ConvTranspose2d, ConvTranspose2dConfig, LayerNorm, Linear, VarBuilder,
+    conv2d, conv2d_no_bias, conv_transpose2d, Conv2d, Conv2dConfig, ConvTranspose2d,
+    ConvTranspose2dConfig, VarBuilder,
 };
+
+use super::ops::layer_norm::{layer_norm, LayerNorm};
+use super::ops::linear::{linear_no_bias, Linear};
 
 /// Neural-renderer configuration (official `neural_renderer` block of the config).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -9,7 +9,10 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Conv2d, Conv2dConfig, Init, LayerNorm, Linear, VarBuilder};
+use candle_nn::{Conv2d, Conv2dConfig, Init, VarBuilder};
+
+use super::ops::layer_norm::{layer_norm, LayerNorm};
+use super::ops::linear::{linear, Linear};
 
 use super::attention::{attention, merge_heads};
 use super::bicubic::resize_bicubic_aa;
@@ -39,6 +42,11 @@ impl LayerScale {
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
         x.broadcast_mul(&self.gamma)
     }
+
+    /// The per-channel scale `gamma [dim]`.
+    pub fn gamma(&self) -> &Tensor {
+        &self.gamma
+    }
 }
 
 /// Two-layer MLP with exact GELU (`mlp.fc1`, `mlp.fc2`).
@@ -52,14 +60,25 @@ impl Mlp {
     /// Loads `fc1 [hidden, dim]` and `fc2 [dim, hidden]`.
     pub fn new(dim: usize, hidden: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
-            fc1: candle_nn::linear(dim, hidden, vb.pp("fc1"))?,
-            fc2: candle_nn::linear(hidden, dim, vb.pp("fc2"))?,
+            fc1: linear(dim, hidden, vb.pp("fc1"))?,
+            fc2: linear(hidden, dim, vb.pp("fc2"))?,
         })
     }
 
     /// `fc2(gelu_erf(fc1(x)))`.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        self.fc2.forward(&self.fc1.forward(x)?.gelu_erf()?)
+        self.fc2.forward(&self.fc1.forward_gelu(x)?)
+    }
+
+    /// `residual + gate ⊙ fc2(gelu_erf(fc1(x)))`, fused into the second product.
+    pub fn forward_residual(
+        &self,
+        x: &Tensor,
+        residual: &Tensor,
+        gate: Option<&Tensor>,
+    ) -> Result<Tensor> {
+        self.fc2
+            .forward_residual(&self.fc1.forward_gelu(x)?, residual, gate)
     }
 }
 
@@ -74,13 +93,14 @@ struct SelfAttention {
 impl SelfAttention {
     fn new(dim: usize, heads: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
-            qkv: candle_nn::linear(dim, 3 * dim, vb.pp("qkv"))?,
-            proj: candle_nn::linear(dim, dim, vb.pp("proj"))?,
+            qkv: linear(dim, 3 * dim, vb.pp("qkv"))?,
+            proj: linear(dim, dim, vb.pp("proj"))?,
             heads,
         })
     }
 
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+    /// `residual + gate ⊙ attention(x)`.
+    fn forward_residual(&self, x: &Tensor, residual: &Tensor, gate: &Tensor) -> Result<Tensor> {
         let (b, n, c) = x.dims3()?;
         let qkv = self
             .qkv
@@ -89,13 +109,14 @@ impl SelfAttention {
         let qkv = qkv.permute((2, 0, 3, 1, 4))?;
         let (q, k, v) = (qkv.get(0)?, qkv.get(1)?, qkv.get(2)?);
         let out = attention(&q.contiguous()?, &k.contiguous()?, &v.contiguous()?, None)?;
-        self.proj.forward(&merge_heads(&out)?)
+        self.proj
+            .forward_residual(&merge_heads(&out)?, residual, Some(gate))
     }
 }
 
-/// One pre-norm ViT block with LayerScale.
+/// One pre-norm ViT block with LayerScale (`encoder.model.blocks.{i}`).
 #[derive(Debug, Clone)]
-struct EncoderBlock {
+pub struct EncoderBlock {
     norm1: LayerNorm,
     attn: SelfAttention,
     ls1: LayerScale,
@@ -105,26 +126,27 @@ struct EncoderBlock {
 }
 
 impl EncoderBlock {
-    fn new(cfg: &EncoderConfig, vb: VarBuilder) -> Result<Self> {
+    /// Builds one block of `cfg`'s width from `vb = ….blocks.{i}`.
+    pub fn new(cfg: &EncoderConfig, vb: VarBuilder) -> Result<Self> {
         let c = cfg.embed_dim;
         let hidden = (c as f64 * cfg.mlp_ratio) as usize;
         Ok(Self {
-            norm1: candle_nn::layer_norm(c, cfg.layer_norm_eps, vb.pp("norm1"))?,
+            norm1: layer_norm(c, cfg.layer_norm_eps, vb.pp("norm1"))?,
             attn: SelfAttention::new(c, cfg.num_heads, vb.pp("attn"))?,
             ls1: LayerScale::new(c, ENCODER_LAYER_SCALE_INIT, vb.pp("ls1"))?,
-            norm2: candle_nn::layer_norm(c, cfg.layer_norm_eps, vb.pp("norm2"))?,
+            norm2: layer_norm(c, cfg.layer_norm_eps, vb.pp("norm2"))?,
             mlp: Mlp::new(c, hidden, vb.pp("mlp"))?,
             ls2: LayerScale::new(c, ENCODER_LAYER_SCALE_INIT, vb.pp("ls2"))?,
         })
     }
 
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        let x = (x + self
-            .ls1
-            .forward(&self.attn.forward(&self.norm1.forward(x)?)?)?)?;
-        &x + self
-            .ls2
-            .forward(&self.mlp.forward(&self.norm2.forward(&x)?)?)?
+    /// `x [B, N, C]` → `x + ls1·attn(norm1 x)`, then `+ ls2·mlp(norm2 x)`.
+    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let x = self
+            .attn
+            .forward_residual(&self.norm1.forward(x)?, x, self.ls1.gamma())?;
+        self.mlp
+            .forward_residual(&self.norm2.forward(&x)?, &x, Some(self.ls2.gamma()))
     }
 }
 
@@ -186,7 +208,7 @@ impl DinoEncoder {
                 vb.pp("patch_embed").pp("proj"),
             )?,
             blocks,
-            norm: candle_nn::layer_norm(c, cfg.layer_norm_eps, vb.pp("norm"))?,
+            norm: layer_norm(c, cfg.layer_norm_eps, vb.pp("norm"))?,
             pos_cache: Mutex::new(HashMap::new()),
         })
     }
@@ -290,14 +312,10 @@ mod tests {
         let img = Tensor::rand(0f32, 1.0, (2, 3, 56, 56), &Device::Cpu).unwrap();
         let both = enc.forward(&img).unwrap();
         let second = enc.forward(&img.narrow(0, 1, 1).unwrap()).unwrap();
-        let diff = (both.patch_tokens.narrow(0, 1, 1).unwrap() - second.patch_tokens)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::model::testing::max_abs_diff(
+            &both.patch_tokens.narrow(0, 1, 1).unwrap(),
+            &second.patch_tokens,
+        );
         assert!(diff < 1e-5);
     }
 

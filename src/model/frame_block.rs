@@ -8,7 +8,10 @@
 //! post-RoPE keys.
 
 use candle_core::{DType, Device, Module, Result, Tensor};
-use candle_nn::{Init, LayerNorm, Linear, VarBuilder};
+use candle_nn::{Init, VarBuilder};
+
+use super::ops::layer_norm::{layer_norm, LayerNorm};
+use super::ops::linear::{linear, Linear};
 
 use super::attention::{attention, merge_heads};
 use super::config::{EncoderConfig, ImageBackboneConfig};
@@ -99,22 +102,29 @@ impl FrameAttention {
         let hd = dim / cfg.num_heads;
         let norm = |name: &str| -> Result<Option<LayerNorm>> {
             if cfg.qk_norm {
-                Ok(Some(candle_nn::layer_norm(hd, FRAME_LN_EPS, vb.pp(name))?))
+                Ok(Some(layer_norm(hd, FRAME_LN_EPS, vb.pp(name))?))
             } else {
                 Ok(None)
             }
         };
         Ok(Self {
-            qkv: candle_nn::linear(dim, 3 * dim, vb.pp("qkv"))?,
+            qkv: linear(dim, 3 * dim, vb.pp("qkv"))?,
             q_norm: norm("q_norm")?,
             k_norm: norm("k_norm")?,
-            proj: candle_nn::linear(dim, dim, vb.pp("proj"))?,
+            proj: linear(dim, dim, vb.pp("proj"))?,
             heads: cfg.num_heads,
         })
     }
 
     /// Returns the projected output and the keys metric `[B, N, D]`.
-    fn forward(&self, x: &Tensor, rope: &RopeTables) -> Result<(Tensor, Tensor)> {
+    /// `(residual + gate ⊙ attention(x), keys metric)`.
+    fn forward_residual(
+        &self,
+        x: &Tensor,
+        rope: &RopeTables,
+        residual: &Tensor,
+        gate: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
         let (b, n, c) = x.dims3()?;
         let qkv = self
             .qkv
@@ -132,7 +142,10 @@ impl FrameAttention {
         let k = rope.apply(&k)?.contiguous()?;
         let metric = k.mean(1)?;
         let out = attention(&q, &k, &v, None)?;
-        Ok((self.proj.forward(&merge_heads(&out)?)?, metric))
+        let x = self
+            .proj
+            .forward_residual(&merge_heads(&out)?, residual, Some(gate))?;
+        Ok((x, metric))
     }
 }
 
@@ -152,10 +165,10 @@ impl FrameBlock {
     pub fn new(dim: usize, cfg: &ImageBackboneConfig, vb: VarBuilder) -> Result<Self> {
         let hidden = (dim as f64 * cfg.mlp_ratio) as usize;
         Ok(Self {
-            norm1: candle_nn::layer_norm(dim, FRAME_LN_EPS, vb.pp("norm1"))?,
+            norm1: layer_norm(dim, FRAME_LN_EPS, vb.pp("norm1"))?,
             attn: FrameAttention::new(dim, cfg, vb.pp("attn"))?,
             ls1: LayerScale::new(dim, cfg.init_values, vb.pp("ls1"))?,
-            norm2: candle_nn::layer_norm(dim, FRAME_LN_EPS, vb.pp("norm2"))?,
+            norm2: layer_norm(dim, FRAME_LN_EPS, vb.pp("norm2"))?,
             mlp: Mlp::new(dim, hidden, vb.pp("mlp"))?,
             ls2: LayerScale::new(dim, cfg.init_values, vb.pp("ls2"))?,
         })
@@ -163,12 +176,12 @@ impl FrameBlock {
 
     /// `x [V, 5+h·w, C]` → (updated tokens, keys metric `[V, 5+h·w, D]`).
     pub fn forward(&self, x: &Tensor, rope: &RopeTables) -> Result<(Tensor, Tensor)> {
-        let (a, metric) = self.attn.forward(&self.norm1.forward(x)?, rope)?;
-        let x = (x + self.ls1.forward(&a)?)?;
-        let x = (&x
-            + self
-                .ls2
-                .forward(&self.mlp.forward(&self.norm2.forward(&x)?)?)?)?;
+        let (x, metric) =
+            self.attn
+                .forward_residual(&self.norm1.forward(x)?, rope, x, self.ls1.gamma())?;
+        let x = self
+            .mlp
+            .forward_residual(&self.norm2.forward(&x)?, &x, Some(self.ls2.gamma()))?;
         Ok((x, metric))
     }
 }
@@ -272,14 +285,10 @@ mod tests {
         for (a, b) in n(&x).iter().zip(n(&y)) {
             assert!((a - b).abs() < 1e-4);
         }
-        let special_diff = (x.narrow(2, 0, 5).unwrap() - y.narrow(2, 0, 5).unwrap())
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let special_diff = crate::model::testing::max_abs_diff(
+            &x.narrow(2, 0, 5).unwrap(),
+            &y.narrow(2, 0, 5).unwrap(),
+        );
         assert_eq!(special_diff, 0.0);
     }
 

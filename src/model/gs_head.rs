@@ -7,7 +7,9 @@
 //! upper-body scale 0.02 and hand opacity 0.95, need body-part masks and belong to the avatar.)
 
 use candle_core::{DType, Module, Result, Tensor, D};
-use candle_nn::{Init, Linear, VarBuilder};
+use candle_nn::{Init, VarBuilder};
+
+use super::ops::linear::{linear, Linear};
 
 use super::config::GsHeadConfig;
 
@@ -110,11 +112,11 @@ impl GsHead {
     pub fn new(cfg: &GsHeadConfig, vb: VarBuilder) -> Result<Self> {
         let (q, n) = (cfg.gs_query_dim, cfg.n_neurons);
         let layers = vb.pp("mlp_net").pp("layers");
-        let mut mlp = vec![candle_nn::linear(q, n, layers.pp(0))?];
+        let mut mlp = vec![linear(q, n, layers.pp(0))?];
         for i in 1..cfg.n_hidden_layers {
-            mlp.push(candle_nn::linear(n, n, layers.pp(2 * i))?);
+            mlp.push(linear(n, n, layers.pp(2 * i))?);
         }
-        mlp.push(candle_nn::linear(n, q, layers.pp(2 * cfg.n_hidden_layers))?);
+        mlp.push(linear(n, q, layers.pp(2 * cfg.n_hidden_layers))?);
         let out = vb.pp("gs_net").pp("out_layers");
         let zero = Init::Const(0.0);
         let color = if cfg.use_rgb { 3 } else { 48 };

@@ -14,10 +14,13 @@
 //! `temb` is the mean over views of `motion_embed_mlp(cls)`.
 
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Init, Linear, RmsNorm, VarBuilder};
+use candle_nn::{Init, RmsNorm, VarBuilder};
 
-use super::attention::{attention, layer_norm_plain, merge_heads, split_heads};
+use super::ops::linear::{linear, Activation, Linear};
+
+use super::attention::{attention, merge_heads, split_heads};
 use super::config::PitBlockSpec;
+use super::ops::layer_norm::LayerNorm;
 
 /// LayerNorm epsilon inside AdaLN (no affine).
 const ADALN_EPS: f64 = 1e-6;
@@ -39,14 +42,24 @@ impl FeedForward {
     /// `Linear(dim → inner)`, GELU-tanh, `Linear(inner → out)`.
     pub fn new(dim: usize, inner: usize, out: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
-            proj: candle_nn::linear(dim, inner, vb.pp("net").pp(0).pp("proj"))?,
-            out: candle_nn::linear(inner, out, vb.pp("net").pp(2))?,
+            proj: linear(dim, inner, vb.pp("net").pp(0).pp("proj"))?,
+            out: linear(inner, out, vb.pp("net").pp(2))?,
         })
     }
 
     /// Applies the two layers.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        self.out.forward(&self.proj.forward(x)?.gelu()?)
+        self.out
+            .forward(&self.proj.forward_act(x, Activation::GeluTanh)?)
+    }
+
+    /// `residual + gate ⊙ forward(x)`, fused into the second product.
+    pub fn forward_residual(&self, x: &Tensor, residual: &Tensor, gate: &Tensor) -> Result<Tensor> {
+        self.out.forward_residual(
+            &self.proj.forward_act(x, Activation::GeluTanh)?,
+            residual,
+            Some(gate),
+        )
     }
 }
 
@@ -84,10 +97,10 @@ impl Modulation {
 }
 
 /// `norm(x)·(1 + scale) + shift` for `x [N, D]`, `scale, shift [1, D]`.
+/// One pass: a LayerNorm whose affine weight is `1 + scale` and bias `shift`.
 fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor, eps: f64) -> Result<Tensor> {
-    layer_norm_plain(x, eps)?
-        .broadcast_mul(&(scale + 1.0)?)?
-        .broadcast_add(shift)
+    let weight = (scale + 1.0)?.flatten_all()?;
+    LayerNorm::new(weight, shift.flatten_all()?, eps).forward(x)
 }
 
 /// Joint attention (`attn.*`).
@@ -111,7 +124,7 @@ struct JointAttention {
 impl JointAttention {
     fn new(dim: usize, heads: usize, pre_only: bool, vb: VarBuilder) -> Result<Self> {
         let hd = dim / heads;
-        let lin = |name: &str| candle_nn::linear(dim, dim, vb.pp(name));
+        let lin = |name: &str| linear(dim, dim, vb.pp(name));
         let rms = |name: &str| candle_nn::rms_norm(hd, QK_RMS_EPS, vb.pp(name));
         Ok(Self {
             to_q: lin("to_q")?,
@@ -124,7 +137,7 @@ impl JointAttention {
             norm_k: rms("norm_k")?,
             norm_added_q: rms("norm_added_q")?,
             norm_added_k: rms("norm_added_k")?,
-            to_out: candle_nn::linear(dim, dim, vb.pp("to_out").pp(0))?,
+            to_out: linear(dim, dim, vb.pp("to_out").pp(0))?,
             to_add_out: if pre_only {
                 None
             } else {
@@ -134,8 +147,16 @@ impl JointAttention {
         })
     }
 
-    /// `x [N, D]`, `c [M, D]` → (x_attn `[N, D]`, c_attn `[M, D]` if not pre-only).
-    fn forward(&self, x: &Tensor, c: &Tensor) -> Result<(Tensor, Option<Tensor>)> {
+    /// `x [N, D]`, `c [M, D]` → (`x_res + x_gate ⊙ x_attn` `[N, D]`,
+    /// `c_res + c_gate ⊙ c_attn` `[M, D]` if not pre-only); the gated residual adds are fused
+    /// into the output projections.
+    fn forward(
+        &self,
+        x: &Tensor,
+        c: &Tensor,
+        (x_res, x_gate): (&Tensor, &Tensor),
+        (c_res, c_gate): (&Tensor, &Tensor),
+    ) -> Result<(Tensor, Option<Tensor>)> {
         let n = x.dim(0)?;
         let heads = |t: Tensor| split_heads(&t.unsqueeze(0)?, self.heads);
         let q = self.norm_q.forward(&heads(self.to_q.forward(x)?)?)?;
@@ -153,9 +174,11 @@ impl JointAttention {
         let v = Tensor::cat(&[v, cv], 2)?;
         let out = merge_heads(&attention(&q, &k, &v, None)?)?.squeeze(0)?;
         let m = out.dim(0)? - n;
-        let x_out = self.to_out.forward(&out.narrow(0, 0, n)?)?;
+        let x_out = self
+            .to_out
+            .forward_residual(&out.narrow(0, 0, n)?, x_res, Some(x_gate))?;
         let c_out = match &self.to_add_out {
-            Some(l) => Some(l.forward(&out.narrow(0, n, m)?)?),
+            Some(l) => Some(l.forward_residual(&out.narrow(0, n, m)?, c_res, Some(c_gate))?),
             None => None,
         };
         Ok((x_out, c_out))
@@ -231,21 +254,26 @@ impl JointBlock {
         } else {
             modulate(&c, &mc[0], &mc[1], ADALN_EPS)?
         };
-        let (x_attn, c_attn) = self.attn.forward(&nx, &nc)?;
-        let x = (&x + x_attn.broadcast_mul(gate_msa)?)?;
-        let ff = self
-            .ff
-            .forward(&modulate(&x, shift_mlp, scale_mlp, FF_NORM_EPS)?)?;
-        let x = (&x + ff.broadcast_mul(gate_mlp)?)?;
-        let c = match (c_attn, &self.ff_context) {
-            (Some(c_attn), Some(ff_context)) => {
-                let (c_shift_mlp, c_scale_mlp, c_gate_msa, c_gate_mlp) =
-                    (&mc[3], &mc[4], &mc[2], &mc[5]);
-                let c = (&c + c_attn.broadcast_mul(c_gate_msa)?)?;
-                let f =
-                    ff_context.forward(&modulate(&c, c_shift_mlp, c_scale_mlp, FF_NORM_EPS)?)?;
-                // Official double add of the context feed-forward (kept for weight parity).
-                Some(((&c + f.broadcast_mul(c_gate_mlp)?)? + &f)?)
+        // Pre-only blocks have no context gate; the gate is then unused.
+        let c_gate_msa = mc.get(2).unwrap_or(gate_msa);
+        let (x, c_new) = self
+            .attn
+            .forward(&nx, &nc, (&x, gate_msa), (&c, c_gate_msa))?;
+        let x = self.ff.forward_residual(
+            &modulate(&x, shift_mlp, scale_mlp, FF_NORM_EPS)?,
+            &x,
+            gate_mlp,
+        )?;
+        let c = match (c_new, &self.ff_context) {
+            (Some(c), Some(ff_context)) => {
+                let (c_shift_mlp, c_scale_mlp, c_gate_mlp) = (&mc[3], &mc[4], &mc[5]);
+                // Official double add of the context feed-forward (kept for weight parity):
+                // c + g ⊙ f + f = c + (g + 1) ⊙ f.
+                Some(ff_context.forward_residual(
+                    &modulate(&c, c_shift_mlp, c_scale_mlp, FF_NORM_EPS)?,
+                    &c,
+                    &(c_gate_mlp + 1.0)?,
+                )?)
             }
             _ => None,
         };
@@ -264,8 +292,8 @@ impl MotionEmbed {
     /// Builds `motion_embed_mlp.{0,2}`.
     pub fn new(in_dim: usize, hidden: usize, out_dim: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
-            l0: candle_nn::linear(in_dim, hidden, vb.pp(0))?,
-            l2: candle_nn::linear(hidden, out_dim, vb.pp(2))?,
+            l0: linear(in_dim, hidden, vb.pp(0))?,
+            l2: linear(hidden, out_dim, vb.pp(2))?,
         })
     }
 
@@ -329,14 +357,7 @@ mod tests {
         let c2 = Tensor::randn(0f32, 1.0, (5, 32), &Device::Cpu).unwrap();
         let (a, _) = b.forward(&p, &c1, &t).unwrap();
         let (b2, _) = b.forward(&p, &c2, &t).unwrap();
-        let diff = (a - b2)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let diff = crate::model::testing::max_abs_diff(&a, &b2);
         assert!(diff > 1e-6);
     }
 }

@@ -6,7 +6,9 @@
 //! `renderer.*`, `transformer.point_backbone.*`, `neural_renderer.*`.
 
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{LayerNorm, VarBuilder};
+use candle_nn::VarBuilder;
+
+use super::ops::layer_norm::{layer_norm, LayerNorm};
 
 use super::config::LhmppConfig;
 use super::dpt::NeuralRenderer;
@@ -74,7 +76,7 @@ impl Lhmpp {
             )?,
             pit_enc,
             pit_dec,
-            outnorm: candle_nn::layer_norm(cfg.gs_head.gs_query_dim, 1e-5, t.pp("outnorm"))?,
+            outnorm: layer_norm(cfg.gs_head.gs_query_dim, 1e-5, t.pp("outnorm"))?,
             motion_embed: MotionEmbed::new(
                 ctx,
                 cfg.transformer.motion_embed_hidden,
@@ -332,14 +334,10 @@ mod tests {
         .unwrap();
         assert_eq!(p.dims(), &[50, pv]);
         assert_eq!(t.dims(), tokens.dims());
-        let specials = (t.narrow(1, 0, 5).unwrap() - tokens.narrow(1, 0, 5).unwrap())
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let specials = crate::model::testing::max_abs_diff(
+            &t.narrow(1, 0, 5).unwrap(),
+            &tokens.narrow(1, 0, 5).unwrap(),
+        );
         assert_eq!(specials, 0.0);
     }
 }

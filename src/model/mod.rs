@@ -20,6 +20,9 @@ pub mod ops;
 pub mod point;
 pub mod token_merge;
 
+#[cfg(test)]
+mod testing;
+
 pub use config::LhmppConfig;
 pub use gs_head::GaussianOutput;
 pub use lhmpp::{Lhmpp, ViewTokens};

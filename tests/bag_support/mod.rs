@@ -1,5 +1,5 @@
-//! Shared by the bag tests: one sample message of every type, written to a bag, with the field
-//! values an independent reader must find.
+//! Shared by the bag and message tests: one sample message of every type, written to a bag,
+//! with the field values an independent reader must find.
 
 #![allow(dead_code)]
 
@@ -14,7 +14,8 @@ fn header(frame: &str, offset_ns: u64) -> Header {
     Header::new(Time::from_nanos((T0 + offset_ns) as i64), frame)
 }
 
-fn transform_stamped() -> TransformStamped {
+/// A static camera transform.
+pub fn transform_stamped() -> TransformStamped {
     TransformStamped {
         header: header("world", 0),
         child_frame_id: "camera_0".into(),

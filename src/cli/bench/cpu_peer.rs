@@ -10,13 +10,15 @@ use std::time::Instant;
 
 use anyhow::Context;
 use candle_core::{DType, Device, Module, Tensor};
-use candle_nn::{LayerNorm, Linear, VarBuilder};
+use candle_nn::VarBuilder;
 use clap::Args;
 
 use lhmpp::model::attention::{attention, attention_reference, merge_heads, split_heads};
 use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::config::EncoderConfig;
 use lhmpp::model::encoder::DinoEncoder;
+use lhmpp::model::ops::layer_norm::{layer_norm, LayerNorm};
+use lhmpp::model::ops::linear::{linear, Linear};
 
 /// Arguments of `lhmpp bench cpu-peer`.
 #[derive(Args, Debug)]
@@ -124,20 +126,20 @@ struct Modality {
 impl Modality {
     fn new(d: usize, vb: VarBuilder) -> candle_core::Result<Self> {
         Ok(Self {
-            ln1: candle_nn::layer_norm(d, 1e-6, vb.pp("ln1"))?,
-            qkv: candle_nn::linear(d, 3 * d, vb.pp("qkv"))?,
-            out: candle_nn::linear(d, d, vb.pp("out"))?,
-            ln2: candle_nn::layer_norm(d, 1e-6, vb.pp("ln2"))?,
-            fc1: candle_nn::linear(d, 4 * d, vb.pp("fc1"))?,
-            fc2: candle_nn::linear(4 * d, d, vb.pp("fc2"))?,
+            ln1: layer_norm(d, 1e-6, vb.pp("ln1"))?,
+            qkv: linear(d, 3 * d, vb.pp("qkv"))?,
+            out: linear(d, d, vb.pp("out"))?,
+            ln2: layer_norm(d, 1e-6, vb.pp("ln2"))?,
+            fc1: linear(d, 4 * d, vb.pp("fc1"))?,
+            fc2: linear(4 * d, d, vb.pp("fc2"))?,
         })
     }
 
     /// `x + fc2(gelu(fc1(ln2(x + out(o)))))` after the attention output `o`.
     fn finish(&self, x: &Tensor, o: &Tensor) -> candle_core::Result<Tensor> {
-        let x = (x + self.out.forward(o)?)?;
-        let h = self.fc1.forward(&self.ln2.forward(&x)?)?.gelu_erf()?;
-        x + self.fc2.forward(&h)?
+        let x = self.out.forward_residual(o, x, None)?;
+        let h = self.fc1.forward_gelu(&self.ln2.forward(&x)?)?;
+        self.fc2.forward_residual(&h, &x, None)
     }
 }
 

@@ -3,7 +3,10 @@
 //! `attn.qkv`, `attn.proj`, residual) and an MLP (`norm2`, `mlp.0.fc1`, GELU, `mlp.0.fc2`, residual).
 
 use candle_core::{Result, Tensor};
-use candle_nn::{layer_norm, linear, LayerNorm, Linear, Module, VarBuilder};
+use candle_nn::{Module, VarBuilder};
+
+use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
+use crate::model::ops::linear::{linear, Linear};
 
 use super::serialization::Serialized;
 use super::sparse_conv::{NeighbourMap, SubMConv3d};
@@ -55,6 +58,23 @@ impl SerializedAttention {
 
     /// Attention inside patches of `patch_size` consecutive points of `order`; `x [M, C]`.
     pub fn forward(&self, x: &Tensor, order: &Serialized) -> Result<Tensor> {
+        let out = self.attend(x, order)?;
+        self.proj.forward(&out)
+    }
+
+    /// `residual + proj(attention(x))`, the add fused into the projection.
+    pub fn forward_residual(
+        &self,
+        x: &Tensor,
+        order: &Serialized,
+        residual: &Tensor,
+    ) -> Result<Tensor> {
+        let out = self.attend(x, order)?;
+        self.proj.forward_residual(&out, residual, None)
+    }
+
+    /// Patch attention before the output projection, back in input order `[M, C]`.
+    fn attend(&self, x: &Tensor, order: &Serialized) -> Result<Tensor> {
         let (m, c) = x.dims2()?;
         let k = self.patch_size.min(m).max(1);
         let pad = patch_padding(m, self.patch_size);
@@ -73,11 +93,10 @@ impl SerializedAttention {
             .reshape((patches, k, 3, h, d))?
             .permute((2, 0, 3, 1, 4))?
             .contiguous()?;
-        let out = attention(&qkv.get(0)?, &qkv.get(1)?, &qkv.get(2)?, None)?
+        attention(&qkv.get(0)?, &qkv.get(1)?, &qkv.get(2)?, None)?
             .permute((0, 2, 1, 3))?
             .reshape((n_pad, c))?
-            .index_select(&inverse, 0)?;
-        self.proj.forward(&out)
+            .index_select(&inverse, 0)
     }
 }
 
@@ -137,10 +156,11 @@ impl PtBlock {
         let cpe = self.cpe_norm.forward(&self.cpe_linear.forward(&cpe)?)?;
         let x = (x + cpe)?;
         let order = &orders[self.order_index % orders.len()];
-        let a = self.attn.forward(&self.norm1.forward(&x)?, order)?;
-        let x = (x + a)?;
-        let hdn = self.fc1.forward(&self.norm2.forward(&x)?)?.gelu_erf()?;
-        x + self.fc2.forward(&hdn)?
+        let x = self
+            .attn
+            .forward_residual(&self.norm1.forward(&x)?, order, &x)?;
+        let hdn = self.fc1.forward_gelu(&self.norm2.forward(&x)?)?;
+        self.fc2.forward_residual(&hdn, &x, None)
     }
 }
 

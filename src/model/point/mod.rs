@@ -13,7 +13,10 @@ pub mod sparse_conv;
 pub mod synthetic;
 
 use candle_core::{DType, Device, Result, Tensor};
-use candle_nn::{layer_norm, linear, LayerNorm, Linear, Module, VarBuilder};
+use candle_nn::{Module, VarBuilder};
+
+use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
+use crate::model::ops::linear::{linear, Linear};
 
 use block::{PtBlock, LN_EPS};
 use grid::{center_shift, grid_sample, pool_cells};

@@ -3,7 +3,10 @@
 //! `GELU(LN(proj(child)))` scattered back by cluster index).
 
 use candle_core::{Device, Result, Tensor};
-use candle_nn::{layer_norm, linear, LayerNorm, Linear, Module, VarBuilder};
+use candle_nn::{Module, VarBuilder};
+
+use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
+use crate::model::ops::linear::{linear, Linear};
 
 use super::block::LN_EPS;
 use super::grid::Clusters;
