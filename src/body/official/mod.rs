@@ -13,6 +13,12 @@
 //! [`BodyTemplate`](crate::body::BodyTemplate), so avatars bound to it animate with
 //! [`Pose`](crate::body::Pose)s named by [`SMPLX_JOINT_NAMES`](crate::body::SMPLX_JOINT_NAMES).
 //!
+//! Differences from the official code, all for lack of files the prior does not need here:
+//! hand and face points are those whose nearest vertex is dominated by a wrist/finger or a
+//! head/jaw/eye joint (the official masks come from the MANO and FLAME vertex-id files);
+//! skinning rows keep the strongest 4 of the 55 joints; betas and FLAME expressions are not
+//! applied when posing (zero-shape template).
+//!
 //! The free MakeHuman template stays the default body for every other model.
 
 mod nearest;
