@@ -126,6 +126,14 @@ pub struct ModelConfig {
     pub num_points: usize,
     /// Seed for anchor sampling.
     pub seed: u64,
+    /// Official-checkpoint body prior: the `LHMPP-Prior` download folder (holding
+    /// `dense_sample_points/1_160000.ply`, `voxel_grid/cano_1_volume.npz` and
+    /// `human_model_files/smplx/SMPLX_NEUTRAL.npz`). Empty keeps the MakeHuman body. Only used
+    /// with preset `lhmpp-700m` or a hub-folder checkpoint; `num_points` then picks that many
+    /// of the prior's points (160000 = all).
+    pub prior_dir: String,
+    /// SMPL-X model file overriding `<prior_dir>/human_model_files/smplx/SMPLX_NEUTRAL.npz`.
+    pub smplx_model: String,
 }
 
 /// Outputs.
@@ -207,6 +215,8 @@ impl Default for ModelConfig {
             dtype: "f32".into(),
             num_points: 4096,
             seed: 1,
+            prior_dir: String::new(),
+            smplx_model: String::new(),
         }
     }
 }
@@ -361,6 +371,12 @@ impl NodeConfig {
             return Err(bad(
                 "model.num_points",
                 format!("{} is not in 64..=400000", self.model.num_points),
+            ));
+        }
+        if !self.model.smplx_model.is_empty() && self.model.prior_dir.is_empty() {
+            return Err(bad(
+                "model.smplx_model",
+                "is only used with model.prior_dir (the official LHMPP-Prior body)".to_string(),
             ));
         }
         if !(self.outputs.render_rate_hz.is_finite() && self.outputs.render_rate_hz >= 0.0) {

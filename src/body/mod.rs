@@ -21,6 +21,7 @@ pub mod convert;
 mod error;
 mod geometry;
 pub mod motion;
+pub mod official;
 mod ply;
 mod pose;
 mod skeleton;

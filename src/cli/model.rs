@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 
-use lhmpp::model::checkpoint;
 use lhmpp::model::config::{LhmppConfig, ParameterCounts};
+use lhmpp::model::{checkpoint, hub};
 
 /// Arguments of `lhmpp model`.
 #[derive(Args, Debug)]
@@ -31,7 +31,8 @@ enum ModelCommand {
     },
     /// Print parameter counts per part: of a checkpoint file, of one preset, or of every preset.
     Info {
-        /// A checkpoint to inspect (validated against the preset in its metadata or --config).
+        /// A checkpoint to inspect: a safetensors file (validated against the preset in its
+        /// metadata or --config) or a hub folder (config.json + model.safetensors).
         file: Option<PathBuf>,
         /// Preset to show (or to validate FILE against).
         #[arg(long)]
@@ -60,6 +61,10 @@ pub fn run(args: ModelArgs) -> anyhow::Result<()> {
             );
             Ok(())
         }
+        ModelCommand::Info {
+            file: Some(file),
+            config: _,
+        } if file.is_dir() => hub_info(&file),
         ModelCommand::Info {
             file: Some(file),
             config,
@@ -102,6 +107,56 @@ pub fn run(args: ModelArgs) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// Prints what a hub folder holds; validates the weights from their headers only.
+fn hub_info(dir: &std::path::Path) -> anyhow::Result<()> {
+    let hub = hub::HubFolder::open(dir)?;
+    let o = &hub.official;
+    let pb = &o.transformer_decoder.point_backbone;
+    println!("{}: hub folder", dir.display());
+    println!(
+        "  config.json: {} · {} · PTv3 enc {:?} dec {:?} · {} frame blocks · merge {} · \
+         {} query points · {} · renderer {}",
+        o.model_name.as_deref().unwrap_or("?"),
+        o.encoder_model_name,
+        pb.enc_channels,
+        pb.dec_channels,
+        o.transformer_decoder.image_backbone.depth,
+        o.transformer_decoder.merge_ratio,
+        o.dense_sample_pts.map_or("?".into(), |n| n.to_string()),
+        o.smplx_type.as_deref().unwrap_or("?"),
+        o.neural_renderer.kind
+    );
+    if hub.differences.is_empty() {
+        println!("  config: equals preset lhmpp-700m");
+    } else {
+        println!(
+            "  config `{}` differs from preset lhmpp-700m:",
+            hub.config.preset
+        );
+        for d in &hub.differences {
+            println!("    {d}");
+        }
+    }
+    for w in &hub.weights {
+        println!("  weights: {}", w.display());
+    }
+    let s = hub
+        .check()
+        .with_context(|| format!("validating {}", dir.display()))?;
+    let dtypes: Vec<String> = s.dtypes.iter().map(|(k, v)| format!("{v} {k}")).collect();
+    println!(
+        "  valid: {} tensors, {} parameters ({})",
+        s.tensors,
+        millions(s.parameters),
+        dtypes.join(", ")
+    );
+    for (prefix, n, p) in s.ignored.iter().filter(|i| i.1 > 0) {
+        println!("  ignored: {prefix}* ({n} tensors, {})", millions(*p));
+    }
+    print_table(&[(hub.config.preset.clone(), hub.config.parameter_count())]);
+    Ok(())
 }
 
 fn millions(n: usize) -> String {

@@ -275,72 +275,161 @@ pub fn load_var_builder(
     dtype: DType,
     device: &Device,
 ) -> Result<VarBuilder<'static>, CheckpointError> {
+    load_var_builder_from_files(&[path.to_path_buf()], path, cfg, dtype, device)
+}
+
+/// Validates the union of the tensors in `files` (one file, or the shards of a sharded
+/// checkpoint; memory-mapped) against `cfg` and returns a `VarBuilder` over them in `dtype`
+/// on `device`. Every missing, unexpected, duplicated, wrong-shape or wrong-dtype tensor is
+/// reported at once in one error naming `origin` (the file or hub folder).
+pub fn load_var_builder_from_files(
+    files: &[PathBuf],
+    origin: &Path,
+    cfg: &LhmppConfig,
+    dtype: DType,
+    device: &Device,
+) -> Result<VarBuilder<'static>, CheckpointError> {
+    let (tensors, _) = scan_files(files, origin, cfg, Some((dtype, device)))?;
+    Ok(VarBuilder::from_tensors(tensors, dtype, device))
+}
+
+/// What a checkpoint holds (from the file headers only).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CheckpointSummary {
+    /// Tensors the network uses.
+    pub tensors: usize,
+    /// Their parameters.
+    pub parameters: usize,
+    /// Ignored official extras: (prefix, tensors, parameters) per [`IGNORED_PREFIXES`] entry.
+    pub ignored: Vec<(String, usize, usize)>,
+    /// Used tensors per stored dtype (`BF16`, `F32`, ...).
+    pub dtypes: BTreeMap<String, usize>,
+}
+
+/// Validates `files` against `cfg` like [`load_var_builder_from_files`] but reads only the
+/// headers (no tensor data), and summarises what they hold.
+pub fn check_files(
+    files: &[PathBuf],
+    origin: &Path,
+    cfg: &LhmppConfig,
+) -> Result<CheckpointSummary, CheckpointError> {
+    Ok(scan_files(files, origin, cfg, None)?.1)
+}
+
+/// Checks every tensor of `files` against `cfg`; loads them when `load` gives a dtype and
+/// device.
+fn scan_files(
+    files: &[PathBuf],
+    origin: &Path,
+    cfg: &LhmppConfig,
+    load: Option<(DType, &Device)>,
+) -> Result<(HashMap<String, Tensor>, CheckpointSummary), CheckpointError> {
+    let mut summary = CheckpointSummary {
+        ignored: IGNORED_PREFIXES
+            .iter()
+            .map(|p| (p.to_string(), 0, 0))
+            .collect(),
+        ..Default::default()
+    };
     let expected = expected_tensors(cfg)?;
-    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let st =
-        safetensors::SafeTensors::deserialize(&bytes).map_err(|e| CheckpointError::Format {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
+    let mut maps = Vec::with_capacity(files.len());
+    for file in files {
+        if let Err(source) = std::fs::metadata(file) {
+            return Err(CheckpointError::Io {
+                path: file.clone(),
+                source,
+            });
+        }
+        // SAFETY: the file is only read; a concurrent writer could change the mapped bytes,
+        // which safetensors' bounds checks turn into a format error at worst.
+        let map = unsafe { candle_core::safetensors::MmapedFile::new(file) }.map_err(|e| {
+            CheckpointError::Format {
+                path: file.clone(),
+                reason: e.to_string(),
+            }
         })?;
+        maps.push((file, map));
+    }
     let mut problems = Vec::new();
     let mut tensors = HashMap::with_capacity(expected.len());
-    let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
-    names.sort();
-    for name in &names {
-        if IGNORED_PREFIXES.iter().any(|p| name.starts_with(p)) && !expected.contains_key(name) {
-            continue;
-        }
-        let view = st.tensor(name).map_err(|e| CheckpointError::Format {
-            path: path.to_path_buf(),
+    let mut seen: HashMap<String, &PathBuf> = HashMap::new();
+    for (file, map) in &maps {
+        let st = map.deserialize().map_err(|e| CheckpointError::Format {
+            path: file.to_path_buf(),
             reason: e.to_string(),
         })?;
-        let Some(want) = expected.get(name) else {
-            problems.push(format!("unexpected tensor `{name}` {:?}", view.shape()));
-            continue;
-        };
-        let mut ok = true;
-        if view.shape() != want.as_slice() {
-            problems.push(format!(
-                "wrong shape for `{name}`: file {:?}, expected {:?}",
-                view.shape(),
-                want
-            ));
-            ok = false;
-        }
-        let dt = view.dtype();
-        if !matches!(
-            dt,
-            safetensors::Dtype::F32 | safetensors::Dtype::F16 | safetensors::Dtype::BF16
-        ) {
-            problems.push(format!(
-                "wrong dtype for `{name}`: file {dt:?}, expected F32, F16 or BF16"
-            ));
-            ok = false;
-        }
-        if ok {
-            let t = candle_core::safetensors::Load::load(&view, &Device::Cpu)?
-                .to_dtype(dtype)?
-                .to_device(device)?;
-            tensors.insert(name.clone(), t);
+        let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
+        names.sort();
+        for name in names {
+            if let Some(first) = seen.insert(name.clone(), file) {
+                problems.push(format!(
+                    "tensor `{name}` is in both {} and {}",
+                    first.display(),
+                    file.display()
+                ));
+                continue;
+            }
+            let view = st.tensor(&name).map_err(|e| CheckpointError::Format {
+                path: file.to_path_buf(),
+                reason: e.to_string(),
+            })?;
+            let count = view.shape().iter().product::<usize>();
+            if let Some(k) = IGNORED_PREFIXES.iter().position(|p| name.starts_with(p)) {
+                if !expected.contains_key(&name) {
+                    summary.ignored[k].1 += 1;
+                    summary.ignored[k].2 += count;
+                    continue;
+                }
+            }
+            let Some(want) = expected.get(&name) else {
+                problems.push(format!("unexpected tensor `{name}` {:?}", view.shape()));
+                continue;
+            };
+            let mut ok = true;
+            if view.shape() != want.as_slice() {
+                problems.push(format!(
+                    "wrong shape for `{name}`: file {:?}, expected {:?}",
+                    view.shape(),
+                    want
+                ));
+                ok = false;
+            }
+            let dt = view.dtype();
+            if !matches!(
+                dt,
+                safetensors::Dtype::F32 | safetensors::Dtype::F16 | safetensors::Dtype::BF16
+            ) {
+                problems.push(format!(
+                    "wrong dtype for `{name}`: file {dt:?}, expected F32, F16 or BF16"
+                ));
+                ok = false;
+            }
+            if ok {
+                summary.tensors += 1;
+                summary.parameters += count;
+                *summary.dtypes.entry(format!("{dt:?}")).or_default() += 1;
+                if let Some((dtype, device)) = load {
+                    let t = candle_core::safetensors::Load::load(&view, &Device::Cpu)?
+                        .to_dtype(dtype)?
+                        .to_device(device)?;
+                    tensors.insert(name, t);
+                }
+            }
         }
     }
-    let present: std::collections::HashSet<&String> = names.iter().collect();
     for (name, dims) in &expected {
-        if !present.contains(name) {
+        if !seen.contains_key(name) {
             problems.push(format!("missing tensor `{name}` {dims:?}"));
         }
     }
     if !problems.is_empty() {
         return Err(CheckpointError::Mismatch {
-            path: path.to_path_buf(),
+            path: origin.to_path_buf(),
             preset: cfg.preset.clone(),
             problems,
         });
     }
-    Ok(VarBuilder::from_tensors(tensors, dtype, device))
+    Ok((tensors, summary))
 }
 
 /// Loads a validated checkpoint into a ready network (see [`load_var_builder`]).

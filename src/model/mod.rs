@@ -13,6 +13,7 @@ pub mod dpt;
 pub mod encoder;
 pub mod frame_block;
 pub mod gs_head;
+pub mod hub;
 pub mod joint_block;
 pub mod lhmpp;
 pub mod ops;

@@ -11,6 +11,7 @@
 
 mod clip;
 pub mod gait;
+pub mod official;
 mod spec;
 
 pub use clip::{Channel, ChannelProperty, KeyframeClip};

@@ -2,10 +2,12 @@
 //! anchor points on the body template, and turns a set of held views into an [`Avatar`].
 
 use crate::avatar::Avatar;
-use crate::body::{AnchorPoints, BodyTemplate};
+use crate::body::official::{OfficialPrior, PriorPaths, SMPLX_MODEL_ID};
+use crate::body::{BodyTemplate, SkinWeights, MAKEHUMAN_MODEL_ID};
 use crate::config::ModelConfig;
 use crate::model::cache::ViewTokenCache;
-use crate::model::checkpoint::{load_var_builder, seeded_var_builder};
+use crate::model::checkpoint::seeded_var_builder;
+use crate::model::hub::load_checkpoint;
 use crate::model::{Lhmpp, LhmppConfig};
 use crate::node::preprocess::Preprocessed;
 use crate::splat::Gaussians;
@@ -79,7 +81,8 @@ pub struct Reconstructor {
     device: Device,
     cache: ViewTokenCache,
     template: BodyTemplate,
-    anchors: AnchorPoints,
+    skin: SkinWeights,
+    prior: Option<OfficialPrior>,
     anchor_positions: Tensor,
     anchor_normals: Tensor,
     weights: String,
@@ -89,37 +92,51 @@ impl Reconstructor {
     /// Builds the network (checkpoint or embedded default), samples the anchors on the template.
     /// `max_views` bounds the token cache.
     pub fn new(config: &ModelConfig, max_views: usize) -> Result<Self, ReconstructError> {
-        let cfg = LhmppConfig::preset(&config.preset)
+        let mut cfg = LhmppConfig::preset(&config.preset)
             .map_err(|e| ReconstructError::Model(e.to_string()))?;
         let device = select_device(&config.device)?;
         let dtype = parse_dtype(&config.dtype)?;
+        // The prior first: a missing prior file fails before gigabytes of weights are read.
+        let official = cfg.preset == "lhmpp-700m" || Path::new(&config.checkpoint).is_dir();
+        let prior = load_prior(config, official, &cfg.preset)?;
         let (vb, weights) = if config.checkpoint.is_empty() {
             (
                 seeded_var_builder(DEFAULT_WEIGHTS_SEED, dtype, &device),
                 format!("embedded default (seeded random weights, seed {DEFAULT_WEIGHTS_SEED})"),
             )
         } else {
-            let path = Path::new(&config.checkpoint);
-            let vb = load_var_builder(path, &cfg, dtype, &device)
+            let loaded = load_checkpoint(Path::new(&config.checkpoint), &cfg, dtype, &device)
                 .map_err(|e| ReconstructError::Model(e.to_string()))?;
-            (vb, path.display().to_string())
+            cfg = loaded.config;
+            (loaded.var_builder, loaded.description)
         };
         let model = Lhmpp::new(&cfg, vb)?;
-        let template = BodyTemplate::load_default()?;
-        let anchors = template.sample_anchors(config.num_points, config.seed);
+        let (template, positions, normals, skin) = match &prior {
+            Some(p) => (
+                p.template.clone(),
+                p.query_points.clone(),
+                p.query_normals.clone(),
+                p.skin.clone(),
+            ),
+            None => {
+                let template = BodyTemplate::load_default()?;
+                let anchors = template.sample_anchors(config.num_points, config.seed);
+                (template, anchors.positions, anchors.normals, anchors.skin)
+            }
+        };
         let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
-        let n = anchors.len();
+        let n = positions.len();
         let anchor_positions =
-            Tensor::from_vec(flat(&anchors.positions), (n, 3), &device)?.to_dtype(dtype)?;
-        let anchor_normals =
-            Tensor::from_vec(flat(&anchors.normals), (n, 3), &device)?.to_dtype(dtype)?;
+            Tensor::from_vec(flat(&positions), (n, 3), &device)?.to_dtype(dtype)?;
+        let anchor_normals = Tensor::from_vec(flat(&normals), (n, 3), &device)?.to_dtype(dtype)?;
         Ok(Self {
             model,
             cfg,
             device,
             cache: ViewTokenCache::new(max_views + 4),
             template,
-            anchors,
+            skin,
+            prior,
             anchor_positions,
             anchor_normals,
             weights,
@@ -198,21 +215,65 @@ impl Reconstructor {
         let a = out.to_cpu_arrays()?;
         let n = a.opacities.len();
         let v3 = |v: &[f32], i: usize| Vec3::new(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
-        let positions = (0..n).map(|i| v3(&a.positions, i)).collect();
-        let scales = (0..n).map(|i| v3(&a.scales, i)).collect();
-        let rotations = (0..n)
+        let mut positions: Vec<Vec3> = (0..n).map(|i| v3(&a.positions, i)).collect();
+        let mut scales: Vec<Vec3> = (0..n).map(|i| v3(&a.scales, i)).collect();
+        let mut opacities = a.opacities;
+        let mut rotations: Vec<Quat> = (0..n)
             .map(|i| {
                 let r = &a.rotations[4 * i..4 * i + 4];
                 Quat::from_xyzw(r[1], r[2], r[3], r[0]).normalize()
             })
             .collect();
+        let skin = match &self.prior {
+            Some(prior) => {
+                prior.apply_part_rules(&mut scales, &mut opacities);
+                // Predicted in the official neutral pose; avatars live in the rest pose.
+                prior.all_to_rest(&mut positions, &mut rotations)
+            }
+            None => self.skin.clone(),
+        };
         let colors: Vec<Vec3> = (0..n).map(|i| v3(&a.colors, i)).collect();
-        let gaussians = Gaussians::from_rgb(positions, scales, rotations, a.opacities, &colors)?
+        let gaussians = Gaussians::from_rgb(positions, scales, rotations, opacities, &colors)?
             .with_features(a.feature_dim, a.features)?;
-        Ok(Avatar::new(
-            gaussians,
-            self.anchors.skin.clone(),
-            crate::body::MAKEHUMAN_MODEL_ID,
-        )?)
+        let model_id = match self.prior {
+            Some(_) => SMPLX_MODEL_ID,
+            None => MAKEHUMAN_MODEL_ID,
+        };
+        Ok(Avatar::new(gaussians, skin, model_id)?)
     }
+}
+
+/// The official LHMPP-Prior body when `model.prior_dir` is set (only for the official
+/// network: preset `lhmpp-700m` or a hub-folder checkpoint), `num_points` of its points.
+fn load_prior(
+    config: &ModelConfig,
+    official: bool,
+    preset: &str,
+) -> Result<Option<OfficialPrior>, ReconstructError> {
+    if config.prior_dir.is_empty() {
+        if official {
+            tracing::warn!(
+                "the official network was trained on the SMPL-X prior; set model.prior_dir to \
+                 the LHMPP-Prior folder (using the MakeHuman body instead)"
+            );
+        }
+        return Ok(None);
+    }
+    if !official {
+        return Err(ReconstructError::Model(format!(
+            "model.prior_dir is only used with the official network (preset lhmpp-700m or a \
+             hub-folder checkpoint), not preset `{preset}`"
+        )));
+    }
+    let mut paths = PriorPaths::in_dir(Path::new(&config.prior_dir));
+    if !config.smplx_model.is_empty() {
+        paths.smplx = config.smplx_model.clone().into();
+    }
+    let prior = OfficialPrior::load(&paths)?.subsample(config.num_points);
+    tracing::info!(
+        "body prior: {} ({} of its query points)",
+        config.prior_dir,
+        prior.len()
+    );
+    Ok(Some(prior))
 }

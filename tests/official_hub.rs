@@ -1,0 +1,307 @@
+//! Hub folders of the released checkpoints: config.json parsing, derivation of our config,
+//! weight discovery (single file or shards) and the errors a user sees.
+
+use std::path::Path;
+
+use candle_core::{DType, Device};
+use lhmpp::model::hub::{self, HubError, HubFolder};
+use lhmpp::model::LhmppConfig;
+
+/// The `model:` section of the official `configs/train/LHMPP-any-view.yaml` as config.json.
+const OFFICIAL_CONFIG: &str = include_str!("fixtures/official/config.json");
+
+fn config_value() -> serde_json::Value {
+    serde_json::from_str(OFFICIAL_CONFIG).unwrap()
+}
+
+fn write_config(dir: &Path, value: &serde_json::Value) {
+    std::fs::write(dir.join("config.json"), value.to_string()).unwrap();
+}
+
+/// A safetensors file holding `tensors` (f32 zeros of the given shapes).
+fn write_weights(path: &Path, tensors: &[(&str, Vec<usize>)]) {
+    let data: Vec<(String, Vec<u8>, Vec<usize>)> = tensors
+        .iter()
+        .map(|(n, dims)| {
+            let count: usize = dims.iter().product();
+            (n.to_string(), vec![0u8; 4 * count], dims.clone())
+        })
+        .collect();
+    let views: Vec<(String, safetensors::tensor::TensorView)> = data
+        .iter()
+        .map(|(n, b, d)| {
+            let v = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, d.clone(), b)
+                .unwrap();
+            (n.clone(), v)
+        })
+        .collect();
+    safetensors::serialize_to_file(views, None, path).unwrap();
+}
+
+#[test]
+fn official_config_json_derives_exactly_the_lhmpp_700m_preset() {
+    let dir = tempfile::tempdir().unwrap();
+    write_config(dir.path(), &config_value());
+    write_weights(&dir.path().join("model.safetensors"), &[]);
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.config, LhmppConfig::lhmpp_700m());
+    assert!(hub.differences.is_empty(), "{:?}", hub.differences);
+    assert_eq!(hub.official.dense_sample_pts, Some(160_000));
+    assert_eq!(hub.weights, vec![dir.path().join("model.safetensors")]);
+}
+
+#[test]
+fn config_wrapped_in_a_config_key_is_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    write_config(dir.path(), &serde_json::json!({ "config": config_value() }));
+    write_weights(&dir.path().join("model.safetensors"), &[]);
+    assert_eq!(
+        HubFolder::open(dir.path()).unwrap().config,
+        LhmppConfig::lhmpp_700m()
+    );
+}
+
+#[test]
+fn fields_differing_from_the_preset_are_named_and_applied() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = config_value();
+    v["transformer_decoder"]["merge_ratio"] = serde_json::json!(0.0);
+    v["gs_clip_scaling"] = serde_json::json!(0.03);
+    write_config(dir.path(), &v);
+    write_weights(&dir.path().join("model.safetensors"), &[]);
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.config.transformer.merge_ratio, 0.0);
+    assert_eq!(hub.config.gs_head.clip_scaling, 0.03);
+    let names: Vec<&str> = hub
+        .differences
+        .iter()
+        .map(|d| d.split(':').next().unwrap())
+        .collect();
+    assert_eq!(
+        names,
+        ["transformer_decoder.merge_ratio", "gs_clip_scaling"],
+        "{:?}",
+        hub.differences
+    );
+    assert!(
+        hub.config.preset.starts_with("hub:"),
+        "{}",
+        hub.config.preset
+    );
+}
+
+#[test]
+fn unsupported_variants_name_every_field_and_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = config_value();
+    v["neural_renderer"]["type"] = serde_json::json!("mlp_pixelshuffle");
+    v["transformer_decoder"]["image_backbone"]["aa_order"] = serde_json::json!(["frame", "global"]);
+    write_config(dir.path(), &v);
+    write_weights(&dir.path().join("model.safetensors"), &[]);
+    let err = HubFolder::open(dir.path()).unwrap_err();
+    let msg = err.to_string();
+    assert!(matches!(err, HubError::Unsupported { .. }), "{msg}");
+    assert!(msg.contains("config.json"), "{msg}");
+    assert!(msg.contains("neural_renderer.type"), "{msg}");
+    assert!(msg.contains("mlp_pixelshuffle"), "{msg}");
+    assert!(
+        msg.contains("transformer_decoder.image_backbone.aa_order"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn bad_json_names_the_key_and_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = config_value();
+    v["transformer_decoder"]["point_backbone"]["stride"] = serde_json::json!("two");
+    write_config(dir.path(), &v);
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(err.contains("config.json"), "{err}");
+    assert!(
+        err.contains("transformer_decoder.point_backbone.stride"),
+        "{err}"
+    );
+
+    let mut v = config_value();
+    v.as_object_mut().unwrap().remove("gs_query_dim");
+    write_config(dir.path(), &v);
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(err.contains("gs_query_dim"), "{err}");
+
+    std::fs::write(dir.path().join("config.json"), "{ not json").unwrap();
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(err.contains("config.json"), "{err}");
+}
+
+#[test]
+fn folder_without_config_or_weights_says_which_file_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(err.contains("missing config.json"), "{err}");
+    write_config(dir.path(), &config_value());
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(
+        err.contains("model.safetensors") && err.contains("model.safetensors.index.json"),
+        "{err}"
+    );
+}
+
+#[test]
+fn sharded_weights_are_found_through_the_index_and_missing_shards_named() {
+    let dir = tempfile::tempdir().unwrap();
+    write_config(dir.path(), &config_value());
+    let index = serde_json::json!({
+        "metadata": {"total_size": 0},
+        "weight_map": {
+            "encoder.model.cls_token": "model-00001-of-00002.safetensors",
+            "renderer.background_embedding": "model-00002-of-00002.safetensors"
+        }
+    });
+    std::fs::write(
+        dir.path().join("model.safetensors.index.json"),
+        index.to_string(),
+    )
+    .unwrap();
+    write_weights(
+        &dir.path().join("model-00001-of-00002.safetensors"),
+        &[("encoder.model.cls_token", vec![1, 1, 1024])],
+    );
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(err.contains("model-00002-of-00002.safetensors"), "{err}");
+    write_weights(
+        &dir.path().join("model-00002-of-00002.safetensors"),
+        &[("renderer.background_embedding", vec![3, 128])],
+    );
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.weights.len(), 2);
+    // Both shards are read: only the tensors in neither are reported missing.
+    let err = hub
+        .var_builder(DType::F32, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        !err.contains("missing tensor `encoder.model.cls_token`"),
+        "{err}"
+    );
+    assert!(
+        !err.contains("missing tensor `renderer.background_embedding`"),
+        "{err}"
+    );
+    assert!(
+        err.contains("missing tensor `encoder.model.pos_embed`"),
+        "{err}"
+    );
+}
+
+#[test]
+fn mismatched_tensors_are_all_reported_at_once_and_official_extras_ignored() {
+    let dir = tempfile::tempdir().unwrap();
+    write_config(dir.path(), &config_value());
+    write_weights(
+        &dir.path().join("model.safetensors"),
+        &[
+            ("encoder.model.cls_token", vec![1, 1, 768]),
+            ("renderer.background_embedding", vec![3, 64]),
+            ("renderer.smplx_model.skinning_weight", vec![10, 55]),
+            (
+                "neural_renderer.transformer_block.0.norm1.linear.weight",
+                vec![6, 4],
+            ),
+            ("encoder.model.mask_token", vec![1, 1024]),
+        ],
+    );
+    let err = hub::load_checkpoint(
+        dir.path(),
+        &LhmppConfig::lhmpp_700m(),
+        DType::F32,
+        &Device::Cpu,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    let expected = lhmpp::model::checkpoint::expected_tensors(&LhmppConfig::lhmpp_700m()).unwrap();
+    assert!(
+        err.contains(&dir.path().display().to_string()),
+        "{}",
+        &err[..200]
+    );
+    assert!(err.contains("wrong shape for `encoder.model.cls_token`"));
+    assert!(err.contains("wrong shape for `renderer.background_embedding`"));
+    assert!(err.contains("unexpected tensor `encoder.model.mask_token`"));
+    assert!(!err.contains("smplx_model"));
+    assert!(!err.contains("transformer_block"));
+    let missing = err.matches("missing tensor").count();
+    assert_eq!(missing, expected.len() - 2);
+}
+
+#[test]
+fn a_checkpoint_path_that_does_not_exist_points_to_the_expected_layout() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("LHMPP-700M");
+    let err = hub::load_checkpoint(
+        &missing,
+        &LhmppConfig::lhmpp_700m(),
+        DType::F32,
+        &Device::Cpu,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(
+        err.contains("LHMPP-700M") && err.contains("does not exist"),
+        "{err}"
+    );
+    assert!(
+        err.contains("config.json") && err.contains("model.safetensors"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_release_folder_with_step_checkpoints_opens_the_latest_step() {
+    let dir = tempfile::tempdir().unwrap();
+    for step in ["step_000900", "step_001200", "step_notes"] {
+        let d = dir.path().join(step);
+        std::fs::create_dir_all(&d).unwrap();
+        if step != "step_notes" {
+            write_config(&d, &config_value());
+            write_weights(&d.join("model.safetensors"), &[]);
+        }
+    }
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.dir, dir.path().join("step_001200"));
+    assert_eq!(
+        hub.weights,
+        vec![dir.path().join("step_001200/model.safetensors")]
+    );
+}
+
+#[test]
+fn a_smaller_dinov2_is_named_as_a_difference_and_its_width_must_match_the_joint_width() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = config_value();
+    v["encoder_model_name"] = serde_json::json!("dinov2_vitb14_reg");
+    v["encoder_feat_dim"] = serde_json::json!(768);
+    write_config(dir.path(), &v);
+    write_weights(&dir.path().join("model.safetensors"), &[]);
+    // transformer_dim stays 1024: the derived config is invalid, and says why.
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(
+        err.contains("transformer_dim 1024") && err.contains("768"),
+        "{err}"
+    );
+    v["transformer_dim"] = serde_json::json!(768);
+    v["transformer_heads"] = serde_json::json!(12);
+    v["neural_renderer"]["img_dim"] = serde_json::json!(768);
+    write_config(dir.path(), &v);
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.config.encoder.embed_dim, 768);
+    assert_eq!(hub.config.encoder.depth, 12);
+    assert!(
+        hub.differences[0].starts_with("encoder_model_name: \"dinov2_vitb14_reg\""),
+        "{:?}",
+        hub.differences
+    );
+}
