@@ -132,9 +132,10 @@ pub fn render_timed(
     times.project = clock.elapsed().as_secs_f64();
     times.visible = splats.len();
     let grid = bin::TileGrid::new(camera.intrinsics.width, camera.intrinsics.height);
-    let bins = bin::bin_and_sort(&splats, grid);
+    let mut bins = bin::TileBins::default();
+    bins.build(&splats, grid);
     times.bin_sort = clock.elapsed().as_secs_f64() - times.project;
-    times.tile_pairs = bins.keys.len();
+    times.tile_pairs = bins.pairs();
 
     let channels = if options.render_features {
         gaussians.feature_channels
