@@ -174,7 +174,7 @@ fn radix_sort_high_half(keys: &mut Vec<u64>, scratch: &mut Vec<u64>) {
         for k in keys.iter() {
             counts[((k >> shift) & 0xff) as usize] += 1;
         }
-        if counts.iter().any(|&c| c == keys.len()) {
+        if counts.contains(&keys.len()) {
             continue;
         }
         let mut running = 0;

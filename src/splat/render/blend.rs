@@ -218,6 +218,7 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
 /// `α ≥ 1/255` box whose chord of the `α ≥ 1/255` ellipse, widened a little against rounding,
 /// overlaps the half. Computed for all 16 rows at once; NaN comparisons keep a half, so that
 /// this only ever skips work.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(a < b)` is deliberately true for NaN.
 #[inline(always)]
 fn reachable_halves(g: &Splat2D, f: &TileFrame) -> u32 {
     let [ca, cb, cc] = g.conic;
