@@ -10,7 +10,7 @@ use glam::{Mat4, Quat, Vec3};
 use lhmpp::avatar::Avatar;
 use lhmpp::body::SkinWeights;
 use lhmpp::splat::synthetic::body_cloud;
-use lhmpp::splat::{render_timed, Camera, Intrinsics, RenderOptions, StageTimes};
+use lhmpp::splat::{Camera, Intrinsics, Rasterizer, RenderOptions, RenderOutput, StageTimes};
 use rand::{Rng, SeedableRng};
 use std::time::{Duration, Instant};
 
@@ -101,8 +101,13 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
                 ..Default::default()
             };
             let mut stages = Vec::new();
-            let t = pool
-                .install(|| time_runs(a.seconds, || stages.push(render_timed(&g, &cam, &opts).1)));
+            let t = pool.install(|| {
+                let mut rasterizer = Rasterizer::new();
+                let mut frame = RenderOutput::default();
+                time_runs(a.seconds, || {
+                    stages.push(rasterizer.render_into(&g, &cam, &opts, &mut frame))
+                })
+            });
             let ms = t.median.as_secs_f64() * 1e3;
             let median = |f: fn(&StageTimes) -> f64| {
                 let mut v: Vec<f64> = stages.iter().map(f).collect();

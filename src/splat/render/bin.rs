@@ -80,18 +80,23 @@ impl TileBins {
         self.indices.len()
     }
 
-    /// Bins `splats` into the tiles of `grid`, each tile's list front to back.
-    pub fn build(&mut self, splats: &[Splat2D], grid: TileGrid) {
+    /// Splats that survived culling (after [`TileBins::build`]).
+    pub fn visible(&self) -> usize {
+        self.order.len()
+    }
+
+    /// Bins the projected splats (`None` = culled) into the tiles of `grid`, each tile's list
+    /// front to back; the lists hold indices into `splats`.
+    pub fn build(&mut self, splats: &[Option<Splat2D>], grid: TileGrid) {
         let n_tiles = grid.cols * grid.rows;
         {
             let _span = tracing::trace_span!("sort", splats = splats.len()).entered();
             self.keys.clear();
-            self.keys.extend(
-                splats
-                    .iter()
-                    .enumerate()
-                    .map(|(i, s)| ((s.depth.to_bits() as u64) << 32) | i as u64),
-            );
+            self.keys
+                .extend(splats.iter().enumerate().filter_map(|(i, s)| {
+                    s.as_ref()
+                        .map(|s| ((s.depth.to_bits() as u64) << 32) | i as u64)
+                }));
             radix_sort_high_half(&mut self.keys, &mut self.scratch);
             self.order.clear();
             self.order
@@ -101,7 +106,8 @@ impl TileBins {
         self.rects.clear();
         splats
             .par_iter()
-            .map(|s| grid.rect(s))
+            .with_min_len(1024)
+            .map(|s| s.as_ref().map(|s| grid.rect(s)).unwrap_or_default())
             .collect_into_vec(&mut self.rects);
         // Groups of whole tile rows, so each group owns one contiguous range of tiles.
         let groups = (rayon::current_num_threads() * 2).clamp(1, grid.rows.max(1));
@@ -115,7 +121,8 @@ impl TileBins {
             .enumerate()
             .for_each(|(g, counts)| {
                 let (ty0, ty1) = (g * rows_per_group, (g + 1) * rows_per_group);
-                for r in rects {
+                for &i in order {
+                    let r = &rects[i as usize];
                     for ty in (r.y0 as usize).max(ty0)..(r.y1 as usize).min(ty1) {
                         let row = (ty - ty0) * grid.cols;
                         for c in &mut counts[row + r.x0 as usize..row + r.x1 as usize] {

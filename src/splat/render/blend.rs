@@ -44,7 +44,8 @@ pub(crate) struct BandOut<'a> {
 
 /// Everything the blend reads, shared by all bands.
 pub(crate) struct BlendInput<'a> {
-    pub splats: &'a [Splat2D],
+    /// Projected splats, one per Gaussian (`None` = culled; never binned).
+    pub splats: &'a [Option<Splat2D>],
     pub bins: &'a TileBins,
     pub grid: TileGrid,
     pub gaussians: &'a Gaussians,
@@ -198,9 +199,15 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
     };
     let list = input.bins.tile(row * input.grid.cols + col);
     let mut batch = std::mem::take(&mut s.batch);
-    for chunk in list.chunks(BATCH) {
+    for (k, chunk) in list.chunks(BATCH).enumerate() {
+        // Start fetching the next batch while this one blends.
+        if let Some(next) = list.get((k + 1) * BATCH..) {
+            for &i in &next[..next.len().min(BATCH)] {
+                prefetch(&input.splats[i as usize]);
+            }
+        }
         batch.clear();
-        batch.extend(chunk.iter().map(|&i| input.splats[i as usize]));
+        batch.extend(chunk.iter().filter_map(|&i| input.splats[i as usize]));
         for g in &batch {
             remaining -= blend_splat(g, &frame, input, s);
             if remaining == 0 {
@@ -212,6 +219,24 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
         }
     }
     s.batch = batch;
+}
+
+/// Hints the CPU to load `value` into the cache (no effect where there is no such hint).
+#[inline(always)]
+fn prefetch<T>(value: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let start = value as *const T as *const i8;
+        // SAFETY: prefetching never faults and reads nothing architecturally; both addresses
+        // lie within `value`.
+        unsafe {
+            _mm_prefetch(start, _MM_HINT_T0);
+            _mm_prefetch(start.wrapping_add(std::mem::size_of::<T>() - 1), _MM_HINT_T0);
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = value;
 }
 
 /// The half rows of the tile that splat `g` can reach (a [`half_bit`] mask): rows within its

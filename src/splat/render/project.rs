@@ -39,12 +39,14 @@ pub(crate) struct Splat2D {
     pub index: u32,
 }
 
-/// Projects every Gaussian; `None` where it is culled. Output order = input order.
+/// Projects every Gaussian into `out` (resized to one entry per Gaussian, its allocation
+/// reused); `None` where the Gaussian is culled.
 pub(crate) fn project(
     gaussians: &Gaussians,
     camera: &Camera,
     options: &RenderOptions,
-) -> Vec<Option<Splat2D>> {
+    out: &mut Vec<Option<Splat2D>>,
+) {
     let _span = tracing::trace_span!("project", n = gaussians.len()).entered();
     let view = camera.camera_from_world();
     let w = Mat3::from(view.matrix3);
@@ -60,6 +62,7 @@ pub(crate) fn project(
 
     (0..gaussians.len())
         .into_par_iter()
+        .with_min_len(1024)
         .map(|i| {
             let opacity = gaussians.opacities[i];
             if opacity.is_nan() || opacity < MIN_ALPHA {
@@ -135,5 +138,5 @@ pub(crate) fn project(
                 index: i as u32,
             })
         })
-        .collect()
+        .collect_into_vec(out);
 }
