@@ -65,8 +65,10 @@ pub(crate) struct TileBins {
     /// Radix-sort keys `depth_bits << 32 | splat` and their scratch copy.
     keys: Vec<u64>,
     scratch: Vec<u64>,
-    /// Tile rectangle of every splat.
+    /// Tile rectangle of every splat (empty for culled ones).
     rects: Vec<TileRect>,
+    /// Rectangles and splat indices in depth order.
+    sorted_rects: Vec<(TileRect, u32)>,
 }
 
 impl TileBins {
@@ -112,8 +114,11 @@ impl TileBins {
         // Groups of whole tile rows, so each group owns one contiguous range of tiles.
         let groups = (rayon::current_num_threads() * 2).clamp(1, grid.rows.max(1));
         let rows_per_group = grid.rows.div_ceil(groups).max(1);
+        self.sorted_rects.clear();
+        self.sorted_rects
+            .extend(self.order.iter().map(|&i| (self.rects[i as usize], i)));
         let rects = &self.rects;
-        let order = &self.order;
+        let sorted_rects = &self.sorted_rects;
         self.offsets.clear();
         self.offsets.resize(n_tiles + 1, 0);
         self.offsets[1..]
@@ -121,8 +126,7 @@ impl TileBins {
             .enumerate()
             .for_each(|(g, counts)| {
                 let (ty0, ty1) = (g * rows_per_group, (g + 1) * rows_per_group);
-                for &i in order {
-                    let r = &rects[i as usize];
+                for r in rects {
                     for ty in (r.y0 as usize).max(ty0)..(r.y1 as usize).min(ty1) {
                         let row = (ty - ty0) * grid.cols;
                         for c in &mut counts[row + r.x0 as usize..row + r.x1 as usize] {
@@ -157,8 +161,7 @@ impl TileBins {
                 .iter()
                 .map(|o| o - base)
                 .collect();
-            for &i in order {
-                let r = rects[i as usize];
+            for &(r, i) in sorted_rects {
                 for ty in (r.y0 as usize).max(ty0)..(r.y1 as usize).min(ty1) {
                     let row = (ty - ty0) * grid.cols;
                     for c in &mut cursor[row + r.x0 as usize..row + r.x1 as usize] {

@@ -232,7 +232,10 @@ fn prefetch<T>(value: &T) {
         // lie within `value`.
         unsafe {
             _mm_prefetch(start, _MM_HINT_T0);
-            _mm_prefetch(start.wrapping_add(std::mem::size_of::<T>() - 1), _MM_HINT_T0);
+            _mm_prefetch(
+                start.wrapping_add(std::mem::size_of::<T>() - 1),
+                _MM_HINT_T0,
+            );
         }
     }
     #[cfg(not(target_arch = "x86_64"))]
