@@ -403,6 +403,26 @@ mod tests {
     }
 
     #[test]
+    fn non_rigid_bones_fall_back_to_the_polar_factor_of_the_blended_matrix() {
+        let sheared = Mat4::from_mat3(Mat3::from_cols(
+            Vec3::new(1.0, 0.3, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.0, 0.0, 0.8),
+        ));
+        let turned = Mat4::from_rotation_y(0.9);
+        let bones = BoneSet::new(&[sheared, turned]);
+        assert!(bones.rigid.is_none(), "a sheared bone is not rigid");
+        let (b, w) = ([0, 1, 0, 0], [0.5, 0.5, 0.0, 0.0]);
+        let expected = rotation_part((Mat3::from_mat4(sheared) + Mat3::from_mat4(turned)) * 0.5);
+        let got = bones.blend_rotation(&b, &w);
+        assert!(got.dot(expected).abs() > 1.0 - 1e-6, "{got} vs {expected}");
+        assert!(
+            got.dot(Quat::IDENTITY).abs() < 1.0 - 1e-3,
+            "the blend does rotate"
+        );
+    }
+
+    #[test]
     fn halfway_blend_of_two_rotations_gives_the_halfway_rotation() {
         let a = Mat3::from_rotation_z(0.0);
         let b = Mat3::from_rotation_z(1.2);

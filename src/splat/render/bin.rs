@@ -24,10 +24,10 @@ pub(crate) struct TileGrid {
 /// Tiles `[x0, x1) × [y0, y1)` touched by one splat.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub(crate) struct TileRect {
-    x0: u16,
-    x1: u16,
-    y0: u16,
-    y1: u16,
+    pub x0: u16,
+    pub x1: u16,
+    pub y0: u16,
+    pub y1: u16,
 }
 
 impl TileGrid {
@@ -40,7 +40,7 @@ impl TileGrid {
     }
 
     /// Tile rectangle touched by a splat, in tile units.
-    fn rect(&self, s: &Splat2D) -> TileRect {
+    pub fn rect(&self, s: &Splat2D) -> TileRect {
         let t = TILE as f32;
         let clamp = |v: f32, hi: usize| v.clamp(0.0, hi as f32) as u16;
         TileRect {

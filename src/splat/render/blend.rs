@@ -135,10 +135,10 @@ impl TileScratch {
 }
 
 /// Blends every tile of band `row` (tile row index) into `out`, with the widest SIMD the CPU
-/// has.
-pub(crate) fn blend_band(row: usize, input: &BlendInput, out: BandOut) {
+/// has unless `portable` (the baseline build; same result bit for bit).
+pub(crate) fn blend_band(row: usize, input: &BlendInput, out: BandOut, portable: bool) {
     #[cfg(target_arch = "x86_64")]
-    {
+    if !portable {
         if std::arch::is_x86_feature_detected!("avx512f") {
             // SAFETY: the CPU supports AVX-512F (checked just above).
             return unsafe { blend_band_avx512(row, input, out) };

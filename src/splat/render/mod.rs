@@ -8,6 +8,8 @@
 mod bin;
 mod blend;
 mod project;
+#[cfg(test)]
+mod tests;
 
 use super::camera::Camera;
 use super::gaussians::Gaussians;
@@ -129,6 +131,8 @@ pub fn render_timed(
 pub struct Rasterizer {
     splats: Vec<Option<project::Splat2D>>,
     bins: bin::TileBins,
+    /// Blend with the baseline instruction set only (tests compare it with the SIMD build).
+    portable: bool,
 }
 
 impl Rasterizer {
@@ -219,7 +223,7 @@ impl Rasterizer {
         bands
             .into_par_iter()
             .enumerate()
-            .for_each(|(row, band)| blend::blend_band(row, &input, band));
+            .for_each(|(row, band)| blend::blend_band(row, &input, band, self.portable));
         drop(_blend);
         times.blend = clock.elapsed().as_secs_f64() - times.project - times.bin_sort;
         times
