@@ -1,5 +1,6 @@
 //! Stages 2–3, bin and sort: order the splats front to back, then assign each to the 16×16
-//! tiles its 3σ square touches, so that every tile's list comes out already in depth order.
+//! tiles its 3σ square touches (less those its α ≥ 1/255 box misses), so that every tile's
+//! list comes out already in depth order.
 //!
 //! The depth order is one stable LSD radix sort of the splats' depth bits (depth is positive,
 //! so its IEEE bits sort like the value; equal depths keep splat order, which makes the order,
@@ -39,15 +40,27 @@ impl TileGrid {
         }
     }
 
-    /// Tile rectangle touched by a splat, in tile units.
+    /// Tile rectangle touched by a splat's `3σ` square (3DGS), in tile units.
+    #[cfg(test)]
     pub fn rect(&self, s: &Splat2D) -> TileRect {
+        self.rect_within(s, [s.radius; 2])
+    }
+
+    /// The tiles of [`TileGrid::rect`] that hold a pixel with alpha ≥ 1/255: the `3σ` square
+    /// cut down to the splat's `α ≥ 1/255` box (narrower for elongated splats); the other
+    /// tiles would only skip every sample.
+    pub fn contributing_rect(&self, s: &Splat2D) -> TileRect {
+        self.rect_within(s, [s.radius.min(s.extent[0]), s.radius.min(s.extent[1])])
+    }
+
+    fn rect_within(&self, s: &Splat2D, half: [f32; 2]) -> TileRect {
         let t = TILE as f32;
         let clamp = |v: f32, hi: usize| v.clamp(0.0, hi as f32) as u16;
         TileRect {
-            x0: clamp(((s.mean[0] - s.radius) / t).floor(), self.cols),
-            x1: clamp(((s.mean[0] + s.radius) / t).floor() + 1.0, self.cols),
-            y0: clamp(((s.mean[1] - s.radius) / t).floor(), self.rows),
-            y1: clamp(((s.mean[1] + s.radius) / t).floor() + 1.0, self.rows),
+            x0: clamp(((s.mean[0] - half[0]) / t).floor(), self.cols),
+            x1: clamp(((s.mean[0] + half[0]) / t).floor() + 1.0, self.cols),
+            y0: clamp(((s.mean[1] - half[1]) / t).floor(), self.rows),
+            y1: clamp(((s.mean[1] + half[1]) / t).floor() + 1.0, self.rows),
         }
     }
 }
@@ -109,7 +122,11 @@ impl TileBins {
         splats
             .par_iter()
             .with_min_len(1024)
-            .map(|s| s.as_ref().map(|s| grid.rect(s)).unwrap_or_default())
+            .map(|s| {
+                s.as_ref()
+                    .map(|s| grid.contributing_rect(s))
+                    .unwrap_or_default()
+            })
             .collect_into_vec(&mut self.rects);
         // Groups of whole tile rows, so each group owns one contiguous range of tiles.
         let groups = (rayon::current_num_threads() * 2).clamp(1, grid.rows.max(1));

@@ -83,13 +83,10 @@ struct TileScratch {
     depth: [Row; TILE],
     /// Features, `[channel][row][x]`.
     features: Vec<[Row; TILE]>,
-    /// The current batch of the tile's splats, copied out of the shared array (independent
-    /// loads, so that their cache misses overlap instead of stalling the blend one by one).
-    batch: Vec<Splat2D>,
 }
 
-/// Splats copied into [`TileScratch::batch`] at a time.
-const BATCH: usize = 32;
+/// How many splats ahead of the one being blended to prefetch.
+const PREFETCH_AHEAD: usize = 8;
 
 impl TileScratch {
     fn new(channels: usize) -> Self {
@@ -103,7 +100,6 @@ impl TileScratch {
             b: [[0.0; TILE]; TILE],
             depth: [[0.0; TILE]; TILE],
             features: vec![[[0.0; TILE]; TILE]; channels],
-            batch: Vec::with_capacity(BATCH),
         }
     }
 
@@ -198,27 +194,19 @@ fn blend_tile(col: usize, row: usize, input: &BlendInput, s: &mut TileScratch) {
         ys: std::array::from_fn(|y| (y0 + y) as f32),
     };
     let list = input.bins.tile(row * input.grid.cols + col);
-    let mut batch = std::mem::take(&mut s.batch);
-    for (k, chunk) in list.chunks(BATCH).enumerate() {
-        // Start fetching the next batch while this one blends.
-        if let Some(next) = list.get((k + 1) * BATCH..) {
-            for &i in &next[..next.len().min(BATCH)] {
-                prefetch(&input.splats[i as usize]);
-            }
+    for (k, &i) in list.iter().enumerate() {
+        // Fetch a splat a few iterations before it is blended.
+        if let Some(&ahead) = list.get(k + PREFETCH_AHEAD) {
+            prefetch(&input.splats[ahead as usize]);
         }
-        batch.clear();
-        batch.extend(chunk.iter().filter_map(|&i| input.splats[i as usize]));
-        for g in &batch {
-            remaining -= blend_splat(g, &frame, input, s);
-            if remaining == 0 {
-                break;
-            }
-        }
+        let Some(g) = &input.splats[i as usize] else {
+            continue;
+        };
+        remaining -= blend_splat(g, &frame, input, s);
         if remaining == 0 {
             break;
         }
     }
-    s.batch = batch;
 }
 
 /// Hints the CPU to load `value` into the cache (no effect where there is no such hint).
