@@ -1,9 +1,10 @@
 //! CPU splatting rasteriser with the 3DGS reference semantics, in named stages:
-//! [`project`] (EWA projection, SH colour, culling) → [`bin`] (16×16 tiles, per-tile depth
-//! sort) → [`blend`] (front-to-back compositing). Each stage runs inside a `tracing` span and
-//! maps onto one kernel of a future CUDA path. Work is spread with rayon (Gaussians in
-//! `project`, tiles in `sort`, bands of tiles in `blend`); the output is bit-identical for any
-//! thread count.
+//! [`project`] (EWA projection, SH colour, culling) → [`bin`] (global depth radix sort, then
+//! stable binning into 16×16 tiles) → [`blend`] (front-to-back compositing, SIMD over half
+//! tile rows). Each stage runs inside a `tracing` span and maps onto one kernel of a future
+//! CUDA path. Work is spread with rayon (Gaussians in `project`, groups of tile rows in `bin`,
+//! bands of tiles in `blend`); the output is bit-identical for any thread count and any
+//! instruction set. A [`Rasterizer`] keeps the per-frame buffers between frames.
 
 mod bin;
 mod blend;
