@@ -298,7 +298,7 @@ impl BoneSet {
             let y = (power * x).normalize();
             let change = (y - x).length_squared();
             x = y;
-            if change < 1e-13 || step + 1 == POWER_STEPS {
+            if change < 1e-10 || step + 1 == POWER_STEPS {
                 break;
             }
             power = power * power;
