@@ -81,8 +81,11 @@ struct TileScratch {
     g: [Row; TILE],
     b: [Row; TILE],
     depth: [Row; TILE],
-    /// Features, `[channel][row][x]`.
-    features: Vec<[Row; TILE]>,
+    /// Features, pixel-major (`[row][x][channel]`), so that one pixel's channels are
+    /// contiguous (vectorised over channels; copied straight into the output).
+    features: Vec<f32>,
+    /// Feature channels.
+    channels: usize,
 }
 
 /// How many splats ahead of the one being blended to prefetch.
@@ -99,7 +102,8 @@ impl TileScratch {
             g: [[0.0; TILE]; TILE],
             b: [[0.0; TILE]; TILE],
             depth: [[0.0; TILE]; TILE],
-            features: vec![[[0.0; TILE]; TILE]; channels],
+            features: vec![0.0; TILE * TILE * channels],
+            channels,
         }
     }
 
@@ -123,9 +127,7 @@ impl TileScratch {
         self.g = [[0.0; TILE]; TILE];
         self.b = [[0.0; TILE]; TILE];
         self.depth = [[0.0; TILE]; TILE];
-        for f in &mut self.features {
-            *f = [[0.0; TILE]; TILE];
-        }
+        self.features.fill(0.0);
         tw * th
     }
 }
@@ -301,8 +303,10 @@ fn blend_splat(g: &Splat2D, f: &TileFrame, input: &BlendInput, s: &mut TileScrat
         accumulate(&mut s.g[ly][lanes.clone()], g.rgb[1], &w);
         accumulate(&mut s.b[ly][lanes.clone()], g.rgb[2], &w);
         accumulate(&mut s.depth[ly][lanes.clone()], g.depth, &w);
-        for (acc, &fv) in s.features.iter_mut().zip(feats) {
-            accumulate(&mut acc[ly][lanes.clone()], fv, &w);
+        if s.channels > 0 {
+            let c = s.channels;
+            let first = (ly * TILE + h * LANES) * c;
+            accumulate_features(&mut s.features[first..first + LANES * c], feats, &w);
         }
     }
     finished
@@ -362,6 +366,20 @@ fn blend_half_row(
         finished += done as u32;
     }
     finished
+}
+
+/// `acc[pixel][channel] += features[channel] · w[pixel]` for the 8 pixels of a half row
+/// (pixels with a zero weight are skipped: adding `± 0` would leave them unchanged anyway).
+#[inline(always)]
+fn accumulate_features(acc: &mut [f32], features: &[f32], w: &[f32; LANES]) {
+    let c = features.len();
+    for (pixel, &wl) in acc.chunks_exact_mut(c).zip(w) {
+        if wl != 0.0 {
+            for (a, f) in pixel.iter_mut().zip(features) {
+                *a += f * wl;
+            }
+        }
+    }
 }
 
 /// `acc += value · w` lane by lane (a zero weight leaves `acc` bit for bit unchanged).
@@ -425,12 +443,13 @@ fn write_tile(
             depth[o] = if a > 0.0 { s.depth[ly][lx] / a } else { 0.0 };
             if c > 0 {
                 let dst = &mut features[o * c..(o + 1) * c];
+                let p = (ly * TILE + lx) * c;
                 for ((d, acc), b) in dst
                     .iter_mut()
-                    .zip(&s.features)
+                    .zip(&s.features[p..p + c])
                     .zip(input.background_features)
                 {
-                    *d = acc[ly][lx] + t * b;
+                    *d = acc + t * b;
                 }
             }
         }
