@@ -132,6 +132,20 @@ impl TileScratch {
     }
 }
 
+/// The instruction set [`blend_band`] uses on this CPU (unless told to stay portable).
+pub(crate) fn instruction_set() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            return "AVX-512F";
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return "AVX2";
+        }
+    }
+    "baseline"
+}
+
 /// Blends every tile of band `row` (tile row index) into `out`, with the widest SIMD the CPU
 /// has unless `portable` (the baseline build; same result bit for bit).
 pub(crate) fn blend_band(row: usize, input: &BlendInput, out: BandOut, portable: bool) {

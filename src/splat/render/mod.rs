@@ -125,6 +125,12 @@ pub fn render_timed(
     (out, times)
 }
 
+/// The SIMD instruction set the blend stage uses on this CPU (`AVX-512F`, `AVX2` or
+/// `baseline`).
+pub fn blend_instruction_set() -> &'static str {
+    blend::instruction_set()
+}
+
 /// Rasteriser state kept between frames: the projected splats and the tile lists, whose
 /// buffers are reused, so that a warm rasteriser rendering into a reused [`RenderOutput`]
 /// does not allocate per frame.

