@@ -12,7 +12,7 @@ use super::RenderOptions;
 use crate::splat::camera::Camera;
 use crate::splat::gaussians::Gaussians;
 use crate::splat::sh::eval_sh;
-use glam::{Mat3, Vec3};
+use glam::{Mat3A, Vec3A};
 use rayon::prelude::*;
 
 /// Alpha below which a sample is skipped (3DGS: 1/255).
@@ -51,7 +51,7 @@ pub(crate) fn project(
 ) {
     let _span = tracing::trace_span!("project", n = gaussians.len()).entered();
     let view = camera.camera_from_world();
-    let w = Mat3::from(view.matrix3);
+    let w = view.matrix3;
     let center = camera.center();
     let k = camera.intrinsics;
     let (width, height) = (k.width as f32, k.height as f32);
@@ -82,14 +82,15 @@ pub(crate) fn project(
             if qlen.is_nan() || qlen <= 1e-12 || !scale.is_finite() || !pos.is_finite() {
                 return None;
             }
-            let m = Mat3::from_quat(q / qlen) * Mat3::from_diagonal(scale);
+            // SIMD matrices (`Mat3A`): the same operations in the same order as `Mat3`.
+            let m = Mat3A::from_quat(q / qlen) * Mat3A::from_diagonal(scale);
             let sigma_cam = w * (m * m.transpose()) * w.transpose();
 
             let inv_z = 1.0 / p.z;
             let tx = p.z * (p.x * inv_z).clamp(-lim_x_neg, lim_x_pos);
             let ty = p.z * (p.y * inv_z).clamp(-lim_y_neg, lim_y_pos);
-            let j0 = Vec3::new(k.fx * inv_z, 0.0, -k.fx * tx * inv_z * inv_z);
-            let j1 = Vec3::new(0.0, k.fy * inv_z, -k.fy * ty * inv_z * inv_z);
+            let j0 = Vec3A::new(k.fx * inv_z, 0.0, -k.fx * tx * inv_z * inv_z);
+            let j1 = Vec3A::new(0.0, k.fy * inv_z, -k.fy * ty * inv_z * inv_z);
             let s_j0 = sigma_cam * j0;
             let a = j0.dot(s_j0) + options.low_pass;
             let b = j1.dot(s_j0);
