@@ -8,7 +8,7 @@
 
 use crate::body::{SkinWeights, MAX_INFLUENCES};
 use crate::splat::{GaussianError, Gaussians};
-use glam::{Mat3, Mat4, Quat, Vec3};
+use glam::{Affine3A, Mat3, Mat3A, Mat4, Quat, Vec3, Vec4};
 use rayon::prelude::*;
 use thiserror::Error;
 
@@ -133,7 +133,8 @@ impl Avatar {
     }
 
     /// Like [`Avatar::animate`] but writes only positions and rotations into `posed`, which must
-    /// be a clone of the canonical set (or an earlier pose of it): no allocation per frame.
+    /// be a clone of the canonical set (or an earlier pose of it): no allocation per frame
+    /// beyond one small per-bone table.
     pub fn animate_into(&self, skinning_matrices: &[Mat4], posed: &mut Gaussians) {
         if let Err(e) = self.check_matrices(skinning_matrices) {
             panic!("Avatar::animate: {e}");
@@ -144,44 +145,173 @@ impl Avatar {
             "posed set must have the avatar's Gaussian count"
         );
         let _span = tracing::trace_span!("animate", n = self.canonical.len()).entered();
+        let bones = BoneSet::new(skinning_matrices);
         let c = &self.canonical;
         posed
             .positions
-            .par_iter_mut()
-            .zip(posed.rotations.par_iter_mut())
+            .par_chunks_mut(POSE_CHUNK)
+            .zip(posed.rotations.par_chunks_mut(POSE_CHUNK))
             .enumerate()
-            .with_min_len(4096)
-            .for_each(|(i, (pos, rot))| {
-                let m = blend(&self.skin, i, skinning_matrices);
-                *pos = m.transform_point3(c.positions[i]);
-                let r = rotation_part(Mat3::from_mat4(m));
-                // An unrotated Gaussian keeps its quaternion bit for bit.
-                *rot = if r == Quat::IDENTITY {
-                    c.rotations[i]
-                } else {
-                    (r * c.rotations[i]).normalize()
-                };
+            .for_each(|(chunk, (positions, rotations))| {
+                let start = chunk * POSE_CHUNK;
+                for (k, (pos, rot)) in positions.iter_mut().zip(rotations).enumerate() {
+                    let i = start + k;
+                    let (b, w) = (&self.skin.bones[i], &self.skin.weights[i]);
+                    *pos = bones.blend_affine(b, w).transform_point3(c.positions[i]);
+                    let r = bones.blend_rotation(b, w);
+                    // An unrotated Gaussian keeps its quaternion bit for bit.
+                    *rot = if r == Quat::IDENTITY {
+                        c.rotations[i]
+                    } else {
+                        (r * c.rotations[i]).normalize()
+                    };
+                }
             });
     }
 }
 
-/// Weighted mean of the bone matrices of row `i` (weights renormalised to sum to 1, so that
-/// identity matrices give exactly the identity).
-#[inline]
-fn blend(skin: &SkinWeights, i: usize, matrices: &[Mat4]) -> Mat4 {
-    let (b, w) = (&skin.bones[i], &skin.weights[i]);
-    let mut m = matrices[b[0] as usize] * w[0];
-    let mut sum = w[0];
-    for (&bone, &weight) in b.iter().zip(w).skip(1) {
-        if weight != 0.0 {
-            m += matrices[bone as usize] * weight;
-            sum += weight;
+/// Gaussians posed per rayon task.
+const POSE_CHUNK: usize = 4096;
+
+/// Largest deviation `‖AᵀA/s² − I‖_F` for which a bone's linear part `A` counts as a rotation
+/// scaled by `s`.
+const RIGID_TOLERANCE: f32 = 1e-5;
+
+/// Power-iteration steps at most in [`BoneSet::blend_rotation`] (the last multiplies by
+/// `A^(2^(POWER_STEPS − 1))`).
+const POWER_STEPS: usize = 7;
+
+/// Per-pose bone data, prepared once for the per-Gaussian loop.
+struct BoneSet {
+    /// Skinning transforms (the `Mat4`s without their constant last row).
+    affine: Vec<Affine3A>,
+    /// Unit quaternion (as `Vec4`) and scale of every bone when each bone's linear part is a
+    /// positively scaled rotation; `None` otherwise.
+    rigid: Option<Vec<(Vec4, f32)>>,
+}
+
+impl BoneSet {
+    fn new(matrices: &[Mat4]) -> Self {
+        let affine: Vec<Affine3A> = matrices.iter().map(|m| Affine3A::from_mat4(*m)).collect();
+        let rigid = affine
+            .iter()
+            .map(|a| {
+                let m = Mat3::from(a.matrix3);
+                let s = m.x_axis.length();
+                let det = m.determinant();
+                if !(s.is_finite() && s > 0.0 && det > 0.0) {
+                    return None;
+                }
+                let r = m * (1.0 / s);
+                if frobenius(r.transpose() * r - Mat3::IDENTITY) > RIGID_TOLERANCE {
+                    return None;
+                }
+                // An exact identity stays exact (keeps the identity pose bit for bit).
+                let q = if r == Mat3::IDENTITY {
+                    Quat::IDENTITY
+                } else {
+                    Quat::from_mat3(&r).normalize()
+                };
+                Some((Vec4::from(q), s))
+            })
+            .collect();
+        Self { affine, rigid }
+    }
+
+    /// Weighted mean of the row's bone transforms (weights renormalised to sum to 1, so that
+    /// identity transforms give exactly the identity).
+    #[inline]
+    fn blend_affine(&self, b: &[u16; MAX_INFLUENCES], w: &[f32; MAX_INFLUENCES]) -> Affine3A {
+        let a0 = &self.affine[b[0] as usize];
+        let mut x = a0.matrix3.x_axis * w[0];
+        let mut y = a0.matrix3.y_axis * w[0];
+        let mut z = a0.matrix3.z_axis * w[0];
+        let mut t = a0.translation * w[0];
+        let mut sum = w[0];
+        for (&bone, &weight) in b.iter().zip(w).skip(1) {
+            if weight != 0.0 {
+                let a = &self.affine[bone as usize];
+                x += a.matrix3.x_axis * weight;
+                y += a.matrix3.y_axis * weight;
+                z += a.matrix3.z_axis * weight;
+                t += a.translation * weight;
+                sum += weight;
+            }
+        }
+        if sum != 1.0 {
+            let inv = 1.0 / sum;
+            (x, y, z, t) = (x * inv, y * inv, z * inv, t * inv);
+        }
+        Affine3A {
+            matrix3: Mat3A::from_cols(x, y, z),
+            translation: t,
         }
     }
-    if sum == 1.0 {
-        m
-    } else {
-        m * (1.0 / sum)
+
+    /// The rotation part (orthogonal polar factor) of the row's blended linear transform.
+    ///
+    /// With rigid bones (`Aₖ = sₖ Rₖ`) the polar factor of `Σ wₖ sₖ Rₖ` is the rotation `R`
+    /// maximising `tr(Rᵀ Σ wₖ sₖ Rₖ) = Σ wₖ sₖ (4 (q·qₖ)² − 1)`, i.e. the top eigenvector `q`
+    /// of `A = Σ wₖ sₖ qₖ qₖᵀ` (4×4), found by power iteration (with squaring) from the
+    /// sign-aligned weighted mean of the `qₖ`: a few 4×4 operations instead of a 3×3 polar
+    /// decomposition. Other bones
+    /// fall back to [`rotation_part`].
+    #[inline]
+    fn blend_rotation(&self, b: &[u16; MAX_INFLUENCES], w: &[f32; MAX_INFLUENCES]) -> Quat {
+        let Some(rigid) = &self.rigid else {
+            let a = self.blend_affine(b, w);
+            return rotation_part(Mat3::from(a.matrix3));
+        };
+        let mut qs = [Vec4::ZERO; MAX_INFLUENCES];
+        let mut cs = [0.0f32; MAX_INFLUENCES];
+        let mut n = 0;
+        for (&bone, &weight) in b.iter().zip(w) {
+            if weight != 0.0 {
+                let (q, s) = rigid[bone as usize];
+                qs[n] = q;
+                cs[n] = weight * s;
+                n += 1;
+            }
+        }
+        let (qs, cs) = (&qs[..n], &cs[..n]);
+        if n == 1 || qs.iter().all(|q| *q == qs[0]) {
+            return Quat::from_vec4(qs[0]);
+        }
+        let mut x = qs
+            .iter()
+            .zip(cs)
+            .fold(Vec4::ZERO, |acc, (q, c)| {
+                acc + *q * c.copysign(q.dot(qs[0]))
+            })
+            .normalize();
+        // Power iteration with repeated squaring: step k multiplies by A^(2^k), so the error
+        // shrinks like (λ₂/λ₁)^(2^k) (blends of nearby rotations stop after a step or two).
+        let mut power = qs.iter().zip(cs).fold(Mat4::ZERO, |acc, (q, c)| {
+            acc + Mat4::from_cols(
+                *q * (c * q.x),
+                *q * (c * q.y),
+                *q * (c * q.z),
+                *q * (c * q.w),
+            )
+        });
+        for step in 0..POWER_STEPS {
+            let y = (power * x).normalize();
+            let change = (y - x).length_squared();
+            x = y;
+            if change < 1e-10 || step + 1 == POWER_STEPS {
+                break;
+            }
+            power = power * power;
+            // Rescale (trace = sum of eigenvalues > 0) so that the powers neither overflow nor
+            // underflow.
+            let trace = power.x_axis.x + power.y_axis.y + power.z_axis.z + power.w_axis.w;
+            power *= 1.0 / trace;
+        }
+        if !x.is_finite() {
+            let a = self.blend_affine(b, w);
+            return rotation_part(Mat3::from(a.matrix3));
+        }
+        Quat::from_vec4(x)
     }
 }
 
@@ -230,6 +360,66 @@ mod tests {
         let r = rotation_part(Mat3::from_quat(q) * 0.7);
         assert!(r.dot(q).abs() > 1.0 - 1e-6, "{r} vs {q}");
         assert!(rotation_part(m).is_normalized());
+    }
+
+    #[test]
+    fn quaternion_blend_of_rigid_bones_equals_the_polar_factor_of_the_blended_matrix() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let matrices: Vec<Mat4> = (0..30)
+            .map(|k| {
+                let axis = Vec3::new(
+                    rng.gen_range(-1.0..1.0),
+                    rng.gen_range(-1.0..1.0),
+                    rng.gen_range(-1.0..1.0),
+                );
+                let q = Quat::from_scaled_axis(axis * rng.gen_range(0.0..1.5));
+                // A few bones uniformly scaled, as a body-shape scale would.
+                let s = if k % 5 == 0 { 1.3 } else { 1.0 };
+                Mat4::from_scale_rotation_translation(Vec3::splat(s), q, Vec3::new(0.1, 0.2, 0.3))
+            })
+            .collect();
+        let bones = BoneSet::new(&matrices);
+        assert!(bones.rigid.is_some(), "rotations (scaled) are rigid bones");
+        let mut worst = 0.0f32;
+        for _ in 0..2000 {
+            let b: [u16; 4] = std::array::from_fn(|_| rng.gen_range(0..30));
+            let mut w: [f32; 4] = std::array::from_fn(|_| rng.gen_range(0.0..1.0));
+            let sum: f32 = w.iter().sum();
+            w.iter_mut().for_each(|v| *v /= sum);
+            let fast = bones.blend_rotation(&b, &w);
+            let polar = rotation_part(Mat3::from(bones.blend_affine(&b, &w).matrix3));
+            // ‖q₁ ∓ q₂‖ ≈ half the angle between the rotations.
+            let gap = (Vec4::from(fast) - Vec4::from(polar))
+                .length()
+                .min((Vec4::from(fast) + Vec4::from(polar)).length());
+            worst = worst.max(2.0 * gap);
+        }
+        println!("worst angle between the two rotations: {worst:.2e} rad");
+        assert!(
+            worst < 1e-5,
+            "worst angle between the two rotations {worst} rad"
+        );
+    }
+
+    #[test]
+    fn non_rigid_bones_fall_back_to_the_polar_factor_of_the_blended_matrix() {
+        let sheared = Mat4::from_mat3(Mat3::from_cols(
+            Vec3::new(1.0, 0.3, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.0, 0.0, 0.8),
+        ));
+        let turned = Mat4::from_rotation_y(0.9);
+        let bones = BoneSet::new(&[sheared, turned]);
+        assert!(bones.rigid.is_none(), "a sheared bone is not rigid");
+        let (b, w) = ([0, 1, 0, 0], [0.5, 0.5, 0.0, 0.0]);
+        let expected = rotation_part((Mat3::from_mat4(sheared) + Mat3::from_mat4(turned)) * 0.5);
+        let got = bones.blend_rotation(&b, &w);
+        assert!(got.dot(expected).abs() > 1.0 - 1e-6, "{got} vs {expected}");
+        assert!(
+            got.dot(Quat::IDENTITY).abs() < 1.0 - 1e-3,
+            "the blend does rotate"
+        );
     }
 
     #[test]

@@ -17,6 +17,9 @@ pub use gaussians::{
 };
 pub use nearest::{nearest_vertex_skin, PointGrid};
 pub use ply::{read_ply, read_ply_from, write_ply, write_ply_to, PlyError, PlyGaussians};
-pub use render::{render, render_timed, RenderOptions, RenderOutput, StageTimes, TILE};
+pub use render::{
+    blend_instruction_set, render, render_timed, Rasterizer, RenderOptions, RenderOutput,
+    StageTimes, TILE,
+};
 pub use sh::eval_sh;
 pub use voxel_skinning::{VoxelSkinning, VoxelSkinningError};

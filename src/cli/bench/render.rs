@@ -1,8 +1,10 @@
 //! `lhmpp bench render`: CPU splatting and LBS posing on seeded synthetic scenes.
 //!
 //! `lhmpp bench render --sizes 592,1176 --counts 40000,160000 --threads 2` renders a body-like
-//! Gaussian cloud (seed 42) at every size × count and prints the median frame time and FPS,
-//! then the median LBS posing time of each count.
+//! Gaussian cloud (seed 42) at every size × count through one reused [`Rasterizer`] and prints
+//! the median frame time and FPS, the process CPU time per frame (all threads; on a shared
+//! machine it shows the work done even when other processes slow the wall clock), and the
+//! median time of each stage; then the median LBS posing time of each count.
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -10,7 +12,7 @@ use glam::{Mat4, Quat, Vec3};
 use lhmpp::avatar::Avatar;
 use lhmpp::body::SkinWeights;
 use lhmpp::splat::synthetic::body_cloud;
-use lhmpp::splat::{render_timed, Camera, Intrinsics, RenderOptions, StageTimes};
+use lhmpp::splat::{Camera, Intrinsics, Rasterizer, RenderOptions, RenderOutput, StageTimes};
 use rand::{Rng, SeedableRng};
 use std::time::{Duration, Instant};
 
@@ -34,18 +36,45 @@ pub struct RenderBenchArgs {
     features: usize,
 }
 
-/// Times `f` (after one warm-up call) until `seconds` have passed and at least 5 runs; median.
-fn median_time(seconds: f64, mut f: impl FnMut()) -> Duration {
+/// Wall and CPU time of repeated runs.
+struct Timing {
+    /// Median wall-clock time of one run.
+    median: Duration,
+    /// Process CPU time (all threads) per run, averaged over the runs (seconds; `NaN` when
+    /// `/proc/self/stat` is unreadable).
+    cpu_per_run: f64,
+}
+
+/// User + system CPU time of this process so far (seconds), from `/proc/self/stat`.
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// Times `f` (after one warm-up call) until `seconds` have passed and at least 5 runs.
+fn time_runs(seconds: f64, mut f: impl FnMut()) -> Timing {
     f();
     let start = Instant::now();
+    let cpu_start = process_cpu_seconds();
     let mut times = Vec::new();
     while times.len() < 5 || start.elapsed().as_secs_f64() < seconds {
         let t = Instant::now();
         f();
         times.push(t.elapsed());
     }
+    let cpu_per_run = match (cpu_start, process_cpu_seconds()) {
+        (Some(a), Some(b)) => (b - a) / times.len() as f64,
+        _ => f64::NAN,
+    };
     times.sort();
-    times[times.len() / 2]
+    Timing {
+        median: times[times.len() / 2],
+        cpu_per_run,
+    }
 }
 
 pub fn run(a: RenderBenchArgs) -> Result<()> {
@@ -53,11 +82,15 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
         .num_threads(a.threads)
         .build()
         .context("building the rayon thread pool")?;
-    println!("CPU splatting, {} thread(s), body-like cloud (seed 42), camera 2.6 m away, median of ≥5 frames", a.threads);
     println!(
-        "| Gaussians | size | ms/frame | FPS | project ms | bin+sort ms | blend ms | tile pairs |"
+        "CPU splatting, {} thread(s), blend in {}, body-like cloud (seed 42), camera 2.6 m away, median of ≥5 frames",
+        a.threads,
+        lhmpp::splat::blend_instruction_set()
     );
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!(
+        "| Gaussians | size | ms/frame | FPS | CPU ms/frame | project ms | bin+sort ms | blend ms | tile pairs |"
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for &count in &a.counts {
         let g = body_cloud(count, a.features, 42);
         for &size in &a.sizes {
@@ -75,17 +108,22 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
             };
             let mut stages = Vec::new();
             let t = pool.install(|| {
-                median_time(a.seconds, || stages.push(render_timed(&g, &cam, &opts).1))
+                let mut rasterizer = Rasterizer::new();
+                let mut frame = RenderOutput::default();
+                time_runs(a.seconds, || {
+                    stages.push(rasterizer.render_into(&g, &cam, &opts, &mut frame))
+                })
             });
-            let ms = t.as_secs_f64() * 1e3;
+            let ms = t.median.as_secs_f64() * 1e3;
             let median = |f: fn(&StageTimes) -> f64| {
                 let mut v: Vec<f64> = stages.iter().map(f).collect();
                 v.sort_by(f64::total_cmp);
                 v[v.len() / 2] * 1e3
             };
             println!(
-                "| {count} | {size}×{size} | {ms:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                "| {count} | {size}×{size} | {ms:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
                 1e3 / ms,
+                t.cpu_per_run * 1e3,
                 median(|s| s.project),
                 median(|s| s.bin_sort),
                 median(|s| s.blend),
@@ -98,8 +136,8 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
         "Gaussian LBS posing ({} thread(s), 4 influences 0.4/0.3/0.2/0.1 on random bones of 55, bone rotations up to 0.87 rad), median:",
         a.threads
     );
-    println!("| Gaussians | ms/pose |");
-    println!("|---:|---:|");
+    println!("| Gaussians | ms/pose | CPU ms/pose |");
+    println!("|---:|---:|---:|");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
     let bones: Vec<Mat4> = (0..55)
         .map(|_| {
@@ -126,11 +164,15 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
         let avatar = Avatar::new(g.clone(), skin, "synthetic")?;
         let mut posed = g;
         let t = pool.install(|| {
-            median_time(a.seconds.min(1.0), || {
+            time_runs(a.seconds.min(1.0), || {
                 avatar.animate_into(&bones, &mut posed)
             })
         });
-        println!("| {count} | {:.2} |", t.as_secs_f64() * 1e3);
+        println!(
+            "| {count} | {:.2} | {:.2} |",
+            t.median.as_secs_f64() * 1e3,
+            t.cpu_per_run * 1e3
+        );
     }
     Ok(())
 }

@@ -1,13 +1,16 @@
 //! CPU splatting rasteriser with the 3DGS reference semantics, in named stages:
-//! [`project`] (EWA projection, SH colour, culling) → [`bin`] (16×16 tiles, per-tile depth
-//! sort) → [`blend`] (front-to-back compositing). Each stage runs inside a `tracing` span and
-//! maps onto one kernel of a future CUDA path. Work is spread with rayon (Gaussians in
-//! `project`, tiles in `sort`, bands of tiles in `blend`); the output is bit-identical for any
-//! thread count.
+//! [`project`] (EWA projection, SH colour, culling) → [`bin`] (global depth radix sort, then
+//! stable binning into 16×16 tiles) → [`blend`] (front-to-back compositing, SIMD over half
+//! tile rows). Each stage runs inside a `tracing` span and maps onto one kernel of a future
+//! CUDA path. Work is spread with rayon (Gaussians in `project`, groups of tile rows in `bin`,
+//! bands of tiles in `blend`); the output is bit-identical for any thread count and any
+//! instruction set. A [`Rasterizer`] keeps the per-frame buffers between frames.
 
 mod bin;
 mod blend;
 mod project;
+#[cfg(test)]
+mod tests;
 
 use super::camera::Camera;
 use super::gaussians::Gaussians;
@@ -49,7 +52,7 @@ impl Default for RenderOptions {
 }
 
 /// A rendered frame; all maps row-major, top row first.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct RenderOutput {
     /// Width (pixels).
     pub width: u32,
@@ -104,7 +107,9 @@ pub struct StageTimes {
 /// Renders Gaussians seen by `camera` (see the module doc for the stages).
 ///
 /// Never produces NaN: Gaussians that are non-finite, degenerate, behind the near plane or off
-/// screen are culled. Panics only if `gaussians` fails [`Gaussians::validate`].
+/// screen are culled. Panics only if `gaussians` fails [`Gaussians::validate`]. To render many
+/// frames without per-frame allocations, keep a [`Rasterizer`] and call
+/// [`Rasterizer::render_into`].
 pub fn render(gaussians: &Gaussians, camera: &Camera, options: &RenderOptions) -> RenderOutput {
     render_timed(gaussians, camera, options).0
 }
@@ -115,81 +120,119 @@ pub fn render_timed(
     camera: &Camera,
     options: &RenderOptions,
 ) -> (RenderOutput, StageTimes) {
-    let mut times = StageTimes::default();
-    let clock = std::time::Instant::now();
-    let _span = tracing::debug_span!("render", n = gaussians.len()).entered();
-    if let Err(e) = gaussians.validate() {
-        panic!("render: invalid Gaussians: {e}");
-    }
-    let (width, height) = (
-        camera.intrinsics.width as usize,
-        camera.intrinsics.height as usize,
-    );
-    let splats: Vec<_> = project::project(gaussians, camera, options)
-        .into_iter()
-        .flatten()
-        .collect();
-    times.project = clock.elapsed().as_secs_f64();
-    times.visible = splats.len();
-    let grid = bin::TileGrid::new(camera.intrinsics.width, camera.intrinsics.height);
-    let bins = bin::bin_and_sort(&splats, grid);
-    times.bin_sort = clock.elapsed().as_secs_f64() - times.project;
-    times.tile_pairs = bins.keys.len();
-
-    let channels = if options.render_features {
-        gaussians.feature_channels
-    } else {
-        0
-    };
-    let mut background_features = options.background_features.clone();
-    background_features.resize(channels, 0.0);
-    let mut out = RenderOutput {
-        width: width as u32,
-        height: height as u32,
-        rgb: vec![0.0; width * height * 3],
-        alpha: vec![0.0; width * height],
-        depth: vec![0.0; width * height],
-        feature_channels: channels,
-        features: vec![0.0; width * height * channels],
-    };
-    if width == 0 || height == 0 {
-        return (out, times);
-    }
-    let input = BlendInput {
-        splats: &splats,
-        bins: &bins,
-        grid,
-        gaussians,
-        options,
-        width,
-        height,
-        channels,
-        background_features: &background_features,
-    };
-    let _blend = tracing::trace_span!("blend", tiles = grid.cols * grid.rows).entered();
-    let band_px = TILE * width;
-    let mut features = out.features.chunks_mut((band_px * channels).max(1));
-    let bands: Vec<_> = out
-        .rgb
-        .chunks_mut(band_px * 3)
-        .zip(out.alpha.chunks_mut(band_px))
-        .zip(out.depth.chunks_mut(band_px))
-        .map(|((rgb, alpha), depth)| BandOut {
-            rgb,
-            alpha,
-            depth,
-            features: if channels > 0 {
-                features.next().expect("one feature band per band")
-            } else {
-                &mut []
-            },
-        })
-        .collect();
-    bands
-        .into_par_iter()
-        .enumerate()
-        .for_each(|(row, band)| blend::blend_band(row, &input, band));
-    drop(_blend);
-    times.blend = clock.elapsed().as_secs_f64() - times.project - times.bin_sort;
+    let mut out = RenderOutput::default();
+    let times = Rasterizer::default().render_into(gaussians, camera, options, &mut out);
     (out, times)
+}
+
+/// The SIMD instruction set the blend stage uses on this CPU (`AVX-512F`, `AVX2` or
+/// `baseline`).
+pub fn blend_instruction_set() -> &'static str {
+    blend::instruction_set()
+}
+
+/// Rasteriser state kept between frames: the projected splats and the tile lists, whose
+/// buffers are reused, so that a warm rasteriser rendering into a reused [`RenderOutput`]
+/// does not allocate per frame.
+#[derive(Debug, Default)]
+pub struct Rasterizer {
+    splats: Vec<Option<project::Splat2D>>,
+    bins: bin::TileBins,
+    /// Blend with the baseline instruction set only (tests compare it with the SIMD build).
+    portable: bool,
+}
+
+impl Rasterizer {
+    /// A rasteriser with empty buffers (they grow on the first frame).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Renders into `out`, overwriting all of it (its buffers are resized only when the image
+    /// size or channel count changed); returns the stage times. Same output as [`render`].
+    pub fn render_into(
+        &mut self,
+        gaussians: &Gaussians,
+        camera: &Camera,
+        options: &RenderOptions,
+        out: &mut RenderOutput,
+    ) -> StageTimes {
+        let mut times = StageTimes::default();
+        let clock = std::time::Instant::now();
+        let _span = tracing::debug_span!("render", n = gaussians.len()).entered();
+        if let Err(e) = gaussians.validate() {
+            panic!("render: invalid Gaussians: {e}");
+        }
+        let (width, height) = (
+            camera.intrinsics.width as usize,
+            camera.intrinsics.height as usize,
+        );
+        project::project(gaussians, camera, options, &mut self.splats);
+        times.project = clock.elapsed().as_secs_f64();
+        let grid = bin::TileGrid::new(camera.intrinsics.width, camera.intrinsics.height);
+        self.bins.build(&self.splats, grid);
+        times.bin_sort = clock.elapsed().as_secs_f64() - times.project;
+        times.visible = self.bins.visible();
+        times.tile_pairs = self.bins.pairs();
+
+        let channels = if options.render_features {
+            gaussians.feature_channels
+        } else {
+            0
+        };
+        let mut background_features = options.background_features.clone();
+        background_features.resize(channels, 0.0);
+        out.width = width as u32;
+        out.height = height as u32;
+        out.feature_channels = channels;
+        let pixels = width * height;
+        for (buffer, len) in [
+            (&mut out.rgb, pixels * 3),
+            (&mut out.alpha, pixels),
+            (&mut out.depth, pixels),
+            (&mut out.features, pixels * channels),
+        ] {
+            buffer.resize(len, 0.0);
+        }
+        if pixels == 0 {
+            return times;
+        }
+        let input = BlendInput {
+            splats: &self.splats,
+            bins: &self.bins,
+            grid,
+            gaussians,
+            options,
+            width,
+            height,
+            channels,
+            background_features: &background_features,
+        };
+        let _blend = tracing::trace_span!("blend", tiles = grid.cols * grid.rows).entered();
+        let band_px = TILE * width;
+        let mut features = out.features.chunks_mut((band_px * channels).max(1));
+        let bands: Vec<_> = out
+            .rgb
+            .chunks_mut(band_px * 3)
+            .zip(out.alpha.chunks_mut(band_px))
+            .zip(out.depth.chunks_mut(band_px))
+            .map(|((rgb, alpha), depth)| BandOut {
+                rgb,
+                alpha,
+                depth,
+                features: if channels > 0 {
+                    features.next().expect("one feature band per band")
+                } else {
+                    &mut []
+                },
+            })
+            .collect();
+        bands
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(row, band)| blend::blend_band(row, &input, band, self.portable));
+        drop(_blend);
+        times.blend = clock.elapsed().as_secs_f64() - times.project - times.bin_sort;
+        times
+    }
 }

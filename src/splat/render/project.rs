@@ -4,13 +4,15 @@
 //! optical frame, cull outside `near..far`, build the 3D covariance `R S Sᵀ Rᵀ`, project it with
 //! the perspective Jacobian (centre clamped to 1.3× the image as in 3DGS/gsplat), add the 0.3 px
 //! low-pass to the diagonal, invert it to the conic, evaluate the view-dependent SH colour, and
-//! cull anything degenerate or non-finite so that no NaN can reach the blend.
+//! cull anything degenerate or non-finite so that no NaN can reach the blend. (The arithmetic
+//! is kept in this order on purpose: committed fixtures, such as the demo bag's rendered
+//! held-out views, are reproduced bit for bit.)
 
 use super::RenderOptions;
 use crate::splat::camera::Camera;
 use crate::splat::gaussians::Gaussians;
 use crate::splat::sh::eval_sh;
-use glam::{Mat3, Vec3};
+use glam::{Mat3A, Vec3A};
 use rayon::prelude::*;
 
 /// Alpha below which a sample is skipped (3DGS: 1/255).
@@ -39,15 +41,17 @@ pub(crate) struct Splat2D {
     pub index: u32,
 }
 
-/// Projects every Gaussian; `None` where it is culled. Output order = input order.
+/// Projects every Gaussian into `out` (resized to one entry per Gaussian, its allocation
+/// reused); `None` where the Gaussian is culled.
 pub(crate) fn project(
     gaussians: &Gaussians,
     camera: &Camera,
     options: &RenderOptions,
-) -> Vec<Option<Splat2D>> {
+    out: &mut Vec<Option<Splat2D>>,
+) {
     let _span = tracing::trace_span!("project", n = gaussians.len()).entered();
     let view = camera.camera_from_world();
-    let w = Mat3::from(view.matrix3);
+    let w = view.matrix3;
     let center = camera.center();
     let k = camera.intrinsics;
     let (width, height) = (k.width as f32, k.height as f32);
@@ -60,6 +64,7 @@ pub(crate) fn project(
 
     (0..gaussians.len())
         .into_par_iter()
+        .with_min_len(1024)
         .map(|i| {
             let opacity = gaussians.opacities[i];
             if opacity.is_nan() || opacity < MIN_ALPHA {
@@ -77,14 +82,15 @@ pub(crate) fn project(
             if qlen.is_nan() || qlen <= 1e-12 || !scale.is_finite() || !pos.is_finite() {
                 return None;
             }
-            let m = Mat3::from_quat(q / qlen) * Mat3::from_diagonal(scale);
+            // SIMD matrices (`Mat3A`): the same operations in the same order as `Mat3`.
+            let m = Mat3A::from_quat(q / qlen) * Mat3A::from_diagonal(scale);
             let sigma_cam = w * (m * m.transpose()) * w.transpose();
 
             let inv_z = 1.0 / p.z;
             let tx = p.z * (p.x * inv_z).clamp(-lim_x_neg, lim_x_pos);
             let ty = p.z * (p.y * inv_z).clamp(-lim_y_neg, lim_y_pos);
-            let j0 = Vec3::new(k.fx * inv_z, 0.0, -k.fx * tx * inv_z * inv_z);
-            let j1 = Vec3::new(0.0, k.fy * inv_z, -k.fy * ty * inv_z * inv_z);
+            let j0 = Vec3A::new(k.fx * inv_z, 0.0, -k.fx * tx * inv_z * inv_z);
+            let j1 = Vec3A::new(0.0, k.fy * inv_z, -k.fy * ty * inv_z * inv_z);
             let s_j0 = sigma_cam * j0;
             let a = j0.dot(s_j0) + options.low_pass;
             let b = j1.dot(s_j0);
@@ -112,6 +118,7 @@ pub(crate) fn project(
             {
                 return None;
             }
+            let min_power = (MIN_ALPHA / opacity).ln();
             let t = 2.0 * (opacity / MIN_ALPHA).ln();
             let extent = [(t * a).sqrt() + 0.5, (t * c).sqrt() + 0.5];
 
@@ -131,9 +138,9 @@ pub(crate) fn project(
                 rgb: rgb.to_array(),
                 radius,
                 extent,
-                min_power: (MIN_ALPHA / opacity).ln(),
+                min_power,
                 index: i as u32,
             })
         })
-        .collect()
+        .collect_into_vec(out);
 }
