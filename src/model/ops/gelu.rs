@@ -25,6 +25,21 @@ pub fn erf_approx(x: f32) -> f32 {
     e.copysign(x)
 }
 
+/// Exact GELU of a tensor: the vectorised kernel for f32 on the CPU, candle's `gelu_erf`
+/// otherwise.
+pub fn gelu_erf(x: &candle_core::Tensor) -> candle_core::Result<candle_core::Tensor> {
+    if !(x.device().is_cpu() && x.dtype() == candle_core::DType::F32) {
+        return x.gelu_erf();
+    }
+    let shape = x.shape().clone();
+    let mut values = x.flatten_all()?.to_vec1::<f32>()?;
+    {
+        use rayon::prelude::*;
+        values.par_chunks_mut(1 << 14).for_each(gelu_in_place);
+    }
+    candle_core::Tensor::from_vec(values, shape, x.device())
+}
+
 /// `gelu_erf(x)` of one value.
 #[inline(always)]
 pub fn gelu_approx(x: f32) -> f32 {

@@ -353,7 +353,13 @@ pub fn linear_f32(
     act: Activation,
 ) -> Vec<f32> {
     let mut out: Vec<f32> = match bias {
-        Some(b) => b.iter().copied().cycle().take(m * n).collect(),
+        Some(b) => {
+            let mut v = Vec::with_capacity(m * n);
+            for _ in 0..m {
+                v.extend_from_slice(b);
+            }
+            v
+        }
         None => vec![0f32; m * n],
     };
     accumulate_product(&mut out, x, w, m, n, k);

@@ -15,6 +15,7 @@ pub mod synthetic;
 use candle_core::{DType, Device, Result, Tensor};
 use candle_nn::{Module, VarBuilder};
 
+use crate::model::ops::gelu::gelu_erf;
 use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
 use crate::model::ops::linear::{linear, Linear};
 
@@ -421,10 +422,7 @@ impl PointBackbone {
             feat6.extend_from_slice(&normals[i as usize]);
         }
         let feat = Tensor::from_vec(feat6, (m, 6), &self.device)?.to_dtype(self.dtype)?;
-        let feat = self
-            .stem_norm
-            .forward(&self.stem_linear.forward(&feat)?)?
-            .gelu_erf()?;
+        let feat = gelu_erf(&self.stem_norm.forward(&self.stem_linear.forward(&feat)?)?)?;
         let input_inverse = Tensor::from_vec(sample.inverse, n, &self.device)?;
         let level = Level::new(sample.grid, &self.cfg.order, &self.device)?;
         Ok(PointState {

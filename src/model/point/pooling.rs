@@ -5,6 +5,7 @@
 use candle_core::{Device, Result, Tensor};
 use candle_nn::{Module, VarBuilder};
 
+use crate::model::ops::gelu::gelu_erf;
 use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
 use crate::model::ops::linear::{linear, Linear};
 
@@ -79,7 +80,7 @@ impl GridPooling {
     /// Parent features `[M, c_in]` → cluster features `[clusters, c_out]`.
     pub fn forward(&self, x: &Tensor, index: &PoolingIndex) -> Result<Tensor> {
         let pooled = index.segment_max(&self.proj.forward(x)?)?;
-        self.norm.forward(&pooled)?.gelu_erf()
+        gelu_erf(&self.norm.forward(&pooled)?)
     }
 }
 
@@ -107,14 +108,8 @@ impl GridUnpooling {
 
     /// Child features `[clusters, c_in]` and parent features `[M, c_skip]` → `[M, c_out]`.
     pub fn forward(&self, child: &Tensor, parent: &Tensor, cluster: &Tensor) -> Result<Tensor> {
-        let skip = self
-            .skip_norm
-            .forward(&self.skip.forward(parent)?)?
-            .gelu_erf()?;
-        let up = self
-            .proj_norm
-            .forward(&self.proj.forward(child)?)?
-            .gelu_erf()?;
+        let skip = gelu_erf(&self.skip_norm.forward(&self.skip.forward(parent)?)?)?;
+        let up = gelu_erf(&self.proj_norm.forward(&self.proj.forward(child)?)?)?;
         skip + up.index_select(cluster, 0)?
     }
 }
