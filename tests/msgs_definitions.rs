@@ -180,7 +180,12 @@ fn rust_constants_equal_the_msg_constants() {
 
 #[test]
 fn our_msg_files_comment_every_field() {
-    for ty in ["GaussianAvatar", "BodyPose", "BodyShape", "ReconstructionStatus"] {
+    for ty in [
+        "GaussianAvatar",
+        "BodyPose",
+        "BodyShape",
+        "ReconstructionStatus",
+    ] {
         let (_, text) = lookup(&format!("lhmpp_msgs/{ty}")).unwrap();
         assert!(text.starts_with('#'), "{ty}: header comment first");
         let lines: Vec<&str> = text.lines().collect();
