@@ -106,6 +106,8 @@ fn replayed_shape_reaches_the_avatar_and_scales_its_anchors() {
     let dir = tempfile::tempdir().unwrap();
     let bag = synthetic_bag(dir.path(), true);
     let truth = SyntheticPerson::new(SEED, 100).unwrap().shape();
+    // The test must tell a shaped body from an unshaped one.
+    assert!((truth.height_scale - 1.0).abs() > 0.02, "{truth:?}");
     let sent = BagReader::open(&bag).unwrap();
     let shape_msgs: Vec<BodyShape> = sent
         .messages()
@@ -183,4 +185,53 @@ fn malformed_shapes_are_rejected_and_the_avatar_still_comes_out() {
     let last = avatars.last().expect("the avatar still comes out");
     assert!(last.shape_params.is_empty());
     assert_eq!(last.gaussians.width, 1024);
+}
+
+#[test]
+fn a_shape_after_the_views_reruns_the_reconstruction_with_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let source = BagReader::open(synthetic_bag(dir.path(), false)).unwrap();
+    let write = |name: &str, shape: Option<&BodyShape>| {
+        let path = dir.path().join(name);
+        let mut bag = BagWriter::create(&path).unwrap();
+        let mut last = START_NS;
+        for m in source.messages() {
+            if m.topic.ends_with("/image_raw") {
+                let image: Image = source.decode(m).unwrap();
+                bag.write(&m.topic, m.log_time, &image).unwrap();
+                last = last.max(m.log_time);
+            }
+        }
+        if let Some(shape) = shape {
+            bag.write(SHAPE_TOPIC, last + 1, shape).unwrap();
+        }
+        bag.finish().unwrap();
+        path
+    };
+    let shape = BodyShape {
+        person_id: "person_0".into(),
+        body_model: "makehuman-cc0".into(),
+        shape_params: vec![1.2, 1.0],
+        ..Default::default()
+    };
+    let (_, without) = replay(&write("views.mcap", None), &config(SHAPE_TOPIC));
+    let (shaped, with) = replay(
+        &write("views_shape.mcap", Some(&shape)),
+        &config(SHAPE_TOPIC),
+    );
+    assert_eq!(
+        with.len(),
+        without.len() + 1,
+        "the shape alone triggers one rerun"
+    );
+    let last = with.last().unwrap();
+    assert_eq!(last.revision as usize, with.len());
+    assert_eq!(last.shape_params, vec![1.2, 1.0]);
+    assert!(with[..without.len()]
+        .iter()
+        .all(|a| a.shape_params.is_empty()));
+    let plain = Pipeline::new(&config(""), None).unwrap();
+    let ratio = height_of(&shaped.anchor_positions().unwrap())
+        / height_of(&plain.anchor_positions().unwrap());
+    assert!((ratio - 1.2).abs() < 1e-3, "{ratio}");
 }
