@@ -6,6 +6,8 @@ use crate::body::{MakeHumanShape, MAKEHUMAN_MODEL_ID, MAKEHUMAN_SHAPE_RANGE};
 use crate::msgs::BodyShape;
 use std::ops::RangeInclusive;
 
+/// `BodyShape.body_model` of SMPL-X betas (the node's SMPL-X prior body accepts them).
+pub const SMPLX_SHAPE_MODEL: &str = "smplx";
 /// Most SMPL-X betas accepted (the model's full shape space).
 pub const SMPLX_MAX_BETAS: usize = 300;
 /// Accepted range of each SMPL-X beta (standard deviations of the shape space).
@@ -25,7 +27,7 @@ impl AcceptedShape {
     pub fn body_model(&self) -> &'static str {
         match self {
             Self::MakeHuman(_) => MAKEHUMAN_MODEL_ID,
-            Self::SmplxBetas(_) => SMPLX_MODEL_ID,
+            Self::SmplxBetas(_) => SMPLX_SHAPE_MODEL,
         }
     }
 
@@ -85,7 +87,16 @@ pub enum ShapeError {
     },
 }
 
-/// Checks `msg` (received on `topic`) for a node whose avatars use body model `node_model`.
+/// The `BodyShape.body_model` a node whose avatars use body model `node_model` accepts.
+pub fn shape_model_of(node_model: &str) -> &str {
+    match node_model {
+        SMPLX_MODEL_ID => SMPLX_SHAPE_MODEL,
+        other => other,
+    }
+}
+
+/// Checks `msg` (received on `topic`) for a node whose avatars use body model `node_model`
+/// (`makehuman-cc0`, or the SMPL-X prior, which takes `smplx` betas).
 pub fn check_shape(
     topic: &str,
     msg: &BodyShape,
@@ -94,7 +105,7 @@ pub fn check_shape(
     let model = msg.body_model.as_str();
     let (range, expected) = match model {
         MAKEHUMAN_MODEL_ID => (MAKEHUMAN_SHAPE_RANGE, "2 ([height_scale, girth_scale])"),
-        SMPLX_MODEL_ID => (SMPLX_BETA_RANGE, "1 to 300 betas"),
+        SMPLX_SHAPE_MODEL => (SMPLX_BETA_RANGE, "1 to 300 betas"),
         _ => {
             return Err(ShapeError::UnknownModel {
                 topic: topic.to_owned(),
@@ -102,11 +113,11 @@ pub fn check_shape(
             })
         }
     };
-    if model != node_model {
+    if model != shape_model_of(node_model) {
         return Err(ShapeError::OtherModel {
             topic: topic.to_owned(),
             model: model.to_owned(),
-            node_model: node_model.to_owned(),
+            node_model: shape_model_of(node_model).to_owned(),
         });
     }
     let p = &msg.shape_params;
@@ -183,11 +194,15 @@ mod tests {
     #[test]
     fn smplx_betas_are_accepted_for_the_smplx_prior_and_bounded() {
         let betas: Vec<f32> = (0..10).map(|i| i as f32 * 0.1 - 0.5).collect();
-        let s = check_shape("/s", &msg("smplx", &betas), "smplx").unwrap();
+        let s = check_shape("/s", &msg("smplx", &betas), SMPLX_MODEL_ID).unwrap();
         assert_eq!(s, AcceptedShape::SmplxBetas(betas));
-        assert!(check_shape("/s", &msg("smplx", &[]), "smplx").is_err());
-        assert!(check_shape("/s", &msg("smplx", &[11.0]), "smplx").is_err());
-        assert!(check_shape("/s", &msg("smplx", &[0.0; 301]), "smplx").is_err());
-        assert!(check_shape("/s", &msg("makehuman-cc0", &[1.0, 1.0]), "smplx").is_err());
+        for bad in [
+            msg("smplx", &[]),
+            msg("smplx", &[11.0]),
+            msg("smplx", &[0.0; 301]),
+            msg("makehuman-cc0", &[1.0, 1.0]),
+        ] {
+            assert!(check_shape("/s", &bad, SMPLX_MODEL_ID).is_err(), "{bad:?}");
+        }
     }
 }
