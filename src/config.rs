@@ -92,6 +92,8 @@ pub struct InputConfig {
     pub mask_topic: String,
     /// lhmpp_msgs/BodyPose topic that drives animation.
     pub pose_topic: String,
+    /// Optional lhmpp_msgs/BodyShape topic (body shape of the person); empty disables it.
+    pub shape_topic: String,
     /// Image QoS: `sensor_data` (best effort, keep last) or `reliable`.
     pub image_qos: String,
     /// Largest accepted image side in pixels; larger frames are rejected.
@@ -190,6 +192,7 @@ impl Default for InputConfig {
             camera_info_topics: Vec::new(),
             mask_topic: String::new(),
             pose_topic: "/lhmpp/body_pose".into(),
+            shape_topic: String::new(),
             image_qos: "sensor_data".into(),
             max_image_side: 8192,
         }

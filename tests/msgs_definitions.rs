@@ -104,6 +104,7 @@ fn every_rust_message_matches_its_msg_definition_field_by_field() {
         PointCloud2,
         GaussianAvatar,
         BodyPose,
+        BodyShape,
         ReconstructionStatus,
     );
     for (name, _) in DEFINITIONS {
@@ -179,7 +180,12 @@ fn rust_constants_equal_the_msg_constants() {
 
 #[test]
 fn our_msg_files_comment_every_field() {
-    for ty in ["GaussianAvatar", "BodyPose", "ReconstructionStatus"] {
+    for ty in [
+        "GaussianAvatar",
+        "BodyPose",
+        "BodyShape",
+        "ReconstructionStatus",
+    ] {
         let (_, text) = lookup(&format!("lhmpp_msgs/{ty}")).unwrap();
         assert!(text.starts_with('#'), "{ty}: header comment first");
         let lines: Vec<&str> = text.lines().collect();

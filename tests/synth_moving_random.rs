@@ -21,6 +21,7 @@ fn small(seed: u64, camera: CameraMode, pose: SynthPose) -> SynthOptions {
         points: 3000,
         pose,
         camera,
+        publish_shape: false,
     }
 }
 

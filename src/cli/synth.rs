@@ -30,6 +30,10 @@ pub struct SynthArgs {
     /// random joint rotations within limits.
     #[arg(long, default_value = "8")]
     pose: String,
+    /// Also write the ground-truth body shape (lhmpp_msgs/BodyShape, `makehuman-cc0`
+    /// [height_scale, girth_scale]) on /lhmpp/body_shape.
+    #[arg(long)]
+    publish_shape: bool,
     /// Output bag (`.mcap` file, or a rosbag2 directory for any other path).
     #[arg(short, long)]
     output: PathBuf,
@@ -73,6 +77,7 @@ pub fn run(args: SynthArgs) -> Result<()> {
             CameraArg::Ring => CameraMode::Ring,
             CameraArg::Moving => CameraMode::Moving,
         },
+        publish_shape: args.publish_shape,
     };
     let summary = write_synthetic_bag(&args.output, &options)
         .with_context(|| format!("writing {}", args.output.display()))?;

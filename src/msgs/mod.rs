@@ -6,6 +6,7 @@
 //! 4-byte encapsulation header that ROS 2 puts on the wire and in bags.
 
 mod body_pose;
+mod body_shape;
 mod builtin;
 pub mod definition;
 mod error;
@@ -20,6 +21,7 @@ mod std_msgs;
 mod tf2;
 
 pub use body_pose::BodyPose;
+pub use body_shape::BodyShape;
 pub use builtin::Time;
 pub use error::MsgError;
 pub use gaussian_avatar::GaussianAvatar;

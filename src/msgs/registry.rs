@@ -27,6 +27,7 @@ pub const DEFINITIONS: &[(&str, &str)] = &[
     (PointCloud2::TYPE_NAME, PointCloud2::DEFINITION),
     (GaussianAvatar::TYPE_NAME, GaussianAvatar::DEFINITION),
     (BodyPose::TYPE_NAME, BodyPose::DEFINITION),
+    (BodyShape::TYPE_NAME, BodyShape::DEFINITION),
     (
         ReconstructionStatus::TYPE_NAME,
         ReconstructionStatus::DEFINITION,

@@ -24,6 +24,7 @@ impl Publisher for RosPublisher {
             u.revision,
             u.views_used,
             u.stamp_ns,
+            u.shape_params,
         ) {
             Ok(msg) => {
                 if let Err(e) = self.0.publish_avatar(msg) {

@@ -1,5 +1,5 @@
 //! Bag recording of the node's topics: the configured inputs (images, compressed images,
-//! camera infos, mask, pose) and the node's outputs (avatar, status, rendered frames).
+//! camera infos, mask, pose, shape) and the node's outputs (avatar, status, rendered frames).
 //!
 //! [`record`] subscribes with ros2-client to every topic of a [`RecordTopic`] plan, writes each
 //! message's CDR bytes to a [`BagWriter`] with the topic's type and QoS, closes and flushes the
@@ -14,7 +14,8 @@
 
 use crate::bag::{self, BagError, BagWriter};
 use crate::msgs::{
-    BodyPose, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus, RosMessage,
+    BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus,
+    RosMessage,
 };
 use crate::node::names::split_fully_qualified;
 use crate::node::ros::{
@@ -63,6 +64,8 @@ pub enum RecordType {
     CameraInfo,
     /// `lhmpp_msgs/msg/BodyPose`.
     BodyPose,
+    /// `lhmpp_msgs/msg/BodyShape`.
+    BodyShape,
     /// `lhmpp_msgs/msg/GaussianAvatar`.
     GaussianAvatar,
     /// `lhmpp_msgs/msg/ReconstructionStatus`.
@@ -77,6 +80,7 @@ impl RecordType {
             Self::CompressedImage => CompressedImage::TYPE_NAME,
             Self::CameraInfo => CameraInfo::TYPE_NAME,
             Self::BodyPose => BodyPose::TYPE_NAME,
+            Self::BodyShape => BodyShape::TYPE_NAME,
             Self::GaussianAvatar => GaussianAvatar::TYPE_NAME,
             Self::ReconstructionStatus => ReconstructionStatus::TYPE_NAME,
         }
@@ -120,7 +124,7 @@ fn bag_qos(qos: &QosProfile) -> bag::QosProfile {
 }
 
 /// Every topic the node uses, with the QoS the node uses on it: inputs first (images, compressed
-/// images, camera infos, mask, pose), then outputs (avatar, status, rendered frames).
+/// images, camera infos, mask, pose, shape), then outputs (avatar, status, rendered frames).
 pub fn plan(topics: &ResolvedTopics, image_qos: InputQos) -> Vec<RecordTopic> {
     let topic = |name: &str, kind, qos| RecordTopic {
         name: name.to_owned(),
@@ -142,6 +146,9 @@ pub fn plan(topics: &ResolvedTopics, image_qos: InputQos) -> Vec<RecordTopic> {
     }
     if let Some(t) = &topics.pose {
         out.push(topic(t, RecordType::BodyPose, reliable_input_qos()));
+    }
+    if let Some(t) = &topics.shape {
+        out.push(topic(t, RecordType::BodyShape, reliable_input_qos()));
     }
     out.push(topic(
         &topics.avatar,
@@ -304,6 +311,7 @@ pub async fn record(
             RecordType::CompressedImage => spawn_reader::<CompressedImage>(&mut node, i, t, tx),
             RecordType::CameraInfo => spawn_reader::<CameraInfo>(&mut node, i, t, tx),
             RecordType::BodyPose => spawn_reader::<BodyPose>(&mut node, i, t, tx),
+            RecordType::BodyShape => spawn_reader::<BodyShape>(&mut node, i, t, tx),
             RecordType::GaussianAvatar => spawn_reader::<GaussianAvatar>(&mut node, i, t, tx),
             RecordType::ReconstructionStatus => {
                 spawn_reader::<ReconstructionStatus>(&mut node, i, t, tx)
@@ -458,6 +466,7 @@ mod tests {
             camera_infos: vec!["/cam0/camera_info".into()],
             mask: Some("/mask".into()),
             pose: Some("/pose".into()),
+            shape: Some("/shape".into()),
             avatar: "/avatar".into(),
             status: "/status".into(),
             frames: vec!["/render/cam0/image_raw".into()],
@@ -476,6 +485,7 @@ mod tests {
                 "/cam0/camera_info",
                 "/mask",
                 "/pose",
+                "/shape",
                 "/avatar",
                 "/status",
                 "/render/cam0/image_raw"
@@ -485,10 +495,12 @@ mod tests {
         assert_eq!(p[0].bag_qos().reliability, bag::Reliability::BestEffort);
         assert_eq!(p[4].kind, RecordType::BodyPose);
         assert_eq!(p[4].bag_qos().reliability, bag::Reliability::Reliable);
-        let avatar = p[5].bag_qos();
+        assert_eq!(p[5].kind, RecordType::BodyShape);
+        assert_eq!(p[5].bag_qos().reliability, bag::Reliability::Reliable);
+        let avatar = p[6].bag_qos();
         assert_eq!(avatar.durability, bag::Durability::TransientLocal);
         assert_eq!(avatar.depth, 1);
-        assert_eq!(p[7].bag_qos().reliability, bag::Reliability::BestEffort);
+        assert_eq!(p[8].bag_qos().reliability, bag::Reliability::BestEffort);
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! the pipeline consumes them (rate 0).
 
 use crate::bag::{BagError, BagMessage, BagReader};
-use crate::msgs::{BodyPose, CameraInfo, CompressedImage, Image, RosMessage};
+use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image, RosMessage};
 use crate::node::ros::{inputs, InputEvent, ResolvedTopics};
 use std::path::Path;
 use std::time::Duration;
@@ -106,6 +106,13 @@ impl BagReplay {
                 arrival,
                 pose: Box::new(pose),
             })
+        } else if t.shape.as_deref() == Some(topic) {
+            self.decode::<BodyShape>(m)
+                .map(|shape| InputEvent::BodyShape {
+                    topic: topic.to_owned(),
+                    arrival,
+                    shape: Box::new(shape),
+                })
         } else {
             return None;
         };

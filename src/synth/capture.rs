@@ -9,7 +9,7 @@ use super::scene::{Rig, RigCamera};
 use crate::bag::{BagWriter, BagWriterOptions};
 use crate::body::{motion, Pose};
 use crate::msgs::{
-    BodyPose, CameraInfo, Header, Image, TFMessage, Time, Transform, TransformStamped,
+    BodyPose, BodyShape, CameraInfo, Header, Image, TFMessage, Time, Transform, TransformStamped,
 };
 use crate::splat::{render, RenderOptions, RenderOutput};
 use glam::Vec3;
@@ -19,6 +19,8 @@ use std::path::Path;
 pub const WORLD_FRAME: &str = "world";
 /// Topic of the ground-truth body pose.
 pub const POSE_TOPIC: &str = "/lhmpp/body_pose";
+/// Topic of the ground-truth body shape (written only with [`SynthOptions::publish_shape`]).
+pub const SHAPE_TOPIC: &str = "/lhmpp/body_shape";
 /// Topic of the static camera poses.
 pub const TF_STATIC_TOPIC: &str = "/tf_static";
 /// Topic of the moving camera's pose, one message per frame.
@@ -60,6 +62,9 @@ pub struct SynthOptions {
     pub pose: SynthPose,
     /// How the input views are taken.
     pub camera: CameraMode,
+    /// Also write the ground-truth `BodyShape` (`makehuman-cc0` [height_scale, girth_scale])
+    /// on [`SHAPE_TOPIC`]; off by default so existing fixtures keep their bytes.
+    pub publish_shape: bool,
 }
 
 /// The pose of the synthetic person.
@@ -92,6 +97,7 @@ impl Default for SynthOptions {
             points: 30_000,
             pose: SynthPose::Walk(8.0),
             camera: CameraMode::Ring,
+            publish_shape: false,
         }
     }
 }
@@ -248,6 +254,18 @@ pub fn write_synthetic_bag(
         ns,
         &BodyPose::from_pose(header(ns, WORLD_FRAME), "person_0", &pose),
     )?;
+    if options.publish_shape {
+        bag.write(
+            SHAPE_TOPIC,
+            ns,
+            &BodyShape {
+                header: header(ns, WORLD_FRAME),
+                person_id: "person_0".into(),
+                body_model: crate::body::MAKEHUMAN_MODEL_ID.into(),
+                shape_params: person.shape().params().to_vec(),
+            },
+        )?;
+    }
     for (cameras, moving) in [
         (&rig.inputs, options.camera == CameraMode::Moving),
         (&rig.heldout, false),

@@ -3,7 +3,7 @@
 
 use super::outfit::Outfit;
 use crate::avatar::Avatar;
-use crate::body::{BodyError, BodyTemplate, MAKEHUMAN_MODEL_ID};
+use crate::body::{BodyError, BodyTemplate, MakeHumanShape, MAKEHUMAN_MODEL_ID};
 use crate::splat::Gaussians;
 use glam::{Quat, Vec3};
 use rand::{Rng, SeedableRng};
@@ -51,17 +51,11 @@ impl SyntheticPerson {
         let height_scale = rng.gen_range(0.92..1.08);
         let girth_scale = rng.gen_range(0.9..1.12);
         let mut template = BodyTemplate::load_default()?;
-        let scale = Vec3::new(
-            girth_scale * height_scale,
+        MakeHumanShape {
             height_scale,
-            girth_scale * height_scale,
-        );
-        for v in &mut template.vertices {
-            *v *= scale;
+            girth_scale,
         }
-        for j in &mut template.skeleton.joints {
-            *j *= scale;
-        }
+        .apply(&mut template);
         let outfit = Outfit::random(seed);
         let anchors = template.sample_anchors(points, seed);
         let height = template.height();
@@ -105,5 +99,15 @@ impl SyntheticPerson {
             height_scale,
             girth_scale,
         })
+    }
+}
+
+impl SyntheticPerson {
+    /// The shape applied to the template, as a `BodyShape` message carries it.
+    pub fn shape(&self) -> MakeHumanShape {
+        MakeHumanShape {
+            height_scale: self.height_scale,
+            girth_scale: self.girth_scale,
+        }
     }
 }

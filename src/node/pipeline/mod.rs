@@ -5,11 +5,12 @@
 pub mod outputs;
 pub mod reconstructor;
 pub mod render;
+pub mod shape;
 
 use crate::avatar::Avatar;
 use crate::body::Pose;
 use crate::config::NodeConfig;
-use crate::msgs::ReconstructionStatus;
+use crate::msgs::{BodyShape, ReconstructionStatus};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::node::ros::{CameraFrame, InputEvent};
@@ -45,6 +46,8 @@ pub struct AvatarUpdate<'a> {
     pub avatar: &'a Avatar,
     /// The body template whose skeleton the skinning refers to.
     pub template: &'a crate::body::BodyTemplate,
+    /// Shape coefficients of the avatar's body model (empty: the unshaped template).
+    pub shape_params: &'a [f32],
 }
 
 /// Where the pipeline publishes (ROS 2, shared memory); implemented by the node's endpoints.
@@ -92,6 +95,10 @@ pub struct PipelineStats {
     pub run_times_ms: VecDeque<f64>,
     /// Rendered frames produced.
     pub rendered_frames: u64,
+    /// Body shapes accepted (changes of the shape in use).
+    pub shapes_applied: u64,
+    /// Body shapes rejected (wrong model, length or values).
+    pub shapes_rejected: u64,
 }
 
 /// The latest avatar and what it was built from.
@@ -110,6 +117,7 @@ pub struct Pipeline {
     masks: VecDeque<(i64, Arc<GrayImage>)>,
     pose: Option<Pose>,
     next_frame_id: u64,
+    shape_changes: u64,
     current: Option<Current>,
     files: Option<FileOutputs>,
     publisher: Option<Box<dyn Publisher>>,
@@ -170,6 +178,7 @@ impl Pipeline {
             masks: VecDeque::new(),
             pose: None,
             next_frame_id: 1,
+            shape_changes: 0,
             current: None,
             files,
             publisher,
@@ -240,6 +249,69 @@ impl Pipeline {
                 },
                 Err(e) => tracing::warn!(%topic, "body pose rejected: {e}"),
             },
+            InputEvent::BodyShape {
+                topic,
+                arrival,
+                shape,
+            } => self.on_shape(&topic, &shape, arrival, now),
+        }
+    }
+
+    /// The body shape in use, as `GaussianAvatar.shape_params` carries it (empty if none).
+    pub fn shape_params(&self) -> Vec<f32> {
+        self.recon.shape().map_or_else(Vec::new, |s| s.params())
+    }
+
+    /// Anchor positions the next reconstruction starts from (canonical frame, metres).
+    pub fn anchor_positions(&self) -> Result<Vec<glam::Vec3>, ReconstructError> {
+        self.recon.anchor_positions()
+    }
+
+    /// Version of everything a reconstruction depends on: grows with every view-set change and
+    /// every body-shape change.
+    fn input_version(&self) -> u64 {
+        self.store.version(&self.person) + self.shape_changes
+    }
+
+    fn on_shape(&mut self, topic: &str, msg: &BodyShape, arrival: Duration, now: Duration) {
+        if !msg.person_id.is_empty() && msg.person_id != self.person {
+            tracing::debug!(
+                %topic,
+                "body shape for person `{}` ignored (this node reconstructs `{}`)",
+                msg.person_id,
+                self.person
+            );
+            return;
+        }
+        let accepted = match shape::check_shape(topic, msg, self.recon.body_model()) {
+            Ok(s) => s,
+            Err(e) => {
+                self.stats.shapes_rejected += 1;
+                tracing::warn!(%topic, "body shape rejected: {e}");
+                return;
+            }
+        };
+        match self.recon.set_shape(accepted) {
+            Ok(false) => {}
+            Ok(true) => {
+                self.stats.shapes_applied += 1;
+                self.shape_changes += 1;
+                tracing::info!(
+                    %topic,
+                    person = %self.person,
+                    shape_params = ?self.shape_params(),
+                    "body shape applied"
+                );
+                if self.views_held() > 0 {
+                    let version = self.input_version();
+                    self.scheduler
+                        .view_set_changed(&self.person, version, arrival, now);
+                }
+            }
+            Err(e) => {
+                self.stats.shapes_rejected += 1;
+                tracing::warn!(%topic, "body shape rejected: {e}");
+            }
         }
     }
 
@@ -280,12 +352,9 @@ impl Pipeline {
             InsertOutcome::Added => {}
         }
         if outcome.changed() {
-            self.scheduler.view_set_changed(
-                &self.person,
-                self.store.version(&self.person),
-                frame.arrival,
-                now,
-            );
+            let version = self.input_version();
+            self.scheduler
+                .view_set_changed(&self.person, version, frame.arrival, now);
         }
     }
 
@@ -374,6 +443,7 @@ impl Pipeline {
             }
         }
         if let Some(p) = &self.publisher {
+            let shape_params = self.shape_params();
             p.avatar(&AvatarUpdate {
                 person: &job.person,
                 revision: job.revision,
@@ -381,6 +451,7 @@ impl Pipeline {
                 stamp_ns: stamp,
                 avatar,
                 template: self.recon.template(),
+                shape_params: &shape_params,
             });
         }
     }

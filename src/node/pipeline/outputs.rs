@@ -91,6 +91,7 @@ pub fn avatar_message(
     revision: u64,
     views_used: usize,
     stamp_ns: i64,
+    shape_params: &[f32],
 ) -> Result<GaussianAvatar, OutputError> {
     let g = &avatar.canonical;
     let colors = (0..g.len())
@@ -113,7 +114,7 @@ pub fn avatar_message(
         revision: revision as u32,
         views_used: views_used as u32,
         body_model: avatar.body_model.clone(),
-        shape_params: Vec::new(),
+        shape_params: shape_params.to_vec(),
         sh_degree: 0,
         bone_names: skeleton.bone_names.clone(),
         bone_parents: skeleton

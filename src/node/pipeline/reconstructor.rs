@@ -1,6 +1,8 @@
 //! The reconstruction step of the node: owns the network, the per-view token cache and the
-//! anchor points on the body template, and turns a set of held views into an [`Avatar`].
+//! anchor points on the body template (shaped by the latest accepted body shape), and turns a
+//! set of held views into an [`Avatar`].
 
+use super::shape::AcceptedShape;
 use crate::avatar::Avatar;
 use crate::body::official::{OfficialPrior, PriorPaths, SMPLX_MODEL_ID};
 use crate::body::{BodyTemplate, SkinWeights, MAKEHUMAN_MODEL_ID};
@@ -86,6 +88,12 @@ pub struct Reconstructor {
     anchor_positions: Tensor,
     anchor_normals: Tensor,
     weights: String,
+    /// The unshaped MakeHuman template (shapes are applied to it); `None` with the prior.
+    base_template: Option<BodyTemplate>,
+    num_points: usize,
+    seed: u64,
+    shape: Option<AcceptedShape>,
+    betas_noted: bool,
 }
 
 impl Reconstructor {
@@ -111,6 +119,10 @@ impl Reconstructor {
             (loaded.var_builder, loaded.description)
         };
         let model = Lhmpp::new(&cfg, vb)?;
+        let base_template = match &prior {
+            Some(_) => None,
+            None => Some(BodyTemplate::load_default()?),
+        };
         let (template, positions, normals, skin) = match &prior {
             Some(p) => (
                 p.template.clone(),
@@ -119,16 +131,13 @@ impl Reconstructor {
                 p.skin.clone(),
             ),
             None => {
-                let template = BodyTemplate::load_default()?;
+                let template = base_template.clone().unwrap_or_default();
                 let anchors = template.sample_anchors(config.num_points, config.seed);
                 (template, anchors.positions, anchors.normals, anchors.skin)
             }
         };
-        let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
-        let n = positions.len();
-        let anchor_positions =
-            Tensor::from_vec(flat(&positions), (n, 3), &device)?.to_dtype(dtype)?;
-        let anchor_normals = Tensor::from_vec(flat(&normals), (n, 3), &device)?.to_dtype(dtype)?;
+        let (anchor_positions, anchor_normals) =
+            anchor_tensors(&positions, &normals, dtype, &device)?;
         Ok(Self {
             model,
             cfg,
@@ -140,7 +149,78 @@ impl Reconstructor {
             anchor_positions,
             anchor_normals,
             weights,
+            base_template,
+            num_points: config.num_points,
+            seed: config.seed,
+            shape: None,
+            betas_noted: false,
         })
+    }
+
+    /// Body-model id of the avatars this reconstructor makes (what a body shape must name).
+    pub fn body_model(&self) -> &'static str {
+        match self.prior {
+            Some(_) => SMPLX_MODEL_ID,
+            None => MAKEHUMAN_MODEL_ID,
+        }
+    }
+
+    /// The shape in use (`None`: the template as shipped).
+    pub fn shape(&self) -> Option<&AcceptedShape> {
+        self.shape.as_ref()
+    }
+
+    /// Uses `shape` from the next reconstruction on: a MakeHuman shape rescales the template
+    /// (as synthetic people are made) and resamples the anchors on it with the same seed;
+    /// SMPL-X betas are only carried along (applying them to the prior is not implemented).
+    /// Returns false when `shape` is already in use. `shape` must be for [`Self::body_model`].
+    pub fn set_shape(&mut self, shape: AcceptedShape) -> Result<bool, ReconstructError> {
+        if self.shape.as_ref() == Some(&shape) {
+            return Ok(false);
+        }
+        match (&shape, &self.base_template) {
+            (AcceptedShape::MakeHuman(s), Some(base)) => {
+                let template = s.shaped(base);
+                let anchors = template.sample_anchors(self.num_points, self.seed);
+                let (p, n) = anchor_tensors(
+                    &anchors.positions,
+                    &anchors.normals,
+                    self.anchor_positions.dtype(),
+                    &self.device,
+                )?;
+                self.anchor_positions = p;
+                self.anchor_normals = n;
+                self.skin = anchors.skin;
+                self.template = template;
+            }
+            (AcceptedShape::SmplxBetas(_), None) => {
+                if !self.betas_noted {
+                    self.betas_noted = true;
+                    tracing::warn!(
+                        "SMPL-X betas are carried in the avatar message but not applied to the \
+                         body prior (the prior stays the neutral shape)"
+                    );
+                }
+            }
+            _ => {
+                return Err(ReconstructError::Model(format!(
+                    "a `{}` shape cannot be applied to a `{}` body",
+                    shape.body_model(),
+                    self.body_model()
+                )))
+            }
+        }
+        self.shape = Some(shape);
+        Ok(true)
+    }
+
+    /// Anchor positions in the canonical frame (metres), as the network receives them.
+    pub fn anchor_positions(&self) -> Result<Vec<Vec3>, ReconstructError> {
+        let rows = self
+            .anchor_positions
+            .to_dtype(DType::F32)?
+            .to_vec2::<f32>()?;
+        Ok(rows.iter().map(|r| Vec3::new(r[0], r[1], r[2])).collect())
     }
 
     /// Encoder input size (height, width) that preprocessing must produce.
@@ -241,6 +321,20 @@ impl Reconstructor {
         };
         Ok(Avatar::new(gaussians, skin, model_id)?)
     }
+}
+
+/// Anchor positions and normals as `(n, 3)` tensors of `dtype` on `device`.
+fn anchor_tensors(
+    positions: &[Vec3],
+    normals: &[Vec3],
+    dtype: DType,
+    device: &Device,
+) -> Result<(Tensor, Tensor), ReconstructError> {
+    let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+    let n = positions.len();
+    let p = Tensor::from_vec(flat(positions), (n, 3), device)?.to_dtype(dtype)?;
+    let q = Tensor::from_vec(flat(normals), (n, 3), device)?.to_dtype(dtype)?;
+    Ok((p, q))
 }
 
 /// The official LHMPP-Prior body when `model.prior_dir` is set (only for the official

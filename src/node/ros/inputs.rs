@@ -1,7 +1,7 @@
-//! What the node receives: decoded camera frames, masks, camera calibration and body poses,
+//! What the node receives: decoded camera frames, masks, camera calibration, body poses and shapes,
 //! all delivered as [`InputEvent`]s through one bounded queue.
 
-use crate::msgs::{BodyPose, CameraInfo, CompressedImage, Image};
+use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image};
 use crate::node::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
 use image::{GrayImage, RgbImage};
 use std::sync::Arc;
@@ -61,6 +61,15 @@ pub enum InputEvent {
         arrival: Duration,
         /// The message.
         pose: Box<BodyPose>,
+    },
+    /// A body shape (checked by the pipeline, which knows the body model in use).
+    BodyShape {
+        /// Resolved topic.
+        topic: String,
+        /// Node clock at arrival.
+        arrival: Duration,
+        /// The message.
+        shape: Box<BodyShape>,
     },
 }
 

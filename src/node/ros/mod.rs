@@ -2,7 +2,7 @@
 //!
 //! [`RosNode::start`] creates the DDS participant in the resolved domain, resolves every topic
 //! name (namespace, `~/`, remapping), subscribes to the configured image, compressed-image,
-//! camera-info, mask and body-pose topics, and returns the receiving end of ONE bounded queue of
+//! camera-info, mask, body-pose and body-shape topics, and returns the receiving end of ONE bounded queue of
 //! [`InputEvent`]s. Bad messages are counted and reported per topic at most once per period;
 //! they never stop the node. Outputs (avatar, rendered frames, status) are published through
 //! the node; a full reliable send window is [`PublishOutcome::BackPressure`].
@@ -25,7 +25,8 @@ pub use sink::InputStats;
 
 use crate::config::NodeConfig;
 use crate::msgs::{
-    BodyPose, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus, RosMessage,
+    BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus,
+    RosMessage,
 };
 use crate::node::input_queue::{bounded, OverflowPolicy, QueueReceiver};
 use crate::node::names::{split_fully_qualified, NameError, NameResolver};
@@ -86,6 +87,8 @@ pub struct RosNodeOptions {
     pub mask_topic: Option<String>,
     /// Optional BodyPose topic.
     pub pose_topic: Option<String>,
+    /// Optional BodyShape topic.
+    pub shape_topic: Option<String>,
     /// QoS of image and mask subscriptions.
     pub image_qos: InputQos,
     /// Largest accepted image side (pixels).
@@ -129,6 +132,7 @@ impl RosNodeOptions {
             camera_info_topics: cfg.inputs.camera_info_topics.clone(),
             mask_topic: non_empty(&cfg.inputs.mask_topic),
             pose_topic: non_empty(&cfg.inputs.pose_topic),
+            shape_topic: non_empty(&cfg.inputs.shape_topic),
             image_qos: InputQos::parse(&cfg.inputs.image_qos)?,
             max_image_side: cfg.inputs.max_image_side,
             queue_capacity: 32,
@@ -159,6 +163,8 @@ pub struct ResolvedTopics {
     pub mask: Option<String>,
     /// BodyPose topic.
     pub pose: Option<String>,
+    /// BodyShape topic.
+    pub shape: Option<String>,
     /// GaussianAvatar topic.
     pub avatar: String,
     /// ReconstructionStatus topic.
@@ -192,6 +198,11 @@ impl ResolvedTopics {
                 .transpose()?,
             pose: opts
                 .pose_topic
+                .as_deref()
+                .map(|t| names.resolve(t))
+                .transpose()?,
+            shape: opts
+                .shape_topic
                 .as_deref()
                 .map(|t| names.resolve(t))
                 .transpose()?,
@@ -279,6 +290,16 @@ impl RosNode {
                     topic: t.to_owned(),
                     arrival,
                     pose: Box::new(pose),
+                })
+            }));
+        }
+        if let Some(topic) = &topics.shape {
+            let sub = subscribe::<BodyShape>(&mut node, topic, reliable_input_qos())?;
+            tasks.push(sink.spawn(topic.clone(), sub, |t, shape, arrival| {
+                Ok(InputEvent::BodyShape {
+                    topic: t.to_owned(),
+                    arrival,
+                    shape: Box::new(shape),
                 })
             }));
         }
@@ -456,6 +477,7 @@ mod tests {
         assert_eq!(t.camera_infos, vec!["/robot/front/camera_info"]);
         assert_eq!(t.mask, None);
         assert_eq!(t.pose.as_deref(), Some("/lhmpp/body_pose"));
+        assert_eq!(t.shape, None, "the shape topic is off by default");
         assert_eq!(t.avatar, "/avatars/person_0");
         assert_eq!(t.status, "/robot/status");
         assert_eq!(
