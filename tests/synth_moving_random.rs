@@ -155,3 +155,20 @@ fn random_pose_bag_is_seed_deterministic_and_carries_the_limited_pose() {
         (0.0, 0.0)
     );
 }
+
+#[test]
+fn eval_uses_every_frame_of_a_moving_camera_as_a_view() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("moving.mcap");
+    write_synthetic_bag(&bag, &small(5, CameraMode::Moving, SynthPose::Walk(8.0))).unwrap();
+    let model = NodeConfig::default().model;
+    let rows = lhmpp::eval::heldout::evaluate_bag(&bag, &model, &[1, 4, 8]).unwrap();
+    // One camera topic with 4 frames gives 4 input views (8 is clamped to 4).
+    let counts: Vec<usize> = rows.iter().map(|r| r.views).collect();
+    assert_eq!(counts, vec![1, 4]);
+    for row in &rows {
+        assert_eq!(row.per_view.len(), 2);
+        let (psnr, ssim, iou) = row.means();
+        assert!(psnr.is_finite() && (0.0..=1.0).contains(&ssim) && (0.0..=1.0).contains(&iou));
+    }
+}

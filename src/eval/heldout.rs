@@ -86,17 +86,33 @@ fn first<'a>(bag: &'a BagReader, topic: &str) -> Option<&'a crate::bag::BagMessa
     bag.messages().iter().find(|m| &*m.topic == topic)
 }
 
-fn decode_image(bag: &BagReader, topic: &str) -> Result<Option<image::RgbImage>, EvalError> {
-    let Some(m) = first(bag, topic) else {
-        return Ok(None);
-    };
+/// Decodes one Image message of `topic`.
+fn decode_message(
+    bag: &BagReader,
+    topic: &str,
+    m: &crate::bag::BagMessage,
+) -> Result<image::RgbImage, EvalError> {
     let msg: Image = bag.decode(m)?;
-    decode_raw(topic, &RawImage::from(&msg), 1 << 14)
-        .map(Some)
-        .map_err(|e| EvalError::MissingGroundTruth {
-            path: bag.path().display().to_string(),
-            message: e.to_string(),
-        })
+    decode_raw(topic, &RawImage::from(&msg), 1 << 14).map_err(|e| EvalError::MissingGroundTruth {
+        path: bag.path().display().to_string(),
+        message: e.to_string(),
+    })
+}
+
+/// The first frame of `topic`, if any.
+fn decode_image(bag: &BagReader, topic: &str) -> Result<Option<image::RgbImage>, EvalError> {
+    first(bag, topic)
+        .map(|m| decode_message(bag, topic, m))
+        .transpose()
+}
+
+/// Every frame of `topic` in bag order (one per view: a moving camera gives several).
+fn decode_all_images(bag: &BagReader, topic: &str) -> Result<Vec<image::RgbImage>, EvalError> {
+    bag.messages()
+        .iter()
+        .filter(|m| &*m.topic == topic)
+        .map(|m| decode_message(bag, topic, m))
+        .collect()
 }
 
 fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
@@ -137,12 +153,21 @@ fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
     let mut inputs = Vec::new();
     let mut heldout = Vec::new();
     for name in names {
-        let rgb = decode_image(bag, &image_topic(&name))?
-            .ok_or_else(|| missing(format!("no {}", image_topic(&name))))?;
         if !name.starts_with("heldout") {
-            inputs.push((name, rgb));
+            let frames = decode_all_images(bag, &image_topic(&name))?;
+            let several = frames.len() > 1;
+            for (i, rgb) in frames.into_iter().enumerate() {
+                let view = if several {
+                    format!("{name}#{i}")
+                } else {
+                    name.clone()
+                };
+                inputs.push((view, rgb));
+            }
             continue;
         }
+        let rgb = decode_image(bag, &image_topic(&name))?
+            .ok_or_else(|| missing(format!("no {}", image_topic(&name))))?;
         let info: CameraInfo = bag.decode(
             first(bag, &info_topic(&name))
                 .ok_or_else(|| missing(format!("no {}", info_topic(&name))))?,
@@ -182,7 +207,8 @@ fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
 }
 
 /// Reconstructs from the first `k` input views for each `k` in `view_counts` (clamped to the
-/// views in the bag) and scores the held-out views.
+/// views in the bag) and scores the held-out views. Every frame of an input camera topic is a
+/// view (a moving-camera bag has one topic with several frames).
 pub fn evaluate_bag(
     path: &Path,
     model: &ModelConfig,
