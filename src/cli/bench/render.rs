@@ -4,7 +4,8 @@
 //! Gaussian cloud (seed 42) at every size × count through one reused [`Rasterizer`] and prints
 //! the median frame time and FPS, the process CPU time per frame (all threads; on a shared
 //! machine it shows the work done even when other processes slow the wall clock), and the
-//! median time of each stage; then the median LBS posing time of each count.
+//! median time of each stage; with `--neural-renderer PRESET` also the rasteriser + DPT head
+//! (the paper's neural renderer); then the median LBS posing time of each count.
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -34,6 +35,11 @@ pub struct RenderBenchArgs {
     /// Feature channels rendered alongside RGB (0 = RGB only).
     #[arg(long, default_value_t = 0)]
     features: usize,
+    /// Also time the full neural renderer: the rasteriser producing the renderer's feature
+    /// channels, then the DPT head of this preset's `neural_renderer` (`tiny` or `lhmpp-700m`,
+    /// seeded random weights, CPU f32) at each size rounded down to a multiple of its patch.
+    #[arg(long)]
+    neural_renderer: Option<String>,
 }
 
 /// Wall and CPU time of repeated runs.
@@ -78,6 +84,9 @@ fn time_runs(seconds: f64, mut f: impl FnMut()) -> Timing {
 }
 
 pub fn run(a: RenderBenchArgs) -> Result<()> {
+    if let Some(preset) = &a.neural_renderer {
+        dpt_preset(preset)?;
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(a.threads)
         .build()
@@ -131,6 +140,9 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
             );
         }
     }
+    if let Some(preset) = &a.neural_renderer {
+        pool.install(|| neural_renderer_table(&a, preset))?;
+    }
     println!();
     println!(
         "Gaussian LBS posing ({} thread(s), 4 influences 0.4/0.3/0.2/0.1 on random bones of 55, bone rotations up to 0.87 rad), median:",
@@ -173,6 +185,88 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
             t.median.as_secs_f64() * 1e3,
             t.cpu_per_run * 1e3
         );
+    }
+    Ok(())
+}
+
+/// The neural-renderer config of `preset`.
+fn dpt_preset(preset: &str) -> Result<lhmpp::model::dpt::DptConfig> {
+    use lhmpp::model::dpt::DptConfig;
+    Ok(match preset {
+        "tiny" => DptConfig::tiny(),
+        "lhmpp-700m" => DptConfig::lhmpp_700m(),
+        other => anyhow::bail!("--neural-renderer: unknown preset `{other}` (tiny, lhmpp-700m)"),
+    })
+}
+
+/// Rasteriser (feature channels) + DPT head per count × size: median of 3 frames after one
+/// warm-up (the head is seconds per frame at the released sizes on a CPU).
+fn neural_renderer_table(a: &RenderBenchArgs, preset: &str) -> Result<()> {
+    use candle_core::{DType, Device, Tensor};
+    use lhmpp::model::dpt::NeuralRenderer;
+    let cfg = dpt_preset(preset)?;
+    let dev = Device::Cpu;
+    let vb = lhmpp::model::checkpoint::seeded_var_builder(1, DType::F32, &dev);
+    let renderer = NeuralRenderer::new(&cfg, vb.pp("neural_renderer"))?;
+    println!();
+    println!(
+        "Neural renderer `{preset}` ({} feature channels, patch {}, DPT head, CPU f32, random weights), median of 3 frames:",
+        cfg.in_channels, cfg.patch_size
+    );
+    println!("| Gaussians | size | rasteriser ms | DPT head ms | total ms | FPS |");
+    println!("|---:|---:|---:|---:|---:|---:|");
+    let p = cfg.patch_size as u32;
+    for &count in &a.counts {
+        let g = body_cloud(count, cfg.in_channels, 42);
+        for &size in &a.sizes {
+            let size = size - size % p;
+            if size == 0 {
+                continue;
+            }
+            let cam = Camera::orbit(
+                0,
+                8,
+                2.6,
+                0.0,
+                Vec3::new(0.0, 0.88, 0.0),
+                Intrinsics::from_fov_y(size, size, 0.75),
+            );
+            let opts = RenderOptions {
+                render_features: true,
+                ..Default::default()
+            };
+            let mut rasterizer = Rasterizer::new();
+            let mut frame = RenderOutput::default();
+            let mut raster_ms = Vec::new();
+            let mut head_ms = Vec::new();
+            for run in 0..4 {
+                let t = Instant::now();
+                rasterizer.render_into(&g, &cam, &opts, &mut frame);
+                let r = t.elapsed().as_secs_f64() * 1e3;
+                let t = Instant::now();
+                let (h, w, c) = (size as usize, size as usize, cfg.in_channels);
+                let features = Tensor::from_slice(&frame.features, (h, w, c), &dev)?
+                    .permute((2, 0, 1))?
+                    .unsqueeze(0)?;
+                let (rgb, _mask) = renderer.forward(&features)?;
+                anyhow::ensure!(rgb.dims() == [1, 3, h, w], "DPT output {:?}", rgb.dims());
+                let d = t.elapsed().as_secs_f64() * 1e3;
+                if run > 0 {
+                    raster_ms.push(r);
+                    head_ms.push(d);
+                }
+            }
+            let median = |v: &mut Vec<f64>| {
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            };
+            let (r, d) = (median(&mut raster_ms), median(&mut head_ms));
+            println!(
+                "| {count} | {size}×{size} | {r:.1} | {d:.1} | {:.1} | {:.2} |",
+                r + d,
+                1e3 / (r + d)
+            );
+        }
     }
     Ok(())
 }
