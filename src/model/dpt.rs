@@ -123,14 +123,21 @@ pub fn uv_position_embedding(
             })
             .collect()
     };
-    let xs = lin(w, span_x);
-    let ys = lin(h, span_y);
     let half = channels / 2;
+    // The x half depends on the column only and the y half on the row only: encode each
+    // column and row once ((h + w)·C sines instead of h·w·C).
+    let encode = |vals: Vec<f64>| -> Vec<Vec<f32>> {
+        vals.into_iter()
+            .map(|v| sincos(half, v).map(|e| e * ratio as f32).collect())
+            .collect()
+    };
+    let xe = encode(lin(w, span_x));
+    let ye = encode(lin(h, span_y));
     let mut data = Vec::with_capacity(h * w * channels);
-    for &y in &ys {
-        for &x in &xs {
-            data.extend(sincos(half, x).map(|v| v * ratio as f32));
-            data.extend(sincos(half, y).map(|v| v * ratio as f32));
+    for y in &ye {
+        for x in &xe {
+            data.extend_from_slice(x);
+            data.extend_from_slice(y);
         }
     }
     Tensor::from_vec(data, (h, w, channels), device)?
