@@ -38,11 +38,6 @@ impl LayerScale {
         })
     }
 
-    /// `x · gamma`.
-    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        x.broadcast_mul(&self.gamma)
-    }
-
     /// The per-channel scale `gamma [dim]`.
     pub fn gamma(&self) -> &Tensor {
         &self.gamma
@@ -63,11 +58,6 @@ impl Mlp {
             fc1: linear(dim, hidden, vb.pp("fc1"))?,
             fc2: linear(hidden, dim, vb.pp("fc2"))?,
         })
-    }
-
-    /// `fc2(gelu_erf(fc1(x)))`.
-    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        self.fc2.forward(&self.fc1.forward_gelu(x)?)
     }
 
     /// `residual + gate ⊙ fc2(gelu_erf(fc1(x)))`, fused into the second product.

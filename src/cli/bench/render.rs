@@ -84,9 +84,10 @@ fn time_runs(seconds: f64, mut f: impl FnMut()) -> Timing {
 }
 
 pub fn run(a: RenderBenchArgs) -> Result<()> {
-    if let Some(preset) = &a.neural_renderer {
-        dpt_preset(preset)?;
-    }
+    let neural = match &a.neural_renderer {
+        Some(preset) => Some((preset.as_str(), dpt_preset(preset)?)),
+        None => None,
+    };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(a.threads)
         .build()
@@ -140,8 +141,8 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
             );
         }
     }
-    if let Some(preset) = &a.neural_renderer {
-        pool.install(|| neural_renderer_table(&a, preset))?;
+    if let Some((preset, cfg)) = &neural {
+        pool.install(|| neural_renderer_table(&a, preset, cfg))?;
     }
     println!();
     println!(
@@ -201,13 +202,16 @@ fn dpt_preset(preset: &str) -> Result<lhmpp::model::dpt::DptConfig> {
 
 /// Rasteriser (feature channels) + DPT head per count × size: median of 3 frames after one
 /// warm-up (the head is seconds per frame at the released sizes on a CPU).
-fn neural_renderer_table(a: &RenderBenchArgs, preset: &str) -> Result<()> {
+fn neural_renderer_table(
+    a: &RenderBenchArgs,
+    preset: &str,
+    cfg: &lhmpp::model::dpt::DptConfig,
+) -> Result<()> {
     use candle_core::{DType, Device, Tensor};
     use lhmpp::model::dpt::NeuralRenderer;
-    let cfg = dpt_preset(preset)?;
     let dev = Device::Cpu;
     let vb = lhmpp::model::checkpoint::seeded_var_builder(1, DType::F32, &dev);
-    let renderer = NeuralRenderer::new(&cfg, vb.pp("neural_renderer"))?;
+    let renderer = NeuralRenderer::new(cfg, vb.pp("neural_renderer"))?;
     println!();
     println!(
         "Neural renderer `{preset}` ({} feature channels, patch {}, DPT head, CPU f32, random weights), median of 3 frames:",

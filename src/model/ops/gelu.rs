@@ -59,71 +59,52 @@ pub fn gelu_tanh_approx(x: f32) -> f32 {
 /// Replaces every `x` of `xs` by `gelu_tanh(x)` (candle's `gelu`, PyTorch's
 /// `gelu(approximate="tanh")`).
 pub fn gelu_tanh_in_place(xs: &mut [f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe { gelu_tanh_avx512(xs) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-            return unsafe { gelu_tanh_avx2(xs) };
-        }
-    }
-    xs.iter_mut().for_each(|x| *x = gelu_tanh_approx(*x));
-}
-
-/// The tanh-GELU loop compiled for AVX-512F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn gelu_tanh_avx512(xs: &mut [f32]) {
-    xs.iter_mut().for_each(|x| *x = gelu_tanh_approx(*x));
-}
-
-/// The tanh-GELU loop compiled for AVX2 + FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn gelu_tanh_avx2(xs: &mut [f32]) {
-    xs.iter_mut().for_each(|x| *x = gelu_tanh_approx(*x));
+    map_in_place(xs, gelu_tanh_approx)
 }
 
 /// Replaces every `x` of `xs` by `gelu_erf(x)`.
 pub fn gelu_in_place(xs: &mut [f32]) {
+    map_in_place(xs, gelu_approx)
+}
+
+/// Applies `f` (a function item, so it is inlined into each variant) to every element, in a
+/// loop compiled for AVX-512 or AVX2 + FMA when the CPU has them (detected at run time), the
+/// baseline build otherwise.
+fn map_in_place<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx512f") {
             // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe { gelu_avx512(xs) };
+            return unsafe { map_avx512(xs, f) };
         }
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-            return unsafe { gelu_avx2(xs) };
+            return unsafe { map_avx2(xs, f) };
         }
     }
-    gelu_portable(xs)
+    map_portable(xs, f)
 }
 
-/// [`gelu_portable`] compiled for AVX-512F.
+/// [`map_portable`] compiled for AVX-512F.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn gelu_avx512(xs: &mut [f32]) {
-    gelu_portable(xs)
+unsafe fn map_avx512<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
+    map_portable(xs, f)
 }
 
-/// [`gelu_portable`] compiled for AVX2 + FMA.
+/// [`map_portable`] compiled for AVX2 + FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn gelu_avx2(xs: &mut [f32]) {
-    gelu_portable(xs)
+unsafe fn map_avx2<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
+    map_portable(xs, f)
 }
 
-/// The loop of [`gelu_in_place`], inlined into each instruction-set variant.
+/// The loop of [`map_in_place`], inlined into each instruction-set variant.
 #[inline(always)]
-fn gelu_portable(xs: &mut [f32]) {
+fn map_portable<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
     for x in xs.iter_mut() {
-        *x = gelu_approx(*x);
+        *x = f(*x);
     }
 }
 
@@ -209,7 +190,7 @@ mod tests {
             .map(|i| ((i * 37) % 101) as f32 * 0.1 - 5.0)
             .collect();
         let mut a = xs.clone();
-        gelu_portable(&mut a);
+        map_portable(&mut a, gelu_approx);
         let mut b = xs;
         gelu_in_place(&mut b);
         let worst = a

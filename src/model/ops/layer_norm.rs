@@ -3,7 +3,6 @@
 //! large means), with or without the affine `weight`/`bias`. Other devices and dtypes use
 //! candle's ops. Parameter names and init are those of `candle_nn::layer_norm`.
 
-use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp1, CustomOp3, DType, Layout, Module, Result, Shape, Tensor};
 use candle_nn::VarBuilder;
 use rayon::prelude::*;
@@ -87,15 +86,9 @@ struct LayerNormOp {
     eps: f32,
 }
 
-/// Contiguous f32 data of an operand.
+/// The f32 data of a contiguous operand.
 fn f32_data<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {
-    let CpuStorage::F32(data) = s else {
-        candle_core::bail!("layer norm: {what} is {:?}, expected f32", s.dtype());
-    };
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&data[a..b]),
-        None => candle_core::bail!("layer norm: {what} is not contiguous"),
-    }
+    super::contiguous_f32(s, l, "layer norm", what)
 }
 
 impl LayerNormOp {

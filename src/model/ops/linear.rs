@@ -54,15 +54,6 @@ pub fn linear_no_bias(in_dim: usize, out_dim: usize, vb: VarBuilder) -> Result<L
     Ok(Linear::new(l.weight().clone(), None))
 }
 
-/// Loads `weight [out, in]` and, when `bias`, `bias [out]`.
-pub fn linear_b(in_dim: usize, out_dim: usize, bias: bool, vb: VarBuilder) -> Result<Linear> {
-    if bias {
-        linear(in_dim, out_dim, vb)
-    } else {
-        linear_no_bias(in_dim, out_dim, vb)
-    }
-}
-
 impl Linear {
     /// Wraps `weight [out, in]` and an optional `bias [out]`.
     ///
@@ -222,15 +213,9 @@ fn weight_strides(l: &Layout) -> Option<(usize, usize)> {
     }
 }
 
-/// The f32 data of a contiguous operand from its start offset.
+/// The f32 data of a contiguous operand.
 fn f32_data<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {
-    let CpuStorage::F32(data) = s else {
-        candle_core::bail!("fused linear: {what} is {:?}, expected f32", s.dtype());
-    };
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&data[a..b]),
-        None => candle_core::bail!("fused linear: {what} is not contiguous"),
-    }
+    super::contiguous_f32(s, l, "fused linear", what)
 }
 
 impl FusedLinear<'_> {

@@ -11,3 +11,23 @@ pub mod gelu;
 pub mod layer_norm;
 pub mod linear;
 pub mod softmax;
+
+use candle_core::backend::BackendStorage;
+use candle_core::{CpuStorage, Layout};
+
+/// The f32 values of a contiguous CPU operand from its start offset; `op` and `what` name the
+/// operation and the operand in the error.
+pub(crate) fn contiguous_f32<'a>(
+    storage: &'a CpuStorage,
+    layout: &Layout,
+    op: &str,
+    what: &str,
+) -> candle_core::Result<&'a [f32]> {
+    let CpuStorage::F32(data) = storage else {
+        candle_core::bail!("{op}: {what} is {:?}, expected f32", storage.dtype());
+    };
+    match layout.contiguous_offsets() {
+        Some((a, b)) => Ok(&data[a..b]),
+        None => candle_core::bail!("{op}: {what} is not contiguous"),
+    }
+}

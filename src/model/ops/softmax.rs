@@ -2,7 +2,6 @@
 //! (rows in parallel), for f32 CPU tensors; candle's `softmax_last_dim` elsewhere. The fused
 //! attention has its own online softmax; this one serves the masked attention path.
 
-use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp1, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -29,13 +28,7 @@ impl CustomOp1 for SoftmaxOp {
     }
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
-        let CpuStorage::F32(data) = s else {
-            candle_core::bail!("softmax: input is {:?}, expected f32", s.dtype());
-        };
-        let Some((a, b)) = l.contiguous_offsets() else {
-            candle_core::bail!("softmax: input is not contiguous");
-        };
-        let mut out = data[a..b].to_vec();
+        let mut out = super::contiguous_f32(s, l, "softmax", "input")?.to_vec();
         let c = l.shape().dims().last().copied().unwrap_or(0);
         if c > 0 {
             out.par_chunks_mut(ROWS_PER_TASK * c).for_each(|rows| {
