@@ -1,8 +1,8 @@
 //! Gaussian avatars' rendering side: the Gaussian set, the camera, the CPU splatting
-//! rasteriser and 3DGS-layout PLY import/export. Synchronous; the CUDA rasteriser is meant to
-//! mirror the stages of [`render`].
+//! rasteriser, its CUDA twin ([`cuda`]) and 3DGS-layout PLY import/export. Synchronous.
 
 mod camera;
+pub mod cuda;
 mod gaussians;
 mod nearest;
 mod ply;
