@@ -5,7 +5,12 @@
 //! the median frame time and FPS, the process CPU time per frame (all threads; on a shared
 //! machine it shows the work done even when other processes slow the wall clock), and the
 //! median time of each stage; with `--neural-renderer PRESET` also the rasteriser + DPT head
-//! (the paper's neural renderer); then the median LBS posing time of each count.
+//! (the paper's neural renderer); then the median LBS posing time of each count. With
+//! `--device cuda` (a `cuda` build) the same scenes go through the CUDA rasteriser instead
+//! ([`cuda`]), checked against the CPU image.
+
+#[cfg(feature = "cuda")]
+mod cuda;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -40,6 +45,22 @@ pub struct RenderBenchArgs {
     /// seeded random weights, CPU f32) at each size rounded down to a multiple of its patch.
     #[arg(long)]
     neural_renderer: Option<String>,
+    /// `cpu`, or `cuda` for the CUDA rasteriser (and DPT head) on GPU 0 (needs a build with the
+    /// `cuda` feature: scripts/build-cuda).
+    #[arg(long, default_value = "cpu")]
+    device: String,
+}
+
+/// The benchmark camera: 2.6 m in front of the body-like cloud, square image of `size` pixels.
+fn bench_camera(size: u32) -> Camera {
+    Camera::orbit(
+        0,
+        8,
+        2.6,
+        0.0,
+        Vec3::new(0.0, 0.88, 0.0),
+        Intrinsics::from_fov_y(size, size, 0.75),
+    )
 }
 
 /// Wall and CPU time of repeated runs.
@@ -84,6 +105,22 @@ fn time_runs(seconds: f64, mut f: impl FnMut()) -> Timing {
 }
 
 pub fn run(a: RenderBenchArgs) -> Result<()> {
+    match a.device.as_str() {
+        "cpu" => {}
+        #[cfg(feature = "cuda")]
+        "cuda" => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(a.threads)
+                .build()
+                .context("building the rayon thread pool")?;
+            return pool.install(|| cuda::run(&a));
+        }
+        #[cfg(not(feature = "cuda"))]
+        "cuda" => anyhow::bail!(
+            "--device cuda: this binary was built without the `cuda` feature (build it with scripts/build-cuda)"
+        ),
+        other => anyhow::bail!("--device: unknown device `{other}` (cpu, cuda)"),
+    }
     let neural = match &a.neural_renderer {
         Some(preset) => Some((preset.as_str(), dpt_preset(preset)?)),
         None => None,
@@ -104,14 +141,7 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
     for &count in &a.counts {
         let g = body_cloud(count, a.features, 42);
         for &size in &a.sizes {
-            let cam = Camera::orbit(
-                0,
-                8,
-                2.6,
-                0.0,
-                Vec3::new(0.0, 0.88, 0.0),
-                Intrinsics::from_fov_y(size, size, 0.75),
-            );
+            let cam = bench_camera(size);
             let opts = RenderOptions {
                 render_features: a.features > 0,
                 ..Default::default()
@@ -227,14 +257,7 @@ fn neural_renderer_table(
             if size == 0 {
                 continue;
             }
-            let cam = Camera::orbit(
-                0,
-                8,
-                2.6,
-                0.0,
-                Vec3::new(0.0, 0.88, 0.0),
-                Intrinsics::from_fov_y(size, size, 0.75),
-            );
+            let cam = bench_camera(size);
             let opts = RenderOptions {
                 render_features: true,
                 ..Default::default()

@@ -6,7 +6,7 @@ use super::params::SplatParams;
 use crate::splat::camera::Camera;
 use crate::splat::gaussians::{GaussianError, Gaussians};
 use crate::splat::render::{RenderOptions, RenderOutput};
-use candle_core::cuda_backend::cudarc::driver::{CudaSlice, DevicePtr};
+use candle_core::cuda_backend::cudarc::driver::{CudaSlice, DevicePtr, DeviceSlice};
 use candle_core::op::BackpropOp;
 use candle_core::{CudaDevice, CudaStorage, DType, Device, Storage, Tensor};
 use std::ffi::{c_char, c_void, CStr};
