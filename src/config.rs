@@ -150,6 +150,9 @@ pub struct OutputConfig {
     pub render_size: u32,
     /// Number of virtual cameras orbiting the person.
     pub virtual_cameras: u32,
+    /// Rasteriser of the rendered frames: `cpu`, or `cuda` (GPU 0; needs a build with the
+    /// `cuda` feature).
+    pub render_device: String,
     /// Publish over ROS 2 DDS.
     pub ros: bool,
     /// Publish over iceoryx2 shared memory.
@@ -231,6 +234,7 @@ impl Default for OutputConfig {
             render_rate_hz: 10.0,
             render_size: 256,
             virtual_cameras: 1,
+            render_device: "cpu".into(),
             ros: true,
             shm: false,
         }
@@ -394,6 +398,23 @@ impl NodeConfig {
                 format!("{} is not in 16..=4096", self.outputs.render_size),
             ));
         }
+        match self.outputs.render_device.as_str() {
+            "cpu" => {}
+            "cuda" if cfg!(feature = "cuda") => {}
+            "cuda" => {
+                return Err(bad(
+                    "outputs.render_device",
+                    "`cuda` needs a binary built with the `cuda` feature (scripts/build-cuda)"
+                        .to_string(),
+                ))
+            }
+            other => {
+                return Err(bad(
+                    "outputs.render_device",
+                    format!("`{other}` is not cpu or cuda"),
+                ))
+            }
+        }
         if !(self.replay.rate.is_finite() && self.replay.rate >= 0.0) {
             return Err(bad(
                 "replay.rate",
@@ -489,6 +510,32 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("max_views") && e.contains(FILE), "{e}");
+    }
+
+    #[test]
+    fn render_device_must_be_cpu_or_a_cuda_this_binary_supports() {
+        let yaml = |d: &str| {
+            format!("lhmpp:\n  ros__parameters:\n    outputs:\n      render_device: {d}\n")
+        };
+        assert_eq!(
+            load(&yaml("cpu"), &[]).unwrap().outputs.render_device,
+            "cpu"
+        );
+        let e = load(&yaml("vulkan"), &[]).unwrap_err().to_string();
+        assert!(
+            e.contains("outputs.render_device") && e.contains("vulkan"),
+            "{e}"
+        );
+        let cuda = load(&yaml("cuda"), &[]);
+        if cfg!(feature = "cuda") {
+            assert_eq!(cuda.unwrap().outputs.render_device, "cuda");
+        } else {
+            let e = cuda.unwrap_err().to_string();
+            assert!(
+                e.contains("outputs.render_device") && e.contains("feature"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

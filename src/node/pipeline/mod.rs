@@ -19,7 +19,7 @@ use image::GrayImage;
 use outputs::{status_message, FileOutputs};
 use reconstructor::{ReconstructError, Reconstructor};
 pub use render::RenderedFrame;
-use render::{display_pose, render_frames, VirtualCameras};
+use render::{display_pose, render_frames, FrameRasterizer, FrameRasterizerError, VirtualCameras};
 use std::collections::VecDeque;
 use std::path::Path;
 use std::sync::Arc;
@@ -122,6 +122,7 @@ pub struct Pipeline {
     files: Option<FileOutputs>,
     publisher: Option<Box<dyn Publisher>>,
     cameras: VirtualCameras,
+    rasterizer: FrameRasterizer,
     render_period: Option<Duration>,
     next_render: Duration,
     stats: PipelineStats,
@@ -136,6 +137,9 @@ pub enum PipelineError {
     /// The output directory is unusable.
     #[error(transparent)]
     Output(#[from] outputs::OutputError),
+    /// The frame rasteriser's device is unavailable.
+    #[error(transparent)]
+    Rasterizer(#[from] FrameRasterizerError),
 }
 
 impl Pipeline {
@@ -154,6 +158,7 @@ impl Pipeline {
             config.outputs.render_size,
             recon.template().height(),
         );
+        let rasterizer = FrameRasterizer::new(&config.outputs.render_device)?;
         let render_period = (config.outputs.render_rate_hz > 0.0)
             .then(|| Duration::from_secs_f64(1.0 / config.outputs.render_rate_hz));
         tracing::info!(
@@ -183,6 +188,7 @@ impl Pipeline {
             files,
             publisher,
             cameras,
+            rasterizer,
             render_period,
             next_render: Duration::ZERO,
             stats: PipelineStats::default(),
@@ -481,7 +487,13 @@ impl Pipeline {
             return;
         };
         let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
-        let frames = render_frames(&current.avatar, self.recon.template(), &pose, &self.cameras);
+        let frames = render_frames(
+            &current.avatar,
+            self.recon.template(),
+            &pose,
+            &self.cameras,
+            &mut self.rasterizer,
+        );
         let stamp = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos() as i64);
@@ -500,8 +512,13 @@ impl Pipeline {
         let mut written = 0;
         for f in 0..frames {
             let pose = display_pose(None, f as f32 / 24.0);
-            let images =
-                render_frames(&current.avatar, self.recon.template(), &pose, &self.cameras);
+            let images = render_frames(
+                &current.avatar,
+                self.recon.template(),
+                &pose,
+                &self.cameras,
+                &mut self.rasterizer,
+            );
             for (c, image) in images.iter().enumerate() {
                 match files.write_frame(&format!("{}_cam{c}_{f:03}", self.person), image.rgb8()) {
                     Ok(_) => written += 1,

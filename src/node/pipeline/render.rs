@@ -1,11 +1,14 @@
 //! Rendered outputs of the node: virtual cameras orbiting the person, the pose that drives the
 //! avatar (latest BodyPose, or the built-in walk for demos), splatting into [`RenderedFrame`]s
 //! that publishers convert to 8-bit wherever they need it (a `Vec` for ROS 2 and PNG, a loaned
-//! shared-memory sample for iceoryx2).
+//! shared-memory sample for iceoryx2). Frames are rasterised on the CPU or, with
+//! `outputs.render_device: cuda`, on the GPU ([`FrameRasterizer`]).
 
 use crate::avatar::Avatar;
 use crate::body::{motion, BodyTemplate, Pose};
-use crate::splat::{render, Camera, Intrinsics, RenderOptions, RenderOutput};
+#[cfg(feature = "cuda")]
+use crate::splat::cuda::{CudaRasterizer, CudaScene};
+use crate::splat::{Camera, Gaussians, Intrinsics, Rasterizer, RenderOptions, RenderOutput};
 use glam::Vec3;
 use image::RgbImage;
 use std::sync::OnceLock;
@@ -108,13 +111,92 @@ impl RenderedFrame {
     }
 }
 
+/// Why the frame rasteriser could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameRasterizerError {
+    /// `outputs.render_device` names something this binary cannot render on.
+    #[error("outputs.render_device: `{0}` is not available in this build (cpu, or cuda with the `cuda` feature)")]
+    Unsupported(String),
+    /// The CUDA device could not be opened.
+    #[error("outputs.render_device: cuda: {0}")]
+    Cuda(String),
+}
+
+/// The rasteriser the node renders its frames with (its buffers are kept between frames).
+#[derive(Debug)]
+pub enum FrameRasterizer {
+    /// The CPU rasteriser.
+    Cpu(Rasterizer),
+    /// The CUDA rasteriser on GPU 0 (a frame it fails on is rendered on the CPU instead).
+    #[cfg(feature = "cuda")]
+    Cuda(Box<CudaRasterizer>),
+}
+
+impl FrameRasterizer {
+    /// The rasteriser for `outputs.render_device` (`cpu` or `cuda`).
+    pub fn new(device: &str) -> Result<Self, FrameRasterizerError> {
+        match device {
+            "cpu" => Ok(Self::Cpu(Rasterizer::new())),
+            #[cfg(feature = "cuda")]
+            "cuda" => {
+                let dev = candle_core::Device::new_cuda(0)
+                    .map_err(|e| FrameRasterizerError::Cuda(e.to_string()))?;
+                let r = CudaRasterizer::new(&dev)
+                    .map_err(|e| FrameRasterizerError::Cuda(e.to_string()))?;
+                Ok(Self::Cuda(Box::new(r)))
+            }
+            other => Err(FrameRasterizerError::Unsupported(other.to_string())),
+        }
+    }
+
+    /// Renders `gaussians` from every camera.
+    pub fn render_all(
+        &mut self,
+        gaussians: &Gaussians,
+        cameras: &[Camera],
+        options: &RenderOptions,
+    ) -> Vec<RenderOutput> {
+        match self {
+            Self::Cpu(r) => cameras
+                .iter()
+                .map(|c| {
+                    let mut out = RenderOutput::default();
+                    r.render_into(gaussians, c, options, &mut out);
+                    out
+                })
+                .collect(),
+            #[cfg(feature = "cuda")]
+            Self::Cuda(r) => {
+                let device = r.device().clone();
+                let rendered = CudaScene::from_gaussians(gaussians, &device).and_then(|scene| {
+                    cameras
+                        .iter()
+                        .map(|c| r.render(&scene, c, options)?.to_render_output())
+                        .collect::<Result<Vec<_>, _>>()
+                });
+                match rendered {
+                    Ok(frames) => frames,
+                    Err(e) => {
+                        tracing::error!("CUDA rasteriser failed, rendering on the CPU: {e}");
+                        cameras
+                            .iter()
+                            .map(|c| render(gaussians, c, options))
+                            .collect()
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Poses `avatar` with `pose` on `template`'s skeleton and renders every virtual camera on a
-/// white background.
+/// white background with `rasterizer`.
 pub fn render_frames(
     avatar: &Avatar,
     template: &BodyTemplate,
     pose: &Pose,
     cameras: &VirtualCameras,
+    rasterizer: &mut FrameRasterizer,
 ) -> Vec<RenderedFrame> {
     let matrices = template.skeleton.skinning_matrices(pose);
     let posed = avatar.animate(&matrices);
@@ -122,9 +204,9 @@ pub fn render_frames(
         background: Vec3::ONE,
         ..RenderOptions::default()
     };
-    cameras
-        .cameras()
-        .iter()
-        .map(|c| RenderedFrame::new(render(&posed, c, &options)))
+    rasterizer
+        .render_all(&posed, cameras.cameras(), &options)
+        .into_iter()
+        .map(RenderedFrame::new)
         .collect()
 }

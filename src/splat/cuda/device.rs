@@ -211,7 +211,12 @@ impl GpuFrame {
             alpha: flat(&self.alpha)?,
             depth: flat(&self.depth)?,
             feature_channels: self.features.as_ref().map_or(0, |f| f.dims()[2]),
-            features: self.features.as_ref().map(flat).transpose()?.unwrap_or_default(),
+            features: self
+                .features
+                .as_ref()
+                .map(flat)
+                .transpose()?
+                .unwrap_or_default(),
         })
     }
 }
@@ -266,6 +271,11 @@ impl CudaRasterizer {
             tensor_device: device.clone(),
             workspace,
         })
+    }
+
+    /// The (CUDA) device this rasteriser renders on.
+    pub fn device(&self) -> &Device {
+        &self.tensor_device
     }
 
     /// Renders `scene` from `camera`. The maps stay on the GPU; the call waits once for the
