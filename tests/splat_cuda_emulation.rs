@@ -177,7 +177,7 @@ fn with_sh3(mut g: Gaussians, seed: u64) -> Gaussians {
 
 #[test]
 fn body_with_sh3_and_features_agrees_with_the_cpu_rasteriser() {
-    // 6,000 Gaussians: two radix-sort blocks for the depth order, a two-level scan, hundreds
+    // 6,000 Gaussians: several radix-sort blocks for the depth order, a two-level scan, hundreds
     // of splats per tile (several 256-splat batches) and opaque pixels that stop early.
     let g = with_sh3(body_cloud(6000, 5, 11), 12);
     let options = RenderOptions {

@@ -180,7 +180,7 @@ impl FrameRasterizer {
                         tracing::error!("CUDA rasteriser failed, rendering on the CPU: {e}");
                         cameras
                             .iter()
-                            .map(|c| render(gaussians, c, options))
+                            .map(|c| crate::splat::render(gaussians, c, options))
                             .collect()
                     }
                 }

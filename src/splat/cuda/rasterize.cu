@@ -38,7 +38,7 @@ constexpr float MAX_ALPHA = 0.99f;
 constexpr float MIN_TRANSMITTANCE = 1e-4f;
 constexpr uint32_t SCAN_PER_THREAD = 4;
 constexpr uint32_t SCAN_BLOCK = BLOCK * SCAN_PER_THREAD;
-constexpr uint32_t SORT_PER_BLOCK = BLOCK * 16;
+constexpr uint32_t SORT_PER_BLOCK = BLOCK * 4;  // items per radix-sort block: many blocks in flight
 
 // A Gaussian as the camera sees it (what the blend reads).
 struct Splat {
