@@ -1,6 +1,7 @@
 //! The CUDA rasteriser's source (`src/splat/cuda/rasterize.cu`, kernels and host code) built
 //! for the CPU against its CUDA emulation (`emulate.h`) and run on scenes that exercise every
-//! stage: culling rules, SH degree 3, features, several radix-sort blocks and scan levels, tiles
+//! stage: culling rules, SH degree 3, features in two channel chunks, several radix-sort blocks
+//! and scan levels, tiles
 //! with more than one 256-splat batch, early termination, partial edge tiles, an empty scene.
 //! Each image must agree with the Rust CPU rasteriser within 5e-4 (the GPU build: 2e-3),
 //! with the same visible count and the same number of (tile, Gaussian) pairs. This checks the
@@ -179,11 +180,12 @@ fn with_sh3(mut g: Gaussians, seed: u64) -> Gaussians {
 fn body_with_sh3_and_features_agrees_with_the_cpu_rasteriser() {
     // 6,000 Gaussians: several radix-sort blocks for the depth order, a two-level scan, hundreds
     // of splats per tile (several 256-splat batches) and opaque pixels that stop early.
-    let g = with_sh3(body_cloud(6000, 5, 11), 12);
+    // 37 feature channels: one full 32-channel blend launch and a partial one.
+    let g = with_sh3(body_cloud(6000, 37, 11), 12);
     let options = RenderOptions {
         background: Vec3::new(0.2, 0.3, 0.9),
         render_features: true,
-        background_features: vec![0.5, -0.25, 1.0, 0.0, 2.0],
+        background_features: (0..37).map(|k| 0.1 * k as f32 - 1.0).collect(),
         ..RenderOptions::default()
     };
     // 90 × 75: partial tiles on the right and bottom edges.

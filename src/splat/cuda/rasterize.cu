@@ -9,7 +9,8 @@
 //   radix sort   stable sort of the pairs by tile: every tile's list stays front to back
 //   ranges       first and last pair of each tile
 //   blend        one 256-thread block per 16x16 tile, one thread per pixel; splats staged
-//                through shared memory 256 at a time; the block stops once all pixels are done
+//                through shared memory 256 at a time; the block stops once all pixels are done;
+//                feature channels 32 per launch, accumulated in registers
 //
 // The host code below runs the stages on one stream. It builds with nvcc for the GPU, and with
 // a plain C++20 compiler and emulate.h for the CPU emulation the tests run without a GPU.
@@ -38,6 +39,7 @@ constexpr float MAX_ALPHA = 0.99f;
 constexpr float MIN_TRANSMITTANCE = 1e-4f;
 constexpr uint32_t SCAN_PER_THREAD = 4;
 constexpr uint32_t SCAN_BLOCK = BLOCK * SCAN_PER_THREAD;
+constexpr int FEATURE_CHUNK = 32;  // feature channels blended per launch (registers)
 constexpr uint32_t SORT_PER_BLOCK = BLOCK * 4;  // items per radix-sort block: many blocks in flight
 
 // A Gaussian as the camera sees it (what the blend reads).
@@ -340,28 +342,41 @@ __global__ void tile_ranges_kernel(const uint32_t* tile_keys, uint32_t pairs, ui
 }
 
 // Stage 4: front-to-back compositing (3DGS semantics, see src/splat/render/blend.rs). One block
-// per tile, one thread per pixel; features accumulate in the output map itself.
+// per tile, one thread per pixel, splats staged through shared memory 256 at a time. Feature
+// channels are blended CHUNK at a time (one launch per chunk, accumulated in registers from
+// features staged in shared memory); the launch of chunk 0 (or the only launch, CHUNK = 0, when
+// there are no features) also writes colour, alpha and depth. Every launch repeats the same
+// transmittance sequence, so all chunks stop at the same samples.
+template <int CHUNK>
 __global__ void blend_kernel(LhmppSplatParams p, const Splat* splats, const uint32_t* tile_splats,
                              const uint32_t* ranges, const float* features,
-                             const float* background_features, LhmppSplatImage out) {
+                             const float* background_features, LhmppSplatImage out,
+                             int channel_offset) {
   __shared__ Splat batch[BLOCK];
+  __shared__ float batch_features[CHUNK > 0 ? BLOCK * CHUNK : 1];
   int cols = (p.width + TILE - 1) / TILE;
   int tile = blockIdx.x;
   int x = (tile % cols) * TILE + (int)(threadIdx.x % TILE);
   int y = (tile / cols) * TILE + (int)(threadIdx.x / TILE);
   bool inside = x < p.width && y < p.height;
-  size_t pixel = inside ? (size_t)y * p.width + x : 0;
   float fx = (float)x, fy = (float)y;
   int channels = p.channels;
-  float* feat = inside && channels > 0 ? out.features + pixel * channels : nullptr;
-  for (int k = 0; feat && k < channels; ++k) feat[k] = 0.0f;
+  int chunk = CHUNK > 0 ? (channels - channel_offset < CHUNK ? channels - channel_offset : CHUNK) : 0;
+  float acc[CHUNK > 0 ? CHUNK : 1];
+  for (int k = 0; k < CHUNK; ++k) acc[k] = 0.0f;
   float transmittance = 1.0f, r = 0.0f, g = 0.0f, b = 0.0f, depth = 0.0f;
   bool live = inside;
   uint32_t start = ranges[2 * tile], end = ranges[2 * tile + 1];
   for (uint32_t first = start; first < end; first += BLOCK) {
     // Also the barrier between the previous batch's reads and this batch's writes.
     if (__syncthreads_count(!live) == BLOCK) break;
-    if (first + threadIdx.x < end) batch[threadIdx.x] = splats[tile_splats[first + threadIdx.x]];
+    if (first + threadIdx.x < end) {
+      uint32_t i = tile_splats[first + threadIdx.x];
+      batch[threadIdx.x] = splats[i];
+      const float* f = features + (size_t)i * channels + channel_offset;
+      for (int k = 0; k < CHUNK; ++k)
+        if (k < chunk) batch_features[threadIdx.x * CHUNK + k] = f[k];
+    }
     __syncthreads();
     uint32_t count = end - first < (uint32_t)BLOCK ? end - first : (uint32_t)BLOCK;
     for (uint32_t j = 0; live && j < count; ++j) {
@@ -381,21 +396,24 @@ __global__ void blend_kernel(LhmppSplatParams p, const Splat* splats, const uint
       g += s.g * weight;
       b += s.b * weight;
       depth += s.depth * weight;
-      if (feat) {
-        const float* f = features + (size_t)s.index * channels;
-        for (int k = 0; k < channels; ++k) feat[k] += f[k] * weight;
-      }
+      for (int k = 0; k < CHUNK; ++k)
+        if (k < chunk) acc[k] += batch_features[j * CHUNK + k] * weight;
       transmittance = next;
     }
   }
   if (!inside) return;
-  out.rgb[3 * pixel] = r + transmittance * p.background[0];
-  out.rgb[3 * pixel + 1] = g + transmittance * p.background[1];
-  out.rgb[3 * pixel + 2] = b + transmittance * p.background[2];
-  float a = 1.0f - transmittance;
-  out.alpha[pixel] = a;
-  out.depth[pixel] = a > 0.0f ? depth / a : 0.0f;
-  for (int k = 0; feat && k < channels; ++k) feat[k] += transmittance * background_features[k];
+  size_t pixel = (size_t)y * p.width + x;
+  if (channel_offset == 0) {
+    out.rgb[3 * pixel] = r + transmittance * p.background[0];
+    out.rgb[3 * pixel + 1] = g + transmittance * p.background[1];
+    out.rgb[3 * pixel + 2] = b + transmittance * p.background[2];
+    float a = 1.0f - transmittance;
+    out.alpha[pixel] = a;
+    out.depth[pixel] = a > 0.0f ? depth / a : 0.0f;
+  }
+  float* feat = out.features + pixel * channels + channel_offset;
+  for (int k = 0; k < CHUNK; ++k)
+    if (k < chunk) feat[k] = acc[k] + transmittance * background_features[channel_offset + k];
 }
 
 // A grow-only device buffer.
@@ -585,9 +603,17 @@ int32_t render(Workspace& ws, const LhmppSplatParams& p, const LhmppSplatScene& 
   // With no pair every tile's range is empty and the blend only writes the background; the
   // pointers below are then never read.
   const uint32_t* tile_splats = pairs > 0 ? as<uint32_t>(ws.pair_values[tile_buf]) : nullptr;
-  LAUNCH(blend_kernel, tiles, BLOCK, stream, p, (const Splat*)as<Splat>(ws.splats), tile_splats,
-         (const uint32_t*)as<uint32_t>(ws.ranges), scene.features, scene.background_features,
-         image);
+  const Splat* projected = as<Splat>(ws.splats);
+  const uint32_t* tile_ranges = as<uint32_t>(ws.ranges);
+  if (p.channels <= 0) {
+    LAUNCH(blend_kernel<0>, tiles, BLOCK, stream, p, projected, tile_splats, tile_ranges,
+           scene.features, scene.background_features, image, 0);
+  }
+  for (int offset = 0; offset < p.channels; offset += FEATURE_CHUNK) {
+    LAUNCH(blend_kernel<FEATURE_CHUNK>, tiles, BLOCK, stream, p, projected, tile_splats,
+           tile_ranges, scene.features, scene.background_features, image, offset);
+    TRY(cudaGetLastError());
+  }
   TRY(cudaGetLastError());
   return 0;
 }
