@@ -235,7 +235,9 @@ unsafe impl Send for CudaRasterizer {}
 impl Drop for CudaRasterizer {
     fn drop(&mut self) {
         let _ = self.device.cuda_stream().context().bind_to_thread();
-        // SAFETY: created by `lhmpp_splat_workspace_new`, freed once.
+        // The last frame's blend may still be reading the workspace.
+        let _ = self.tensor_device.synchronize();
+        // SAFETY: created by `lhmpp_splat_workspace_new`, freed once, after the stream is idle.
         unsafe { lhmpp_splat_workspace_free(self.workspace.as_ptr()) }
     }
 }

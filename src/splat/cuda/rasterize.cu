@@ -435,11 +435,14 @@ struct Workspace {
 
 uint32_t blocks_for(uint32_t n, uint32_t per_block) { return (n + per_block - 1) / per_block; }
 
-// Makes `b` hold at least `bytes` (contents are lost when it grows).
-cudaError_t reserve(Buffer& b, size_t bytes) {
+// Makes `b` hold at least `bytes` (contents are lost when it grows). Growing first waits for
+// `stream`: the previous frame's blend may still be reading the old buffer.
+cudaError_t reserve(Buffer& b, size_t bytes, cudaStream_t stream) {
   if (bytes <= b.bytes) return cudaSuccess;
   if (b.ptr) {
-    cudaError_t e = cudaFree(b.ptr);
+    cudaError_t e = cudaStreamSynchronize(stream);
+    if (e != cudaSuccess) return e;
+    e = cudaFree(b.ptr);
     if (e != cudaSuccess) return e;
     b.ptr = nullptr;
     b.bytes = 0;
@@ -467,8 +470,8 @@ int32_t exclusive_scan(Workspace& ws, const uint32_t* in, uint32_t* out, uint32_
   if (n == 0) return 0;
   if (level >= 8) return (int32_t)cudaErrorMemoryAllocation;  // 1024^8 values: never
   uint32_t blocks = blocks_for(n, SCAN_BLOCK);
-  TRY(reserve(ws.scan_sums[level], blocks * sizeof(uint32_t)));
-  TRY(reserve(ws.scan_offsets[level], blocks * sizeof(uint32_t)));
+  TRY(reserve(ws.scan_sums[level], blocks * sizeof(uint32_t), stream));
+  TRY(reserve(ws.scan_offsets[level], blocks * sizeof(uint32_t), stream));
   uint32_t* sums = as<uint32_t>(ws.scan_sums[level]);
   LAUNCH(scan_blocks_kernel, blocks, BLOCK, stream, in, out, n, sums);
   TRY(cudaGetLastError());
@@ -485,7 +488,7 @@ int32_t exclusive_scan(Workspace& ws, const uint32_t* in, uint32_t* out, uint32_
 // The total of the values just scanned, copied to the host (waits for the stream).
 int32_t scan_total(Workspace& ws, const uint32_t* in, const uint32_t* out, uint32_t n,
                    cudaStream_t stream, uint32_t* total) {
-  TRY(reserve(ws.total, sizeof(uint32_t)));
+  TRY(reserve(ws.total, sizeof(uint32_t), stream));
   LAUNCH(scan_total_kernel, 1, 1, stream, in, out, n, as<uint32_t>(ws.total));
   TRY(cudaGetLastError());
   TRY(cudaMemcpyAsync(total, ws.total.ptr, sizeof(uint32_t), cudaMemcpyDeviceToHost, stream));
@@ -501,8 +504,8 @@ int32_t radix_sort(Workspace& ws, Buffer* keys, Buffer* values, uint32_t n, int 
   *result = 0;
   if (n <= 1) return 0;
   uint32_t blocks = blocks_for(n, SORT_PER_BLOCK);
-  TRY(reserve(ws.radix_counts, (size_t)BLOCK * blocks * sizeof(uint32_t)));
-  TRY(reserve(ws.radix_offsets, (size_t)BLOCK * blocks * sizeof(uint32_t)));
+  TRY(reserve(ws.radix_counts, (size_t)BLOCK * blocks * sizeof(uint32_t), stream));
+  TRY(reserve(ws.radix_offsets, (size_t)BLOCK * blocks * sizeof(uint32_t), stream));
   uint32_t* counts = as<uint32_t>(ws.radix_counts);
   uint32_t* offsets = as<uint32_t>(ws.radix_offsets);
   for (int shift = 0; shift < bits; shift += 8) {
@@ -535,16 +538,16 @@ int32_t render(Workspace& ws, const LhmppSplatParams& p, const LhmppSplatScene& 
   uint32_t n = p.num_gaussians > 0 ? (uint32_t)p.num_gaussians : 0;
   uint32_t cols = blocks_for(p.width, TILE), rows = blocks_for(p.height, TILE);
   uint32_t tiles = cols * rows;
-  TRY(reserve(ws.ranges, 2 * (size_t)tiles * sizeof(uint32_t)));
+  TRY(reserve(ws.ranges, 2 * (size_t)tiles * sizeof(uint32_t), stream));
   TRY(cudaMemsetAsync(ws.ranges.ptr, 0, 2 * (size_t)tiles * sizeof(uint32_t), stream));
   uint32_t m = 0, pairs = 0;
   int tile_buf = 0;
   if (n > 0) {
-    TRY(reserve(ws.splats, n * sizeof(Splat)));
-    TRY(reserve(ws.rects, n * sizeof(Rect)));
-    TRY(reserve(ws.visible, n * sizeof(uint32_t)));
-    TRY(reserve(ws.visible_offsets, n * sizeof(uint32_t)));
-    TRY(reserve(ws.depth_bits, n * sizeof(uint32_t)));
+    TRY(reserve(ws.splats, n * sizeof(Splat), stream));
+    TRY(reserve(ws.rects, n * sizeof(Rect), stream));
+    TRY(reserve(ws.visible, n * sizeof(uint32_t), stream));
+    TRY(reserve(ws.visible_offsets, n * sizeof(uint32_t), stream));
+    TRY(reserve(ws.depth_bits, n * sizeof(uint32_t), stream));
     Splat* splats = as<Splat>(ws.splats);
     Rect* rects = as<Rect>(ws.rects);
     uint32_t* visible = as<uint32_t>(ws.visible);
@@ -558,8 +561,8 @@ int32_t render(Workspace& ws, const LhmppSplatParams& p, const LhmppSplatScene& 
   }
   if (m > 0) {
     for (int k = 0; k < 2; ++k) {
-      TRY(reserve(ws.keys[k], m * sizeof(uint32_t)));
-      TRY(reserve(ws.values[k], m * sizeof(uint32_t)));
+      TRY(reserve(ws.keys[k], m * sizeof(uint32_t), stream));
+      TRY(reserve(ws.values[k], m * sizeof(uint32_t), stream));
     }
     LAUNCH(compact_kernel, blocks_for(n, BLOCK), BLOCK, stream,
            (const uint32_t*)as<uint32_t>(ws.visible),
@@ -571,8 +574,8 @@ int32_t render(Workspace& ws, const LhmppSplatParams& p, const LhmppSplatScene& 
     int32_t e = radix_sort(ws, ws.keys, ws.values, m, 32, stream, &sorted);
     if (e) return e;
     const uint32_t* order = as<uint32_t>(ws.values[sorted]);
-    TRY(reserve(ws.tile_counts, m * sizeof(uint32_t)));
-    TRY(reserve(ws.pair_offsets, m * sizeof(uint32_t)));
+    TRY(reserve(ws.tile_counts, m * sizeof(uint32_t), stream));
+    TRY(reserve(ws.pair_offsets, m * sizeof(uint32_t), stream));
     uint32_t* counts = as<uint32_t>(ws.tile_counts);
     LAUNCH(tile_count_kernel, blocks_for(m, BLOCK), BLOCK, stream, order,
            (const Rect*)as<Rect>(ws.rects), m, counts);
@@ -583,8 +586,8 @@ int32_t render(Workspace& ws, const LhmppSplatParams& p, const LhmppSplatScene& 
     if (e) return e;
     if (pairs > 0) {
       for (int k = 0; k < 2; ++k) {
-        TRY(reserve(ws.pair_keys[k], pairs * sizeof(uint32_t)));
-        TRY(reserve(ws.pair_values[k], pairs * sizeof(uint32_t)));
+        TRY(reserve(ws.pair_keys[k], pairs * sizeof(uint32_t), stream));
+        TRY(reserve(ws.pair_values[k], pairs * sizeof(uint32_t), stream));
       }
       LAUNCH(emit_pairs_kernel, blocks_for(m, BLOCK), BLOCK, stream, order,
              (const Rect*)as<Rect>(ws.rects), (const uint32_t*)as<uint32_t>(ws.pair_offsets), m,
