@@ -165,6 +165,12 @@ impl FrameRasterizer {
                     out
                 })
                 .collect(),
+            // An empty avatar is only background: not worth zero-sized GPU buffers.
+            #[cfg(feature = "cuda")]
+            Self::Cuda(_) if gaussians.is_empty() => cameras
+                .iter()
+                .map(|c| crate::splat::render(gaussians, c, options))
+                .collect(),
             #[cfg(feature = "cuda")]
             Self::Cuda(r) => {
                 let device = r.device().clone();
