@@ -192,7 +192,7 @@ fn dpt_gflop(cfg: &DptConfig, size: usize) -> f64 {
         .map(|&o| conv(n0, cfg.head_dim(), o, 1))
         .sum::<f64>();
     g += conv(n0, oc[0], oc[0] * 16, 1) + conv(n0, oc[1], oc[1] * 4, 1);
-    g += conv((((hh + 1) / 2).pow(2)) as f64, oc[3], oc[3], 3);
+    g += conv(hh.div_ceil(2).pow(2) as f64, oc[3], oc[3], 3);
     let sides = [4 * hh, 2 * hh, hh, hh.div_ceil(2)];
     for (i, (&s, &o)) in sides.iter().zip(&oc).enumerate() {
         let px = (s * s) as f64;

@@ -266,16 +266,10 @@ mod tests {
     use candle_core::Device;
     use candle_nn::{Conv2d, Conv2dConfig, Module};
 
-    fn check(
-        b: usize,
-        c_in: usize,
-        c_out: usize,
-        h: usize,
-        w: usize,
-        k: usize,
-        stride: usize,
-        padding: usize,
-    ) {
+    /// `(batch, c_in, c_out, h, w, kernel, stride, padding)`.
+    type Case = (usize, usize, usize, usize, usize, usize, usize, usize);
+
+    fn check((b, c_in, c_out, h, w, k, stride, padding): Case) {
         let dev = Device::Cpu;
         let x = Tensor::randn(0f32, 1.0, (b, c_in, h, w), &dev).unwrap();
         let wt = Tensor::randn(0f32, 0.2, (c_out, c_in, k, k), &dev).unwrap();
@@ -319,19 +313,19 @@ mod tests {
 
     #[test]
     fn packed_conv_equals_candle_conv_over_odd_shapes() {
-        check(1, 3, 5, 7, 9, 3, 1, 1);
-        check(2, 17, 13, 23, 19, 3, 1, 1);
-        check(1, 16, 8, 33, 34, 3, 2, 1);
-        check(2, 5, 7, 9, 8, 3, 2, 1);
-        check(1, 19, 11, 30, 29, 1, 1, 0);
-        check(1, 8, 4, 1, 1, 3, 1, 1);
-        check(1, 6, 4, 5, 6, 3, 1, 0);
+        check((1, 3, 5, 7, 9, 3, 1, 1));
+        check((2, 17, 13, 23, 19, 3, 1, 1));
+        check((1, 16, 8, 33, 34, 3, 2, 1));
+        check((2, 5, 7, 9, 8, 3, 2, 1));
+        check((1, 19, 11, 30, 29, 1, 1, 0));
+        check((1, 8, 4, 1, 1, 3, 1, 1));
+        check((1, 6, 4, 5, 6, 3, 1, 0));
     }
 
     #[test]
     fn many_tiles_and_wide_channels_match() {
         // more than one tile per image and a tile boundary inside a row
-        check(1, 64, 32, 37, 41, 3, 1, 1);
+        check((1, 64, 32, 37, 41, 3, 1, 1));
     }
 
     #[test]
