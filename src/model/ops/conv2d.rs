@@ -13,6 +13,7 @@ use gemm::Parallelism;
 use rayon::prelude::*;
 
 use super::feature_map::FeatureMap;
+use super::winograd;
 
 /// Output pixels per tile: the im2col tile (`TILE_PIXELS·k·k·C_in` floats, 2.4 MB at 3×3×128)
 /// and the output tile stay in the L2/L3 caches while `gemm` runs over them.
@@ -30,6 +31,8 @@ pub struct PackedConv2d {
     kernel: usize,
     stride: usize,
     padding: usize,
+    /// Winograd-transformed filters (3×3, stride 1, padding 1 only; see [`super::winograd`]).
+    winograd: Option<Vec<f32>>,
 }
 
 /// What is added to the convolution before the optional ReLU.
@@ -69,6 +72,8 @@ impl PackedConv2d {
             }
             None => vec![0.0; c_out],
         };
+        let winograd = (kh == 3 && stride == 1 && padding == 1)
+            .then(|| winograd::transform_filters(&w, c_in, c_out));
         Ok(Self {
             weight: w,
             bias,
@@ -77,6 +82,7 @@ impl PackedConv2d {
             kernel: kh,
             stride,
             padding,
+            winograd,
         })
     }
 
@@ -91,6 +97,12 @@ impl PackedConv2d {
             );
         }
         Self::new(conv.weight(), conv.bias(), cfg.stride, cfg.padding)
+    }
+
+    /// The same layer without the Winograd path: every kernel size through im2col + gemm.
+    pub fn with_im2col_only(mut self) -> Self {
+        self.winograd = None;
+        self
     }
 
     /// Output channels.
@@ -127,6 +139,10 @@ impl PackedConv2d {
             out.check_same_shape(r, "conv2d residual")?;
         }
         if pixels == 0 || n == 0 {
+            return Ok(out);
+        }
+        if let Some(u) = &self.winograd {
+            winograd::conv3x3_winograd(x, u, &self.bias, n, epi, &mut out);
             return Ok(out);
         }
         let k = self.kernel * self.kernel * self.c_in;
@@ -324,8 +340,11 @@ mod tests {
 
     #[test]
     fn many_tiles_and_wide_channels_match() {
-        // more than one tile per image and a tile boundary inside a row
+        // more than one im2col tile per image with a boundary inside a row; Winograd bands of
+        // one wide tile row split into several chunks, and bands of several narrow rows
         check((1, 64, 32, 37, 41, 3, 1, 1));
+        check((1, 8, 8, 5, 400, 3, 1, 1));
+        check((2, 8, 8, 41, 7, 3, 1, 1));
     }
 
     #[test]
