@@ -110,6 +110,13 @@ impl FeatureMap {
             .for_each(|c| c.iter_mut().for_each(|v| *v = v.max(0.0)));
     }
 
+    /// `1 / (1 + e^(−x))` in place.
+    pub fn sigmoid_in_place(&mut self) {
+        self.data
+            .par_chunks_mut(PIXELS_PER_TASK)
+            .for_each(|c| c.iter_mut().for_each(|v| *v = 1.0 / (1.0 + (-*v).exp())));
+    }
+
     /// `self += other` (same shape).
     pub fn add_assign(&mut self, other: &FeatureMap) -> Result<()> {
         self.check_same_shape(other, "add")?;
