@@ -621,6 +621,31 @@ pub struct NeuralRenderer {
     cpu_patchify: Option<Linear>,
 }
 
+/// Cuts a channels-last `[B, H, W, C]` f32 map (such as the rasteriser's feature image) into
+/// `[B·hh·ww, p·p·C]` patch rows ordered `(ph, pw, c)`, the order of
+/// [`NeuralRenderer::patch_tokens`]: each patch row is `p` copies of `p·C` contiguous values.
+fn channels_last_patches(data: &[f32], dims: (usize, usize, usize, usize), p: usize) -> Vec<f32> {
+    let (b, h, w, c) = dims;
+    let (hh, ww) = (h / p, w / p);
+    let row = p * p * c;
+    let mut out = vec![0f32; b * hh * ww * row];
+    if out.is_empty() {
+        return out;
+    }
+    out.par_chunks_mut(ww * row)
+        .enumerate()
+        .for_each(|(band, dst)| {
+            let (bi, y) = (band / hh, band % hh);
+            for (x, token) in dst.chunks_exact_mut(row).enumerate() {
+                for (ph, run) in token.chunks_exact_mut(p * c).enumerate() {
+                    let at = ((bi * h + y * p + ph) * w + x * p) * c;
+                    run.copy_from_slice(&data[at..at + p * c]);
+                }
+            }
+        });
+    out
+}
+
 /// Cuts a contiguous `[B, C, H, W]` f32 map into `[B·hh·ww, C·p·p]` patch rows ordered
 /// `(c, ph, pw)`: every `p` values come from one image row, so the gather is a copy of short
 /// runs (the `(ph, pw, c)` order of [`NeuralRenderer::patch_tokens`] needs one strided read per
@@ -749,16 +774,37 @@ impl NeuralRenderer {
         let d = self.cfg.head_dim();
         let cpu = features.device().is_cpu() && features.dtype() == DType::F32;
         if let (Some(head), Some(patchify), true) = (&self.cpu_head, &self.cpu_patchify, cpu) {
-            let features = features.contiguous()?;
-            let (storage, layout) = features.storage_and_layout();
-            let candle_core::Storage::Cpu(storage) = &*storage else {
-                candle_core::bail!("neural renderer: CPU tensor without CPU storage");
+            // A channels-last map viewed as [B, C, H, W] (the rasteriser's features permuted)
+            // is gathered in place in the weight's own (ph, pw, c) order; anything else is made
+            // contiguous NCHW and gathered channel-major for the column-permuted weight.
+            let nhwc = features.permute((0, 2, 3, 1))?;
+            let channels_last = nhwc.is_contiguous();
+            let source = if channels_last {
+                nhwc
+            } else {
+                features.contiguous()?
             };
-            let data = super::ops::contiguous_f32(storage, layout, "neural renderer", "features")?;
-            let rows = channel_major_patches(data, (dims[0], dims[1], h, w), p);
+            let rows = {
+                let (guard, layout) = source.storage_and_layout();
+                let candle_core::Storage::Cpu(storage) = &*guard else {
+                    candle_core::bail!("neural renderer: CPU tensor without CPU storage");
+                };
+                let data =
+                    super::ops::contiguous_f32(storage, layout, "neural renderer", "features")?;
+                if channels_last {
+                    channels_last_patches(data, (dims[0], h, w, dims[1]), p)
+                } else {
+                    channel_major_patches(data, (dims[0], dims[1], h, w), p)
+                }
+            };
             let rows = Tensor::from_vec(rows, (dims[0], hh * ww, p * p * dims[1]), &Device::Cpu)?;
             clock.lap("patch tokens");
-            let tokens = patchify.forward(&rows)?;
+            let linear = if channels_last {
+                &self.patchify
+            } else {
+                patchify
+            };
+            let tokens = linear.forward(&rows)?;
             let groups = (0..4)
                 .map(|i| tokens.narrow(D::Minus1, i * d, d)?.contiguous())
                 .collect::<Result<Vec<_>>>()?;
@@ -836,6 +882,15 @@ mod tests {
             let d = max_abs_diff(&rgb, &rgb_ref).max(max_abs_diff(&mask, &mask_ref));
             // f32 rounding of a different summation order (Winograd, patch column order)
             assert!(d < 1e-4, "{dims:?}: {d}");
+            // the same map stored channels-last (as the rasteriser emits it)
+            let hwc = feats
+                .permute((0, 2, 3, 1))?
+                .contiguous()?
+                .permute((0, 3, 1, 2))?;
+            assert!(!hwc.is_contiguous());
+            let (rgb_hwc, _) = fast.forward(&hwc)?;
+            let d = max_abs_diff(&rgb_hwc, &rgb_ref);
+            assert!(d < 1e-4, "channels-last input {dims:?}: {d}");
             let names: Vec<_> = times.stages.iter().map(|(n, _)| *n).collect();
             assert!(names.contains(&"layer_rn") && names.contains(&"fusion residual units"));
         }
@@ -888,7 +943,10 @@ mod tests {
         assert_eq!(rows.len(), b * 2 * 3 * c * 49);
         // image 1, patch (1, 2) = token 5; entry (c=2, ph=3, pw=4)
         let token = &rows[(6 + 5) * c * 49..(6 + 6) * c * 49];
-        assert_eq!(token[2 * 49 + 3 * 7 + 4], (100000 + 20000 + 10 * 100 + 18) as f32);
+        assert_eq!(
+            token[2 * 49 + 3 * 7 + 4],
+            (100000 + 20000 + 10 * 100 + 18) as f32
+        );
     }
 
     #[test]
