@@ -662,12 +662,14 @@ fn channel_major_patches(data: &[f32], dims: (usize, usize, usize, usize), p: us
         .enumerate()
         .for_each(|(band, dst)| {
             let (bi, y) = (band / hh, band % hh);
-            for (x, token) in dst.chunks_exact_mut(row).enumerate() {
-                for (ci, chan) in token.chunks_exact_mut(p * p).enumerate() {
-                    let plane = &data[(bi * c + ci) * h * w..(bi * c + ci + 1) * h * w];
-                    for (ph, run) in chan.chunks_exact_mut(p).enumerate() {
-                        let at = (y * p + ph) * w + x * p;
-                        run.copy_from_slice(&plane[at..at + p]);
+            // one image row at a time (sequential reads), its p-runs dealt to the ww tokens
+            for ci in 0..c {
+                let plane = &data[(bi * c + ci) * h * w..(bi * c + ci + 1) * h * w];
+                for ph in 0..p {
+                    let line = &plane[(y * p + ph) * w..(y * p + ph) * w + ww * p];
+                    let at = (ci * p + ph) * p;
+                    for (token, run) in dst.chunks_exact_mut(row).zip(line.chunks_exact(p)) {
+                        token[at..at + p].copy_from_slice(run);
                     }
                 }
             }
