@@ -13,7 +13,7 @@ use gemm::Parallelism;
 use rayon::prelude::*;
 
 use super::feature_map::FeatureMap;
-use super::winograd;
+use super::winograd::{conv3x3_winograd, Variant, F4X4};
 
 /// Output pixels per tile: the im2col tile (`TILE_PIXELS·k·k·C_in` floats, 2.4 MB at 3×3×128)
 /// and the output tile stay in the L2/L3 caches while `gemm` runs over them.
@@ -31,8 +31,8 @@ pub struct PackedConv2d {
     kernel: usize,
     stride: usize,
     padding: usize,
-    /// Winograd-transformed filters (3×3, stride 1, padding 1 only; see [`super::winograd`]).
-    winograd: Option<Vec<f32>>,
+    /// 3×3 stride-1 padding-1 layers: the Winograd algorithm and its transformed filters.
+    winograd: Option<(Variant, Vec<f32>)>,
 }
 
 /// What is added to the convolution before the optional ReLU.
@@ -72,9 +72,7 @@ impl PackedConv2d {
             }
             None => vec![0.0; c_out],
         };
-        let winograd = (kh == 3 && stride == 1 && padding == 1)
-            .then(|| winograd::transform_filters(&w, c_in, c_out));
-        Ok(Self {
+        let packed = Self {
             weight: w,
             bias,
             c_in,
@@ -82,8 +80,21 @@ impl PackedConv2d {
             kernel: kh,
             stride,
             padding,
-            winograd,
-        })
+            winograd: None,
+        };
+        Ok(packed.with_winograd(Some(F4X4)))
+    }
+
+    /// The same layer computing its 3×3 stride-1 padding-1 convolution with Winograd `variant`
+    /// (the default is [`F4X4`]), or through im2col + gemm with `None`. Other shapes always use
+    /// im2col.
+    pub fn with_winograd(mut self, variant: Option<Variant>) -> Self {
+        let fits = self.kernel == 3 && self.stride == 1 && self.padding == 1;
+        self.winograd = match variant {
+            Some(v) if fits => Some((v, v.transform_filters(&self.weight, self.c_in, self.c_out))),
+            _ => None,
+        };
+        self
     }
 
     /// Packs a `candle_nn::Conv2d` (groups 1, dilation 1 only).
@@ -97,12 +108,6 @@ impl PackedConv2d {
             );
         }
         Self::new(conv.weight(), conv.bias(), cfg.stride, cfg.padding)
-    }
-
-    /// The same layer without the Winograd path: every kernel size through im2col + gemm.
-    pub fn with_im2col_only(mut self) -> Self {
-        self.winograd = None;
-        self
     }
 
     /// Output channels.
@@ -141,8 +146,8 @@ impl PackedConv2d {
         if pixels == 0 || n == 0 {
             return Ok(out);
         }
-        if let Some(u) = &self.winograd {
-            winograd::conv3x3_winograd(x, u, &self.bias, n, epi, &mut out);
+        if let Some((variant, u)) = &self.winograd {
+            conv3x3_winograd(*variant, x, u, &self.bias, epi, &mut out);
             return Ok(out);
         }
         let k = self.kernel * self.kernel * self.c_in;
@@ -278,6 +283,7 @@ pub(crate) fn accumulate(out: &mut [f32], lhs: &[f32], rhs: &[f32], m: usize, n:
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::ops::winograd::F2X2;
     use crate::model::testing::max_abs_diff;
     use candle_core::Device;
     use candle_nn::{Conv2d, Conv2dConfig, Module};
@@ -298,33 +304,30 @@ mod tests {
         let conv = Conv2d::new(wt, Some(bias), cfg);
         let want = conv.forward(&x).unwrap();
         let res = Tensor::randn(0f32, 1.0, want.dims(), &dev).unwrap();
-        let packed = PackedConv2d::from_candle(&conv).unwrap();
         let xm = FeatureMap::from_nchw(&x).unwrap();
         let rm = FeatureMap::from_nchw(&res).unwrap();
-        let got = packed
-            .forward(&xm, Epilogue::default())
-            .unwrap()
-            .to_nchw(&dev)
-            .unwrap();
-        assert_eq!(got.dims(), want.dims());
         let scale = want.abs().unwrap().flatten_all().unwrap().max(0).unwrap();
         let tol = 1e-5 * scale.to_scalar::<f32>().unwrap().max(1.0);
-        let d = max_abs_diff(&got, &want);
-        assert!(
-            d < tol,
-            "b{b} {c_in}->{c_out} {h}x{w} k{k} s{stride} p{padding}: {d}"
-        );
-        let epi = Epilogue {
-            residual: Some(&rm),
-            relu: true,
-        };
-        let got = packed.forward(&xm, epi).unwrap().to_nchw(&dev).unwrap();
-        let want = (want + res).unwrap().relu().unwrap();
-        let d = max_abs_diff(&got, &want);
-        assert!(
-            d < tol,
-            "residual+relu b{b} {c_in}->{c_out} {h}x{w} k{k} s{stride}: {d}"
-        );
+        let want_epi = (&want + res).unwrap().relu().unwrap();
+        let packed = PackedConv2d::from_candle(&conv).unwrap();
+        assert_eq!(packed.winograd.is_some(), (k, stride, padding) == (3, 1, 1));
+        for variant in [Some(F4X4), Some(F2X2), None] {
+            let packed = packed.clone().with_winograd(variant);
+            let path = format!("winograd {:?}", packed.winograd.as_ref().map(|(v, _)| v.m));
+            let case = format!("{path} b{b} {c_in}->{c_out} {h}x{w} k{k} s{stride} p{padding}");
+            let got = packed.forward(&xm, Epilogue::default()).unwrap();
+            let got = got.to_nchw(&dev).unwrap();
+            assert_eq!(got.dims(), want.dims());
+            let d = max_abs_diff(&got, &want);
+            assert!(d < tol, "{case}: {d}");
+            let epi = Epilogue {
+                residual: Some(&rm),
+                relu: true,
+            };
+            let got = packed.forward(&xm, epi).unwrap().to_nchw(&dev).unwrap();
+            let d = max_abs_diff(&got, &want_epi);
+            assert!(d < tol, "{case} with residual and ReLU: {d}");
+        }
     }
 
     #[test]
@@ -345,6 +348,7 @@ mod tests {
         check((1, 64, 32, 37, 41, 3, 1, 1));
         check((1, 8, 8, 5, 400, 3, 1, 1));
         check((2, 8, 8, 41, 7, 3, 1, 1));
+        check((1, 96, 96, 5, 700, 3, 1, 1));
     }
 
     #[test]

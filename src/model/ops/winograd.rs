@@ -1,13 +1,14 @@
 //! 3×3, stride-1, padding-1 convolution on channels-last f32 maps by Winograd's minimal
-//! filtering F(2×2, 3×3): each 2×2 output block is `Aᵀ [(G g Gᵀ) ⊙ (Bᵀ d B)] A` for the 4×4
-//! input tile `d`, so the 36 multiply-adds per output pixel and channel pair of direct
-//! convolution become 16 per 2×2 block (2.25× fewer). Over channels the elementwise product
-//! is 16 matrix products `V_ξ [tiles, C_in] · U_ξ [C_in, C_out]`, one per tile position ξ.
+//! filtering F(m×m, 3×3): each m×m output block is `Aᵀ [(G g Gᵀ) ⊙ (Bᵀ d B)] A` for the
+//! α×α input tile `d` (α = m + 2), so the 9·m² multiply-adds per block and channel pair of
+//! direct convolution become α² (F(2×2): 16 for 36, 2.25× fewer; F(4×4): 36 for 144, 4×).
+//! Over channels the elementwise product is α² matrix products
+//! `V_ξ [tiles, C_in] · U_ξ [C_in, C_out]`, one per tile position ξ.
 //!
-//! The input and output transforms only add and subtract (the ½s live in the packed filter),
-//! so the result differs from direct convolution by float rounding alone. Work is split into
-//! bands of tile rows (each owns its output rows, in parallel on rayon) and, inside a band,
-//! chunks of at most [`CHUNK_TILES`] tiles whose transformed inputs and products stay in cache.
+//! The transforms are small linear combinations of whole channel rows (vectorised over the
+//! channels). Work is split into bands of tile rows (each owns its output rows, in parallel on
+//! rayon) and, inside a band, chunks of tiles whose transformed inputs and products stay in
+//! cache; the bias, a residual and a ReLU are applied as each output block is written.
 
 use gemm::Parallelism;
 use rayon::prelude::*;
@@ -15,94 +16,148 @@ use rayon::prelude::*;
 use super::conv2d::Epilogue;
 use super::feature_map::FeatureMap;
 
-/// Tiles per matrix product (the `m` of the 16 products).
-const CHUNK_TILES: usize = 192;
+/// Bytes of transformed inputs plus products per chunk (sized to the L2 cache).
+const CHUNK_BYTES: usize = 1 << 21;
 
-/// `G g Gᵀ` of every 3×3 filter, as 16 matrices `[C_in, C_out]`.
-///
-/// `weight` is `[k·k·C_in, C_out]` with rows ordered `(ky, kx, c_in)` (the im2col packing).
-pub(crate) fn transform_filters(weight: &[f32], c_in: usize, c_out: usize) -> Vec<f32> {
-    const G: [[f64; 3]; 4] = [
-        [1.0, 0.0, 0.0],
-        [0.5, 0.5, 0.5],
-        [0.5, -0.5, 0.5],
-        [0.0, 0.0, 1.0],
-    ];
-    let mut u = vec![0f32; 16 * c_in * c_out];
-    for ci in 0..c_in {
-        for co in 0..c_out {
-            let g = |ky: usize, kx: usize| weight[((ky * 3 + kx) * c_in + ci) * c_out + co] as f64;
-            for i in 0..4 {
-                for j in 0..4 {
-                    let mut v = 0.0;
-                    for (ky, gi) in G[i].iter().enumerate() {
-                        for (kx, gj) in G[j].iter().enumerate() {
-                            v += gi * g(ky, kx) * gj;
+/// One Winograd F(m×m, 3×3) algorithm: its matrices, row-major.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Variant {
+    /// Output block side m.
+    pub m: usize,
+    /// Input tile side α = m + 2.
+    pub alpha: usize,
+    /// `Bᵀ`, α×α.
+    bt: &'static [f32],
+    /// `G`, α×3.
+    g: &'static [f64],
+    /// `Aᵀ`, m×α.
+    at: &'static [f32],
+}
+
+/// F(2×2, 3×3): transforms of ±1 and 0 only (the ½s live in the filter), exact up to rounding.
+pub const F2X2: Variant = Variant {
+    m: 2,
+    alpha: 4,
+    #[rustfmt::skip]
+    bt: &[
+        1.0, 0.0, -1.0, 0.0,
+        0.0, 1.0, 1.0, 0.0,
+        0.0, -1.0, 1.0, 0.0,
+        0.0, 1.0, 0.0, -1.0,
+    ],
+    #[rustfmt::skip]
+    g: &[
+        1.0, 0.0, 0.0,
+        0.5, 0.5, 0.5,
+        0.5, -0.5, 0.5,
+        0.0, 0.0, 1.0,
+    ],
+    #[rustfmt::skip]
+    at: &[
+        1.0, 1.0, 1.0, 0.0,
+        0.0, 1.0, -1.0, -1.0,
+    ],
+};
+
+/// F(4×4, 3×3) on the points 0, ±1, ±2, ∞ (Lavin & Gray): 4× fewer products, a few ulps
+/// more rounding than F(2×2).
+pub const F4X4: Variant = Variant {
+    m: 4,
+    alpha: 6,
+    #[rustfmt::skip]
+    bt: &[
+        4.0, 0.0, -5.0, 0.0, 1.0, 0.0,
+        0.0, -4.0, -4.0, 1.0, 1.0, 0.0,
+        0.0, 4.0, -4.0, -1.0, 1.0, 0.0,
+        0.0, -2.0, -1.0, 2.0, 1.0, 0.0,
+        0.0, 2.0, -1.0, -2.0, 1.0, 0.0,
+        0.0, 4.0, 0.0, -5.0, 0.0, 1.0,
+    ],
+    #[rustfmt::skip]
+    g: &[
+        1.0 / 4.0, 0.0, 0.0,
+        -1.0 / 6.0, -1.0 / 6.0, -1.0 / 6.0,
+        -1.0 / 6.0, 1.0 / 6.0, -1.0 / 6.0,
+        1.0 / 24.0, 1.0 / 12.0, 1.0 / 6.0,
+        1.0 / 24.0, -1.0 / 12.0, 1.0 / 6.0,
+        0.0, 0.0, 1.0,
+    ],
+    #[rustfmt::skip]
+    at: &[
+        1.0, 1.0, 1.0, 1.0, 1.0, 0.0,
+        0.0, 1.0, -1.0, 2.0, -2.0, 0.0,
+        0.0, 1.0, 1.0, 4.0, 4.0, 0.0,
+        0.0, 1.0, -1.0, 8.0, -8.0, 1.0,
+    ],
+};
+
+impl Variant {
+    /// `G g Gᵀ` of every 3×3 filter, as α² matrices `[C_in, C_out]`.
+    ///
+    /// `weight` is `[9·C_in, C_out]` with rows ordered `(ky, kx, c_in)` (the im2col packing).
+    pub(crate) fn transform_filters(&self, weight: &[f32], c_in: usize, c_out: usize) -> Vec<f32> {
+        let a = self.alpha;
+        let g = |i: usize, k: usize| self.g[i * 3 + k];
+        let mut u = vec![0f32; a * a * c_in * c_out];
+        for ci in 0..c_in {
+            for co in 0..c_out {
+                let w =
+                    |ky: usize, kx: usize| weight[((ky * 3 + kx) * c_in + ci) * c_out + co] as f64;
+                for i in 0..a {
+                    for j in 0..a {
+                        let mut v = 0.0;
+                        for ky in 0..3 {
+                            for kx in 0..3 {
+                                v += g(i, ky) * w(ky, kx) * g(j, kx);
+                            }
                         }
+                        u[((i * a + j) * c_in + ci) * c_out + co] = v as f32;
                     }
-                    u[((i * 4 + j) * c_in + ci) * c_out + co] = v as f32;
                 }
             }
         }
+        u
     }
-    u
 }
 
-/// `out = a - b` over channels.
-fn sub(out: &mut [f32], a: &[f32], b: &[f32]) {
-    out.iter_mut()
-        .zip(a.iter().zip(b))
-        .for_each(|(o, (a, b))| *o = a - b);
-}
-
-/// `out = a + b` over channels.
-fn add(out: &mut [f32], a: &[f32], b: &[f32]) {
-    out.iter_mut()
-        .zip(a.iter().zip(b))
-        .for_each(|(o, (a, b))| *o = a + b);
-}
-
-/// `Bᵀ` applied to four channel rows: `(d0 − d2, d1 + d2, d2 − d1, d1 − d3)`.
-fn input_transform(out: [&mut [f32]; 4], d: [&[f32]; 4]) {
-    let [o0, o1, o2, o3] = out;
-    sub(o0, d[0], d[2]);
-    add(o1, d[1], d[2]);
-    sub(o2, d[2], d[1]);
-    sub(o3, d[1], d[3]);
-}
-
-/// `Aᵀ` applied to four channel rows: `(m0 + m1 + m2, m1 − m2 − m3)`.
-fn output_transform(o0: &mut [f32], o1: &mut [f32], m: [&[f32]; 4]) {
-    for i in 0..o0.len() {
-        o0[i] = m[0][i] + m[1][i] + m[2][i];
-        o1[i] = m[1][i] - m[2][i] - m[3][i];
+/// `out = Σ_q coefs[q] · row(q)` over channels (zero coefficients skipped).
+fn combine<'a>(out: &mut [f32], coefs: &[f32], row: impl Fn(usize) -> &'a [f32]) {
+    out.fill(0.0);
+    for (q, &k) in coefs.iter().enumerate() {
+        if k != 0.0 {
+            out.iter_mut().zip(row(q)).for_each(|(o, &v)| *o += k * v);
+        }
     }
 }
 
 /// Per-thread scratch of one band.
 struct Scratch {
-    /// Transformed input tiles `[16, CHUNK_TILES, C_in]`.
+    /// Transformed input tiles `[α², chunk, C_in]`.
     v: Vec<f32>,
-    /// Products `[16, CHUNK_TILES, C_out]`.
+    /// Products `[α², chunk, C_out]`.
     m: Vec<f32>,
-    /// Row-transformed tile `[4, 4, C]` (C = max(C_in, C_out)).
+    /// Half-transformed tile `[α, α, C]` (C = max(C_in, C_out)).
     t: Vec<f32>,
+    /// One output block `[m, m, C_out]`.
+    y: Vec<f32>,
 }
 
-/// `act(conv3x3(x) + bias + residual)` with stride 1 and padding 1; `u` from
-/// [`transform_filters`].
+/// `act(conv3x3(x) + bias + residual)` with stride 1 and padding 1 into `out` (already shaped
+/// `[B, H, W, C_out]`); `u` from [`Variant::transform_filters`].
 pub(crate) fn conv3x3_winograd(
+    v: Variant,
     x: &FeatureMap,
     u: &[f32],
     bias: &[f32],
-    c_out: usize,
     epi: Epilogue,
     out: &mut FeatureMap,
 ) {
-    let (h, w, c_in) = (x.height, x.width, x.channels);
-    let (th, tw) = (h.div_ceil(2), w.div_ceil(2));
-    // tile rows per band: enough tiles for one full product when the rows are narrow
-    let band = CHUNK_TILES.div_ceil(tw).max(1);
+    let (a, mb) = (v.alpha, v.m);
+    let (h, w, c_in, c_out) = (x.height, x.width, x.channels, out.channels);
+    let (th, tw) = (h.div_ceil(mb), w.div_ceil(mb));
+    let chunk = (CHUNK_BYTES / (4 * a * a * (c_in + c_out))).clamp(16, 256);
+    // tile rows per band: enough tiles for one full chunk when the rows are narrow
+    let band = chunk.div_ceil(tw).max(1);
     let zeros = vec![0f32; c_in];
     let image_out = h * w * c_out;
     for b in 0..x.batch {
@@ -111,26 +166,27 @@ pub(crate) fn conv3x3_winograd(
             .residual
             .map(|r| &r.data[b * image_out..(b + 1) * image_out]);
         let dst = &mut out.data[b * image_out..(b + 1) * image_out];
-        dst.par_chunks_mut(2 * band * w * c_out)
+        dst.par_chunks_mut(mb * band * w * c_out)
             .enumerate()
             .for_each_init(
                 || Scratch {
-                    v: vec![0f32; 16 * CHUNK_TILES * c_in],
-                    m: vec![0f32; 16 * CHUNK_TILES * c_out],
-                    t: vec![0f32; 16 * c_in.max(c_out)],
+                    v: vec![0f32; a * a * chunk * c_in],
+                    m: vec![0f32; a * a * chunk * c_out],
+                    t: vec![0f32; a * a * c_in.max(c_out)],
+                    y: vec![0f32; mb * mb * c_out],
                 },
                 |s, (bi, rows)| {
                     let ty0 = bi * band;
                     let tiles = (th - ty0).min(band) * tw;
-                    let row0 = 2 * ty0;
-                    for first in (0..tiles).step_by(CHUNK_TILES) {
-                        let m = (tiles - first).min(CHUNK_TILES);
-                        // 1. transformed input V_ξ[t, :] = (Bᵀ d B)_ξ
-                        for t in 0..m {
+                    let row0 = mb * ty0;
+                    for first in (0..tiles).step_by(chunk) {
+                        let n = (tiles - first).min(chunk);
+                        // 1. transformed inputs V_ξ[t, :] = (Bᵀ d B)_ξ
+                        for t in 0..n {
                             let (ty, tx) = (ty0 + (first + t) / tw, (first + t) % tw);
                             let pixel = |r: usize, q: usize| -> &[f32] {
-                                let (iy, ix) =
-                                    ((2 * ty + r) as isize - 1, (2 * tx + q) as isize - 1);
+                                let iy = (mb * ty + r) as isize - 1;
+                                let ix = (mb * tx + q) as isize - 1;
                                 if iy < 0 || ix < 0 || iy >= h as isize || ix >= w as isize {
                                     &zeros
                                 } else {
@@ -138,88 +194,70 @@ pub(crate) fn conv3x3_winograd(
                                     &input[at..at + c_in]
                                 }
                             };
-                            // rows: t[r][j] = Bᵀ over the 4 columns of input row r
-                            let tr = &mut s.t[..16 * c_in];
-                            for r in 0..4 {
-                                let (a, rest) =
-                                    tr[r * 4 * c_in..(r + 1) * 4 * c_in].split_at_mut(c_in);
-                                let (b1, rest) = rest.split_at_mut(c_in);
-                                let (b2, b3) = rest.split_at_mut(c_in);
-                                input_transform(
-                                    [a, b1, b2, b3],
-                                    [pixel(r, 0), pixel(r, 1), pixel(r, 2), pixel(r, 3)],
-                                );
+                            // along each input row r: t[r][j] = Σ_q Bᵀ[j][q] d[r][q]
+                            let tr = &mut s.t[..a * a * c_in];
+                            for (rj, dst) in tr.chunks_exact_mut(c_in).enumerate() {
+                                let (r, j) = (rj / a, rj % a);
+                                combine(dst, &v.bt[j * a..(j + 1) * a], |q| pixel(r, q));
                             }
-                            // columns: V[i][j] = Bᵀ over the 4 rows of t[·][j]
-                            for j in 0..4 {
-                                let d = |r: usize| &tr[(r * 4 + j) * c_in..(r * 4 + j + 1) * c_in];
-                                let base = |i: usize| ((i * 4 + j) * CHUNK_TILES + t) * c_in;
-                                let (v0, v1, v2, v3) =
-                                    split4(&mut s.v, [base(0), base(1), base(2), base(3)], c_in);
-                                input_transform([v0, v1, v2, v3], [d(0), d(1), d(2), d(3)]);
+                            // along the columns: V[i][j] = Σ_r Bᵀ[i][r] t[r][j]
+                            let tr = &s.t[..a * a * c_in];
+                            for i in 0..a {
+                                for j in 0..a {
+                                    let at = ((i * a + j) * chunk + t) * c_in;
+                                    combine(
+                                        &mut s.v[at..at + c_in],
+                                        &v.bt[i * a..(i + 1) * a],
+                                        |r| &tr[(r * a + j) * c_in..(r * a + j + 1) * c_in],
+                                    );
+                                }
                             }
                         }
-                        // 2. the 16 products M_ξ = V_ξ · U_ξ
-                        for xi in 0..16 {
-                            let v = &s.v[xi * CHUNK_TILES * c_in..][..m * c_in];
-                            let mm = &mut s.m[xi * CHUNK_TILES * c_out..][..m * c_out];
-                            product(
-                                mm,
-                                v,
-                                &u[xi * c_in * c_out..(xi + 1) * c_in * c_out],
-                                m,
-                                c_out,
-                                c_in,
-                            );
+                        // 2. the α² products M_ξ = V_ξ · U_ξ
+                        for xi in 0..a * a {
+                            let lhs = &s.v[xi * chunk * c_in..][..n * c_in];
+                            let prod = &mut s.m[xi * chunk * c_out..][..n * c_out];
+                            let rhs = &u[xi * c_in * c_out..(xi + 1) * c_in * c_out];
+                            product(prod, lhs, rhs, n, c_out, c_in);
                         }
-                        // 3. output blocks Y = Aᵀ M A, bias, residual, activation
-                        let tr = &mut s.t[..16 * c_out];
-                        for t in 0..m {
+                        // 3. output blocks Y = Aᵀ M A, then bias, residual, activation
+                        for t in 0..n {
                             let (ty, tx) = (ty0 + (first + t) / tw, (first + t) % tw);
-                            let mrow = |i: usize, j: usize| {
-                                &s.m[((i * 4 + j) * CHUNK_TILES + t) * c_out..][..c_out]
+                            let mrow = |i: usize, j: usize| -> &[f32] {
+                                &s.m[((i * a + j) * chunk + t) * c_out..][..c_out]
                             };
-                            // over rows i: r[0][j] = M0j + M1j + M2j, r[1][j] = M1j − M2j − M3j
-                            for j in 0..4 {
-                                let (r0, r1) = tr[j * c_out..].split_at_mut(4 * c_out);
-                                output_transform(
-                                    &mut r0[..c_out],
-                                    &mut r1[..c_out],
-                                    [mrow(0, j), mrow(1, j), mrow(2, j), mrow(3, j)],
-                                );
+                            // over i: t[dy][j] = Σ_i Aᵀ[dy][i] M[i][j]
+                            let tr = &mut s.t[..mb * a * c_out];
+                            for (dj, dst) in tr.chunks_exact_mut(c_out).enumerate() {
+                                let (dy, j) = (dj / a, dj % a);
+                                combine(dst, &v.at[dy * a..(dy + 1) * a], |i| mrow(i, j));
                             }
-                            for dy in 0..2 {
-                                let oy = 2 * ty + dy;
-                                if oy >= h {
+                            // over j: Y[dy][dx] = Σ_j Aᵀ[dx][j] t[dy][j]
+                            let tr = &s.t[..mb * a * c_out];
+                            for (yx, o) in s.y.chunks_exact_mut(c_out).enumerate() {
+                                let (dy, dx) = (yx / mb, yx % mb);
+                                combine(o, &v.at[dx * a..(dx + 1) * a], |j| {
+                                    &tr[(dy * a + j) * c_out..(dy * a + j + 1) * c_out]
+                                });
+                            }
+                            for (yx, y) in s.y.chunks_exact(c_out).enumerate() {
+                                let (oy, ox) = (mb * ty + yx / mb, mb * tx + yx % mb);
+                                if oy >= h || ox >= w {
                                     continue;
                                 }
-                                let q =
-                                    |j: usize| &tr[(dy * 4 + j) * c_out..(dy * 4 + j + 1) * c_out];
-                                let (q0, q1, q2, q3) = (q(0), q(1), q(2), q(3));
-                                for dx in 0..2 {
-                                    let ox = 2 * tx + dx;
-                                    if ox >= w {
-                                        continue;
-                                    }
-                                    let at = ((oy - row0) * w + ox) * c_out;
-                                    let o = &mut rows[at..at + c_out];
-                                    let res_at = (oy * w + ox) * c_out;
-                                    for i in 0..c_out {
-                                        let v = if dx == 0 {
-                                            q0[i] + q1[i] + q2[i]
-                                        } else {
-                                            q1[i] - q2[i] - q3[i]
-                                        };
-                                        o[i] = v + bias[i];
-                                    }
-                                    if let Some(r) = residual {
-                                        o.iter_mut()
-                                            .zip(&r[res_at..res_at + c_out])
-                                            .for_each(|(o, r)| *o += r);
-                                    }
-                                    if epi.relu {
-                                        o.iter_mut().for_each(|v| *v = v.max(0.0));
-                                    }
+                                let at = ((oy - row0) * w + ox) * c_out;
+                                let o = &mut rows[at..at + c_out];
+                                for ((o, &y), &b) in o.iter_mut().zip(y).zip(bias) {
+                                    *o = y + b;
+                                }
+                                if let Some(r) = residual {
+                                    let at = (oy * w + ox) * c_out;
+                                    o.iter_mut()
+                                        .zip(&r[at..at + c_out])
+                                        .for_each(|(o, r)| *o += r);
+                                }
+                                if epi.relu {
+                                    o.iter_mut().for_each(|v| *v = v.max(0.0));
                                 }
                             }
                         }
@@ -227,24 +265,6 @@ pub(crate) fn conv3x3_winograd(
                 },
             );
     }
-}
-
-/// Four disjoint `len`-long windows of `buf` at increasing offsets.
-fn split4(
-    buf: &mut [f32],
-    at: [usize; 4],
-    len: usize,
-) -> (&mut [f32], &mut [f32], &mut [f32], &mut [f32]) {
-    let (_, rest) = buf.split_at_mut(at[0]);
-    let (a, rest) = rest.split_at_mut(at[1] - at[0]);
-    let (b, rest) = rest.split_at_mut(at[2] - at[1]);
-    let (c, rest) = rest.split_at_mut(at[3] - at[2]);
-    (
-        &mut a[..len],
-        &mut b[..len],
-        &mut c[..len],
-        &mut rest[..len],
-    )
 }
 
 /// `out [m, n] = lhs [m, k] · rhs [k, n]`, all row-major, on the calling thread.
