@@ -19,6 +19,9 @@ use super::winograd::{conv3x3_winograd, Variant, F4X4};
 /// and the output tile stay in the L2/L3 caches while `gemm` runs over them.
 const TILE_PIXELS: usize = 512;
 
+/// Fewest input and output channels for which 3×3 layers default to Winograd.
+const WINOGRAD_MIN_CHANNELS: usize = 32;
+
 /// A convolution with square kernel, stride and zero padding, packed for the CPU kernel.
 #[derive(Debug, Clone)]
 pub struct PackedConv2d {
@@ -82,11 +85,15 @@ impl PackedConv2d {
             padding,
             winograd: None,
         };
-        Ok(packed.with_winograd(Some(F4X4)))
+        // Narrow layers spend Winograd's savings on its transforms: im2col wins below 32
+        // channels (measured 2.5× faster at 16→16, on par at 64→32).
+        let variant = (c_in.min(c_out) >= WINOGRAD_MIN_CHANNELS).then_some(F4X4);
+        Ok(packed.with_winograd(variant))
     }
 
     /// The same layer computing its 3×3 stride-1 padding-1 convolution with Winograd `variant`
-    /// (the default is [`F4X4`]), or through im2col + gemm with `None`. Other shapes always use
+    /// (the default is [`F4X4`] when both channel counts are at least 32), or through im2col +
+    /// gemm with `None`. Other shapes always use
     /// im2col.
     pub fn with_winograd(mut self, variant: Option<Variant>) -> Self {
         let fits = self.kernel == 3 && self.stride == 1 && self.padding == 1;
@@ -310,7 +317,11 @@ mod tests {
         let tol = 1e-5 * scale.to_scalar::<f32>().unwrap().max(1.0);
         let want_epi = (&want + res).unwrap().relu().unwrap();
         let packed = PackedConv2d::from_candle(&conv).unwrap();
-        assert_eq!(packed.winograd.is_some(), (k, stride, padding) == (3, 1, 1));
+        let wide = c_in.min(c_out) >= WINOGRAD_MIN_CHANNELS;
+        assert_eq!(
+            packed.winograd.is_some(),
+            (k, stride, padding, wide) == (3, 1, 1, true)
+        );
         for variant in [Some(F4X4), Some(F2X2), None] {
             let packed = packed.clone().with_winograd(variant);
             let path = format!("winograd {:?}", packed.winograd.as_ref().map(|(v, _)| v.m));
