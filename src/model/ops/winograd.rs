@@ -130,11 +130,95 @@ fn combine<'a>(out: &mut [f32], coefs: &[f32], row: impl Fn(usize) -> &'a [f32])
     }
 }
 
+/// `N` disjoint `c`-long rows of `out`, `stride` apart.
+fn rows_of<const N: usize>(out: &mut [f32], stride: usize, c: usize) -> [&mut [f32]; N] {
+    let mut it = out.chunks_mut(stride).map(|g| &mut g[..c]);
+    std::array::from_fn(|_| it.next().expect("winograd: transform rows"))
+}
+
+/// F(4×4, 3×3) `Bᵀ` on six channel rows in one pass.
+fn bt_f4(o: [&mut [f32]; 6], d: [&[f32]; 6], c: usize) {
+    let [o0, o1, o2, o3, o4, o5] = o;
+    let (o0, o1, o2, o3, o4, o5) = (
+        &mut o0[..c],
+        &mut o1[..c],
+        &mut o2[..c],
+        &mut o3[..c],
+        &mut o4[..c],
+        &mut o5[..c],
+    );
+    let (d0, d1, d2, d3, d4, d5) = (
+        &d[0][..c],
+        &d[1][..c],
+        &d[2][..c],
+        &d[3][..c],
+        &d[4][..c],
+        &d[5][..c],
+    );
+    for i in 0..c {
+        let (a0, a1, a2, a3, a4, a5) = (d0[i], d1[i], d2[i], d3[i], d4[i], d5[i]);
+        o0[i] = 4.0 * a0 - 5.0 * a2 + a4;
+        o1[i] = -4.0 * (a1 + a2) + a3 + a4;
+        o2[i] = 4.0 * (a1 - a2) - a3 + a4;
+        o3[i] = 2.0 * (a3 - a1) - a2 + a4;
+        o4[i] = 2.0 * (a1 - a3) - a2 + a4;
+        o5[i] = 4.0 * a1 - 5.0 * a3 + a5;
+    }
+}
+
+/// F(4×4, 3×3) `Aᵀ` on six channel rows in one pass.
+fn at_f4(o: [&mut [f32]; 4], m: [&[f32]; 6], c: usize) {
+    let [o0, o1, o2, o3] = o;
+    let (o0, o1, o2, o3) = (&mut o0[..c], &mut o1[..c], &mut o2[..c], &mut o3[..c]);
+    let (m0, m1, m2, m3, m4, m5) = (
+        &m[0][..c],
+        &m[1][..c],
+        &m[2][..c],
+        &m[3][..c],
+        &m[4][..c],
+        &m[5][..c],
+    );
+    for i in 0..c {
+        let (p, q) = (m1[i] + m2[i], m1[i] - m2[i]);
+        let (r, s) = (m3[i] + m4[i], m3[i] - m4[i]);
+        o0[i] = m0[i] + p + r;
+        o1[i] = q + 2.0 * s;
+        o2[i] = p + 4.0 * r;
+        o3[i] = q + 8.0 * s + m5[i];
+    }
+}
+
+impl Variant {
+    /// `Bᵀ` over α input rows `d`, output row `k` at `out[k·stride..][..c]`.
+    fn input_transform(&self, d: &[&[f32]; 6], out: &mut [f32], stride: usize, c: usize) {
+        if *self == F4X4 {
+            return bt_f4(rows_of(out, stride, c), *d, c);
+        }
+        let a = self.alpha;
+        for k in 0..a {
+            let o = &mut out[k * stride..k * stride + c];
+            combine(o, &self.bt[k * a..(k + 1) * a], |q| d[q]);
+        }
+    }
+
+    /// `Aᵀ` over α rows `m`, output row `k < m` at `out[k·stride..][..c]`.
+    fn output_transform(&self, m: &[&[f32]; 6], out: &mut [f32], stride: usize, c: usize) {
+        if *self == F4X4 {
+            return at_f4(rows_of(out, stride, c), *m, c);
+        }
+        let a = self.alpha;
+        for k in 0..self.m {
+            let o = &mut out[k * stride..k * stride + c];
+            combine(o, &self.at[k * a..(k + 1) * a], |q| m[q]);
+        }
+    }
+}
+
 /// Per-thread scratch of one band.
 struct Scratch {
-    /// Transformed input tiles `[α², chunk, C_in]`.
+    /// Transformed input tiles `[chunk, α², C_in]`.
     v: Vec<f32>,
-    /// Products `[α², chunk, C_out]`.
+    /// Products `[chunk, α², C_out]`.
     m: Vec<f32>,
     /// Half-transformed tile `[α, α, C]` (C = max(C_in, C_out)).
     t: Vec<f32>,
@@ -153,12 +237,14 @@ pub(crate) fn conv3x3_winograd(
     out: &mut FeatureMap,
 ) {
     let (a, mb) = (v.alpha, v.m);
+    let aa = a * a;
     let (h, w, c_in, c_out) = (x.height, x.width, x.channels, out.channels);
     let (th, tw) = (h.div_ceil(mb), w.div_ceil(mb));
-    let chunk = (CHUNK_BYTES / (4 * a * a * (c_in + c_out))).clamp(16, 256);
+    let chunk = (CHUNK_BYTES / (4 * aa * (c_in + c_out))).clamp(16, 256);
     // tile rows per band: enough tiles for one full chunk when the rows are narrow
     let band = chunk.div_ceil(tw).max(1);
     let zeros = vec![0f32; c_in];
+    let empty: &[f32] = &[];
     let image_out = h * w * c_out;
     for b in 0..x.batch {
         let input = &x.data[b * h * w * c_in..(b + 1) * h * w * c_in];
@@ -170,9 +256,9 @@ pub(crate) fn conv3x3_winograd(
             .enumerate()
             .for_each_init(
                 || Scratch {
-                    v: vec![0f32; a * a * chunk * c_in],
-                    m: vec![0f32; a * a * chunk * c_out],
-                    t: vec![0f32; a * a * c_in.max(c_out)],
+                    v: vec![0f32; chunk * aa * c_in],
+                    m: vec![0f32; chunk * aa * c_out],
+                    t: vec![0f32; aa * c_in.max(c_out)],
                     y: vec![0f32; mb * mb * c_out],
                 },
                 |s, (bi, rows)| {
@@ -181,13 +267,15 @@ pub(crate) fn conv3x3_winograd(
                     let row0 = mb * ty0;
                     for first in (0..tiles).step_by(chunk) {
                         let n = (tiles - first).min(chunk);
-                        // 1. transformed inputs V_ξ[t, :] = (Bᵀ d B)_ξ
+                        // 1. transformed inputs V[t][ξ] = (Bᵀ d B)_ξ
                         for t in 0..n {
                             let (ty, tx) = (ty0 + (first + t) / tw, (first + t) % tw);
                             let pixel = |r: usize, q: usize| -> &[f32] {
                                 let iy = (mb * ty + r) as isize - 1;
                                 let ix = (mb * tx + q) as isize - 1;
-                                if iy < 0 || ix < 0 || iy >= h as isize || ix >= w as isize {
+                                if q >= a {
+                                    empty
+                                } else if iy < 0 || ix < 0 || iy >= h as isize || ix >= w as isize {
                                     &zeros
                                 } else {
                                     let at = (iy as usize * w + ix as usize) * c_in;
@@ -195,50 +283,59 @@ pub(crate) fn conv3x3_winograd(
                                 }
                             };
                             // along each input row r: t[r][j] = Σ_q Bᵀ[j][q] d[r][q]
-                            let tr = &mut s.t[..a * a * c_in];
-                            for (rj, dst) in tr.chunks_exact_mut(c_in).enumerate() {
-                                let (r, j) = (rj / a, rj % a);
-                                combine(dst, &v.bt[j * a..(j + 1) * a], |q| pixel(r, q));
+                            let tr = &mut s.t[..aa * c_in];
+                            for r in 0..a {
+                                let d: [&[f32]; 6] = std::array::from_fn(|q| pixel(r, q));
+                                v.input_transform(&d, &mut tr[r * a * c_in..], c_in, c_in);
                             }
                             // along the columns: V[i][j] = Σ_r Bᵀ[i][r] t[r][j]
-                            let tr = &s.t[..a * a * c_in];
-                            for i in 0..a {
-                                for j in 0..a {
-                                    let at = ((i * a + j) * chunk + t) * c_in;
-                                    combine(
-                                        &mut s.v[at..at + c_in],
-                                        &v.bt[i * a..(i + 1) * a],
-                                        |r| &tr[(r * a + j) * c_in..(r * a + j + 1) * c_in],
-                                    );
-                                }
+                            let tr = &s.t[..aa * c_in];
+                            let tile = &mut s.v[t * aa * c_in..(t + 1) * aa * c_in];
+                            for j in 0..a {
+                                let d: [&[f32]; 6] = std::array::from_fn(|r| {
+                                    if r < a {
+                                        &tr[(r * a + j) * c_in..(r * a + j + 1) * c_in]
+                                    } else {
+                                        empty
+                                    }
+                                });
+                                v.input_transform(&d, &mut tile[j * c_in..], a * c_in, c_in);
                             }
                         }
-                        // 2. the α² products M_ξ = V_ξ · U_ξ
-                        for xi in 0..a * a {
-                            let lhs = &s.v[xi * chunk * c_in..][..n * c_in];
-                            let prod = &mut s.m[xi * chunk * c_out..][..n * c_out];
+                        // 2. the α² products M[·][ξ] = V[·][ξ] · U_ξ (tile rows α²·C apart)
+                        for xi in 0..aa {
                             let rhs = &u[xi * c_in * c_out..(xi + 1) * c_in * c_out];
-                            product(prod, lhs, rhs, n, c_out, c_in);
+                            let lhs = &s.v[xi * c_in..];
+                            let prod = &mut s.m[xi * c_out..];
+                            product(prod, aa * c_out, lhs, aa * c_in, rhs, n, c_out, c_in);
                         }
                         // 3. output blocks Y = Aᵀ M A, then bias, residual, activation
                         for t in 0..n {
                             let (ty, tx) = (ty0 + (first + t) / tw, (first + t) % tw);
-                            let mrow = |i: usize, j: usize| -> &[f32] {
-                                &s.m[((i * a + j) * chunk + t) * c_out..][..c_out]
-                            };
+                            let tile = &s.m[t * aa * c_out..(t + 1) * aa * c_out];
                             // over i: t[dy][j] = Σ_i Aᵀ[dy][i] M[i][j]
-                            let tr = &mut s.t[..mb * a * c_out];
-                            for (dj, dst) in tr.chunks_exact_mut(c_out).enumerate() {
-                                let (dy, j) = (dj / a, dj % a);
-                                combine(dst, &v.at[dy * a..(dy + 1) * a], |i| mrow(i, j));
+                            let tr = &mut s.t[..aa * c_out];
+                            for j in 0..a {
+                                let m: [&[f32]; 6] = std::array::from_fn(|i| {
+                                    if i < a {
+                                        &tile[(i * a + j) * c_out..(i * a + j + 1) * c_out]
+                                    } else {
+                                        empty
+                                    }
+                                });
+                                v.output_transform(&m, &mut tr[j * c_out..], a * c_out, c_out);
                             }
                             // over j: Y[dy][dx] = Σ_j Aᵀ[dx][j] t[dy][j]
-                            let tr = &s.t[..mb * a * c_out];
-                            for (yx, o) in s.y.chunks_exact_mut(c_out).enumerate() {
-                                let (dy, dx) = (yx / mb, yx % mb);
-                                combine(o, &v.at[dx * a..(dx + 1) * a], |j| {
-                                    &tr[(dy * a + j) * c_out..(dy * a + j + 1) * c_out]
+                            let tr = &s.t[..aa * c_out];
+                            for dy in 0..mb {
+                                let m: [&[f32]; 6] = std::array::from_fn(|j| {
+                                    if j < a {
+                                        &tr[(dy * a + j) * c_out..(dy * a + j + 1) * c_out]
+                                    } else {
+                                        empty
+                                    }
                                 });
+                                v.output_transform(&m, &mut s.y[dy * mb * c_out..], c_out, c_out);
                             }
                             for (yx, y) in s.y.chunks_exact(c_out).enumerate() {
                                 let (oy, ox) = (mb * ty + yx / mb, mb * tx + yx % mb);
@@ -267,15 +364,33 @@ pub(crate) fn conv3x3_winograd(
     }
 }
 
-/// `out [m, n] = lhs [m, k] · rhs [k, n]`, all row-major, on the calling thread.
-fn product(out: &mut [f32], lhs: &[f32], rhs: &[f32], m: usize, n: usize, k: usize) {
-    assert!(out.len() == m * n && lhs.len() == m * k && rhs.len() == k * n);
-    if m == 0 || n == 0 || k == 0 {
-        out.fill(0.0);
+/// `out [m, n] = lhs [m, k] · rhs [k, n]` on the calling thread: `rhs` row-major, the rows of
+/// `out` and `lhs` `out_rs` and `lhs_rs` elements apart (unit column stride).
+#[allow(clippy::too_many_arguments)]
+fn product(
+    out: &mut [f32],
+    out_rs: usize,
+    lhs: &[f32],
+    lhs_rs: usize,
+    rhs: &[f32],
+    m: usize,
+    n: usize,
+    k: usize,
+) {
+    if m == 0 || n == 0 {
         return;
     }
-    // SAFETY: dst `m × n` row-major in `out`; lhs `m × k` row-major in `lhs`; rhs `k × n`
-    // row-major in `rhs`; the lengths are asserted above. `read_dst = false`: dst is written.
+    assert!(out_rs >= n && lhs_rs >= k && rhs.len() == k * n);
+    assert!(out.len() >= (m - 1) * out_rs + n && lhs.len() >= (m - 1) * lhs_rs + k);
+    if k == 0 {
+        out.chunks_mut(out_rs)
+            .take(m)
+            .for_each(|r| r[..n].fill(0.0));
+        return;
+    }
+    // SAFETY: dst rows `i·out_rs .. i·out_rs + n` (i < m) lie in `out`; lhs rows
+    // `i·lhs_rs .. i·lhs_rs + k` lie in `lhs`; rhs `k × n` row-major; all asserted above.
+    // `read_dst = false`: dst is written, not accumulated.
     unsafe {
         gemm::gemm(
             m,
@@ -283,11 +398,11 @@ fn product(out: &mut [f32], lhs: &[f32], rhs: &[f32], m: usize, n: usize, k: usi
             k,
             out.as_mut_ptr(),
             1,
-            n as isize,
+            out_rs as isize,
             false,
             lhs.as_ptr(),
             1,
-            k as isize,
+            lhs_rs as isize,
             rhs.as_ptr(),
             1,
             n as isize,
