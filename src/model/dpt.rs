@@ -8,6 +8,13 @@
 //! RefineNet fusion (residual conv units, bilinear `align_corners=True`), `output_conv1`, bilinear
 //! to (H, W), position embedding, `output_conv2`, sigmoid. The unused
 //! `neural_renderer.transformer_block.*` weights of the checkpoint are not loaded.
+//!
+//! With f32 weights and input on the CPU the head runs channels-last on the packed kernels of
+//! [`super::ops`] (the token rows already are NHWC): 3×3 convolutions by Winograd F(4×4, 3×3)
+//! or im2col + gemm with the bias, ReLUs and residual adds in their epilogues, the stride-sized
+//! transposed convolutions as one gemm + scatter, each fusion block's 1×1 `out_conv` before its
+//! (commuting) bilinear resize, and the sigmoid before a single NCHW copy at the end. Other
+//! devices and dtypes, and [`NeuralRenderer::with_candle_ops`], run the stock candle ops.
 
 use std::time::{Duration, Instant};
 
