@@ -5,7 +5,8 @@
 //! 256 image tokens per view) written with candle ops and our shared attention; with
 //! `--only dpt` the LHM++ neural renderer (our `NeuralRenderer`, random weights) in the tiny and
 //! lhmpp-700m shapes at `--dpt-sizes`, with a per-stage breakdown (`dpt-candle` times the same
-//! renderer on stock candle ops).
+//! renderer on stock candle ops); `conv3x3` (ours only) times the 3×3 convolution shapes of
+//! the lhmpp-700m head through im2col + gemm, Winograd F(2×2) and F(4×4), one after the other.
 //!
 //! The table uses the peer's piece and config names and columns so the two can be joined.
 
@@ -21,8 +22,11 @@ use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::config::EncoderConfig;
 use lhmpp::model::dpt::{DptConfig, NeuralRenderer, StageTimes};
 use lhmpp::model::encoder::DinoEncoder;
+use lhmpp::model::ops::conv2d::{Epilogue, PackedConv2d};
+use lhmpp::model::ops::feature_map::FeatureMap;
 use lhmpp::model::ops::layer_norm::{layer_norm, LayerNorm};
 use lhmpp::model::ops::linear::{linear, Linear};
+use lhmpp::model::ops::winograd::{F2X2, F4X4};
 
 /// Arguments of `lhmpp bench cpu-peer`.
 #[derive(Args, Debug)]
@@ -33,9 +37,10 @@ pub struct CpuPeerArgs {
     /// Timed runs per config (the median is printed); one warm-up run precedes them.
     #[arg(long, default_value_t = 3)]
     runs: usize,
-    /// Comma list of pieces: matmul, vit, joint, dpt (the peer's), and `attn`, `dpt-candle`
-    /// (ours only: the fused attention against the plain candle ops at the joint layer's shape;
-    /// the neural renderer on stock candle ops).
+    /// Comma list of pieces: matmul, vit, joint, dpt (the peer's), and `attn`, `dpt-candle`,
+    /// `conv3x3` (ours only: the fused attention against the plain candle ops at the joint
+    /// layer's shape; the neural renderer on stock candle ops; the head's 3×3 convolutions by
+    /// each algorithm).
     #[arg(long, value_delimiter = ',', default_value = "matmul,vit,joint")]
     only: Vec<String>,
     /// Square image sizes of the dpt pieces (multiples of 7).
@@ -260,6 +265,45 @@ fn dpt_piece(
     Ok(())
 }
 
+/// Times the 3×3 stride-1 convolutions of the lhmpp-700m head at 588 px (and the tiny head's
+/// widest) through each algorithm; GFLOP are those of direct convolution.
+fn conv3x3_piece(table: &mut Table, quick: bool, runs: usize) -> anyhow::Result<()> {
+    let dev = Device::Cpu;
+    // (c_in, c_out, side): fusion units at 336/84, layer3_rn, output_conv1, output_conv2.0, tiny
+    let shapes: &[(usize, usize, usize)] = if quick {
+        &[(128, 128, 84)]
+    } else {
+        &[
+            (128, 128, 336),
+            (128, 128, 84),
+            (512, 128, 84),
+            (128, 64, 672),
+            (64, 32, 588),
+            (16, 16, 336),
+        ]
+    };
+    for &(c_in, c_out, side) in shapes {
+        let w = Tensor::randn(0f32, 0.05, (c_out, c_in, 3, 3), &dev)?;
+        let b = Tensor::randn(0f32, 0.1, c_out, &dev)?;
+        let x = FeatureMap::from_nchw(&Tensor::randn(0f32, 1.0, (1, c_in, side, side), &dev)?)?;
+        let conv = PackedConv2d::new(&w, Some(&b), 1, 1)?;
+        let gflop = 2.0 * (side * side * c_in * c_out * 9) as f64 / 1e9;
+        let config = format!("{c_in}->{c_out} {side}x{side}");
+        for (piece, variant) in [
+            ("conv3x3-im2col", None),
+            ("conv3x3-wino2", Some(F2X2)),
+            ("conv3x3-wino4", Some(F4X4)),
+        ] {
+            let c = conv.clone().with_winograd(variant);
+            let t = time_runs(runs.max(5), || {
+                Ok(c.forward(&x, Epilogue::default()).map(|_| ())?)
+            })?;
+            table.report(piece, config.clone(), gflop, t);
+        }
+    }
+    Ok(())
+}
+
 /// Runs `lhmpp bench cpu-peer`.
 pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
     if a.threads > 0 {
@@ -355,6 +399,9 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
             })?;
             table.report("attn-candle", format!("B=1 H=6 L={l} D=64"), gflop, t);
         }
+    }
+    if has("conv3x3") {
+        conv3x3_piece(&mut table, a.quick, runs)?;
     }
     for piece in ["dpt", "dpt-candle"] {
         if has(piece) {

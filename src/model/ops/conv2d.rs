@@ -20,7 +20,7 @@ use super::winograd::{conv3x3_winograd, Variant, F4X4};
 const TILE_PIXELS: usize = 512;
 
 /// Fewest input and output channels for which 3×3 layers default to Winograd.
-const WINOGRAD_MIN_CHANNELS: usize = 16;
+const WINOGRAD_MIN_CHANNELS: usize = 32;
 
 /// A convolution with square kernel, stride and zero padding, packed for the CPU kernel.
 #[derive(Debug, Clone)]
@@ -85,14 +85,15 @@ impl PackedConv2d {
             padding,
             winograd: None,
         };
-        // Narrow layers spend Winograd's savings on its transforms: measured on 2 cores, F(4×4)
-        // beats im2col from 16→16 channels (1.3×) up (2.3× at 128→128), ties at 8→32.
+        // Narrow layers spend Winograd's savings on its transforms: on 2 cores (`lhmpp bench
+        // cpu-peer --only conv3x3`) im2col is 2× faster at 16→16, F(4×4) 1.2× faster at 64→32
+        // and 2× at 128→128.
         let variant = (c_in.min(c_out) >= WINOGRAD_MIN_CHANNELS).then_some(F4X4);
         Ok(packed.with_winograd(variant))
     }
 
     /// The same layer computing its 3×3 stride-1 padding-1 convolution with Winograd `variant`
-    /// (the default is [`F4X4`] when both channel counts are at least 16), or through im2col +
+    /// (the default is [`F4X4`] when both channel counts are at least 32), or through im2col +
     /// gemm with `None`. Other shapes always use
     /// im2col.
     pub fn with_winograd(mut self, variant: Option<Variant>) -> Self {
