@@ -315,7 +315,7 @@ mod tests {
         let xm = FeatureMap::from_nchw(&x).unwrap();
         let rm = FeatureMap::from_nchw(&res).unwrap();
         let scale = want.abs().unwrap().flatten_all().unwrap().max(0).unwrap();
-        let tol = 1e-5 * scale.to_scalar::<f32>().unwrap().max(1.0);
+        let scale = scale.to_scalar::<f32>().unwrap().max(1.0);
         let want_epi = (&want + res).unwrap().relu().unwrap();
         let packed = PackedConv2d::from_candle(&conv).unwrap();
         let wide = c_in.min(c_out) >= WINOGRAD_MIN_CHANNELS;
@@ -326,6 +326,14 @@ mod tests {
         for variant in [Some(F4X4), Some(F2X2), None] {
             let packed = packed.clone().with_winograd(variant);
             let path = format!("winograd {:?}", packed.winograd.as_ref().map(|(v, _)| v.m));
+            // F(4×4)'s transforms (entries up to 8, filter factors down to 1/24) cost about
+            // one more decimal digit than direct summation: ~1e-5 of the largest output.
+            let tol = scale
+                * if packed.winograd.as_ref().is_some_and(|(v, _)| v.m == 4) {
+                    1e-4
+                } else {
+                    1e-5
+                };
             let case = format!("{path} b{b} {c_in}->{c_out} {h}x{w} k{k} s{stride} p{padding}");
             let got = packed.forward(&xm, Epilogue::default()).unwrap();
             let got = got.to_nchw(&dev).unwrap();
