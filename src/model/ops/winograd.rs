@@ -222,7 +222,7 @@ struct Scratch {
     m: Vec<f32>,
     /// Half-transformed tile `[α, α, C]` (C = max(C_in, C_out)).
     t: Vec<f32>,
-    /// One output block `[m, m, C_out]`.
+    /// One output block row `[m, C_out]` (for blocks cut by the right edge).
     y: Vec<f32>,
 }
 
@@ -259,7 +259,7 @@ pub(crate) fn conv3x3_winograd(
                     v: vec![0f32; chunk * aa * c_in],
                     m: vec![0f32; chunk * aa * c_out],
                     t: vec![0f32; aa * c_in.max(c_out)],
-                    y: vec![0f32; mb * mb * c_out],
+                    y: vec![0f32; mb * c_out],
                 },
                 |s, (bi, rows)| {
                     let ty0 = bi * band;
@@ -325,9 +325,15 @@ pub(crate) fn conv3x3_winograd(
                                 });
                                 v.output_transform(&m, &mut tr[j * c_out..], a * c_out, c_out);
                             }
-                            // over j: Y[dy][dx] = Σ_j Aᵀ[dx][j] t[dy][j]
+                            // over j: Y[dy][dx] = Σ_j Aᵀ[dx][j] t[dy][j], written straight
+                            // into the output row when the block lies inside the map
                             let tr = &s.t[..aa * c_out];
+                            let ox = mb * tx;
                             for dy in 0..mb {
+                                let oy = mb * ty + dy;
+                                if oy >= h {
+                                    break;
+                                }
                                 let m: [&[f32]; 6] = std::array::from_fn(|j| {
                                     if j < a {
                                         &tr[(dy * a + j) * c_out..(dy * a + j + 1) * c_out]
@@ -335,32 +341,46 @@ pub(crate) fn conv3x3_winograd(
                                         empty
                                     }
                                 });
-                                v.output_transform(&m, &mut s.y[dy * mb * c_out..], c_out, c_out);
-                            }
-                            for (yx, y) in s.y.chunks_exact(c_out).enumerate() {
-                                let (oy, ox) = (mb * ty + yx / mb, mb * tx + yx % mb);
-                                if oy >= h || ox >= w {
-                                    continue;
-                                }
+                                let px = mb.min(w - ox);
                                 let at = ((oy - row0) * w + ox) * c_out;
-                                let o = &mut rows[at..at + c_out];
-                                for ((o, &y), &b) in o.iter_mut().zip(y).zip(bias) {
-                                    *o = y + b;
+                                let o = &mut rows[at..at + px * c_out];
+                                if px == mb {
+                                    v.output_transform(&m, o, c_out, c_out);
+                                } else {
+                                    v.output_transform(&m, &mut s.y, c_out, c_out);
+                                    o.copy_from_slice(&s.y[..px * c_out]);
                                 }
-                                if let Some(r) = residual {
-                                    let at = (oy * w + ox) * c_out;
-                                    o.iter_mut()
-                                        .zip(&r[at..at + c_out])
-                                        .for_each(|(o, r)| *o += r);
-                                }
-                                if epi.relu {
-                                    o.iter_mut().for_each(|v| *v = v.max(0.0));
-                                }
+                                let r = residual.map(|r| &r[(oy * w + ox) * c_out..][..px * c_out]);
+                                finish(o, bias, r, epi.relu);
                             }
                         }
                     }
                 },
             );
+    }
+}
+
+/// `o = act(o + bias + residual)` over pixel rows of `bias.len()` channels, in one pass.
+fn finish(o: &mut [f32], bias: &[f32], residual: Option<&[f32]>, relu: bool) {
+    let act = |v: f32| if relu { v.max(0.0) } else { v };
+    match residual {
+        Some(r) => {
+            for (px, rp) in o
+                .chunks_exact_mut(bias.len())
+                .zip(r.chunks_exact(bias.len()))
+            {
+                for ((o, &r), &b) in px.iter_mut().zip(rp).zip(bias) {
+                    *o = act(*o + b + r);
+                }
+            }
+        }
+        None => {
+            for px in o.chunks_exact_mut(bias.len()) {
+                for (o, &b) in px.iter_mut().zip(bias) {
+                    *o = act(*o + b);
+                }
+            }
+        }
     }
 }
 
