@@ -99,18 +99,20 @@ impl Variant {
         let a = self.alpha;
         let g = |i: usize, k: usize| self.g[i * 3 + k];
         let mut u = vec![0f32; a * a * c_in * c_out];
+        let mut gw = vec![0f64; a * 3];
         for ci in 0..c_in {
             for co in 0..c_out {
                 let w =
                     |ky: usize, kx: usize| weight[((ky * 3 + kx) * c_in + ci) * c_out + co] as f64;
+                // G g, then (G g) Gᵀ
+                for i in 0..a {
+                    for kx in 0..3 {
+                        gw[i * 3 + kx] = (0..3).map(|ky| g(i, ky) * w(ky, kx)).sum();
+                    }
+                }
                 for i in 0..a {
                     for j in 0..a {
-                        let mut v = 0.0;
-                        for ky in 0..3 {
-                            for kx in 0..3 {
-                                v += g(i, ky) * w(ky, kx) * g(j, kx);
-                            }
-                        }
+                        let v: f64 = (0..3).map(|kx| gw[i * 3 + kx] * g(j, kx)).sum();
                         u[((i * a + j) * c_in + ci) * c_out + co] = v as f32;
                     }
                 }
