@@ -8,15 +8,29 @@
 //! RefineNet fusion (residual conv units, bilinear `align_corners=True`), `output_conv1`, bilinear
 //! to (H, W), position embedding, `output_conv2`, sigmoid. The unused
 //! `neural_renderer.transformer_block.*` weights of the checkpoint are not loaded.
+//!
+//! With f32 weights and input on the CPU the head runs channels-last on the packed kernels of
+//! [`super::ops`] (the token rows already are NHWC): 3×3 convolutions by Winograd F(4×4, 3×3)
+//! or im2col + gemm with the bias, ReLUs and residual adds in their epilogues, the stride-sized
+//! transposed convolutions as one gemm + scatter, each fusion block's 1×1 `out_conv` before its
+//! (commuting) bilinear resize, and the sigmoid before a single NCHW copy at the end. Other
+//! devices and dtypes, and [`NeuralRenderer::with_candle_ops`], run the stock candle ops.
+
+use std::time::{Duration, Instant};
 
 use candle_core::{DType, Device, Module, Result, Tensor, D};
 use candle_nn::{
     conv2d, conv2d_no_bias, conv_transpose2d, Conv2d, Conv2dConfig, ConvTranspose2d,
     ConvTranspose2dConfig, VarBuilder,
 };
+use rayon::prelude::*;
 
+use super::ops::conv2d::{Epilogue, PackedConv2d};
+use super::ops::conv_transpose::PackedConvTranspose2d;
+use super::ops::feature_map::FeatureMap;
 use super::ops::layer_norm::{layer_norm, LayerNorm};
 use super::ops::linear::{linear_no_bias, Linear};
+use super::ops::upsample::upsample_bilinear;
 
 /// Neural-renderer configuration (official `neural_renderer` block of the config).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -98,16 +112,16 @@ fn sincos(dim: usize, pos: f64) -> impl Iterator<Item = f32> {
     s.chain(c)
 }
 
-/// VGGT's `create_uv_grid` + `position_grid_to_embed` × `ratio` as `[1, C, h, w]`:
-/// UV spans normalised by the image diagonal (`aspect = W / H` of the full image), x half then y half.
-pub fn uv_position_embedding(
+/// The two halves of VGGT's UV position embedding × `ratio`: per column the `channels / 2`
+/// x-channels and per row the `channels / 2` y-channels (pixel (y, x) gets `column[x] ++ row[y]`).
+/// UV spans are normalised by the image diagonal (`aspect = W / H` of the full image).
+pub fn uv_embedding_tables(
     channels: usize,
     h: usize,
     w: usize,
     aspect: f64,
     ratio: f64,
-    device: &Device,
-) -> Result<Tensor> {
+) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
     let diag = (aspect * aspect + 1.0).sqrt();
     let (span_x, span_y) = (aspect / diag, 1.0 / diag);
     let lin = |n: usize, span: f64| -> Vec<f64> {
@@ -131,8 +145,20 @@ pub fn uv_position_embedding(
             .map(|v| sincos(half, v).map(|e| e * ratio as f32).collect())
             .collect()
     };
-    let xe = encode(lin(w, span_x));
-    let ye = encode(lin(h, span_y));
+    (encode(lin(w, span_x)), encode(lin(h, span_y)))
+}
+
+/// VGGT's `create_uv_grid` + `position_grid_to_embed` × `ratio` as `[1, C, h, w]`
+/// (see [`uv_embedding_tables`]).
+pub fn uv_position_embedding(
+    channels: usize,
+    h: usize,
+    w: usize,
+    aspect: f64,
+    ratio: f64,
+    device: &Device,
+) -> Result<Tensor> {
+    let (xe, ye) = uv_embedding_tables(channels, h, w, aspect, ratio);
     let mut data = Vec::with_capacity(h * w * channels);
     for y in &ye {
         for x in &xe {
@@ -143,6 +169,40 @@ pub fn uv_position_embedding(
     Tensor::from_vec(data, (h, w, channels), device)?
         .permute((2, 0, 1))?
         .unsqueeze(0)
+}
+
+/// Wall-clock time of each stage of one neural-renderer forward, in order of first use
+/// (repeated stages, such as the four fusion blocks' units, add up under one name).
+#[derive(Debug, Default, Clone)]
+pub struct StageTimes {
+    /// `(stage, time)` pairs.
+    pub stages: Vec<(&'static str, Duration)>,
+}
+
+impl StageTimes {
+    fn add(&mut self, name: &'static str, d: Duration) {
+        match self.stages.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, t)) => *t += d,
+            None => self.stages.push((name, d)),
+        }
+    }
+}
+
+/// Laps the stages of one forward into an optional [`StageTimes`].
+struct Clock<'a> {
+    times: Option<&'a mut StageTimes>,
+    last: Instant,
+}
+
+impl Clock<'_> {
+    /// Charges the time since the previous lap to `name`.
+    fn lap(&mut self, name: &'static str) {
+        if let Some(t) = self.times.as_deref_mut() {
+            let now = Instant::now();
+            t.add(name, now - self.last);
+            self.last = now;
+        }
+    }
 }
 
 /// DPT `ResidualConvUnit`: `conv2(relu(conv1(relu(x)))) + relu(x)` — the official ReLU is in
@@ -195,16 +255,21 @@ impl FusionBlock {
         x: &Tensor,
         skip: Option<&Tensor>,
         size: Option<(usize, usize)>,
+        clock: &mut Clock,
     ) -> Result<Tensor> {
         let mut out = x.clone();
         if let (Some(res1), Some(skip)) = (&self.res1, skip) {
             out = (out + res1.forward(skip)?)?;
         }
         let out = self.res2.forward(&out)?;
+        clock.lap("fusion residual units");
         let (_, _, h, w) = out.dims4()?;
         let (th, tw) = size.unwrap_or((2 * h, 2 * w));
-        self.out_conv
-            .forward(&out.upsample_bilinear2d(th, tw, true)?)
+        let up = out.upsample_bilinear2d(th, tw, true)?;
+        clock.lap("fusion upsample");
+        let out = self.out_conv.forward(&up)?;
+        clock.lap("fusion out_conv");
+        Ok(out)
     }
 }
 
@@ -303,6 +368,7 @@ impl DptHead {
         hh: usize,
         ww: usize,
         image: (usize, usize),
+        clock: &mut Clock,
     ) -> Result<Tensor> {
         let (h_img, w_img) = image;
         let aspect = w_img as f64 / h_img as f64;
@@ -317,25 +383,235 @@ impl DptHead {
             let x = x.broadcast_add(&pe.to_dtype(x.dtype())?)?;
             feats.push(self.resize[i].forward(&x)?);
         }
+        clock.lap("norm, projects, resize");
         let rn = feats
             .iter()
             .zip(&self.layer_rn)
             .map(|(f, c)| c.forward(f))
             .collect::<Result<Vec<_>>>()?;
+        clock.lap("layer_rn");
         let size = |t: &Tensor| -> Result<(usize, usize)> {
             let (_, _, h, w) = t.dims4()?;
             Ok((h, w))
         };
-        let out = self.refine[3].forward(&rn[3], None, Some(size(&rn[2])?))?;
-        let out = self.refine[2].forward(&out, Some(&rn[2]), Some(size(&rn[1])?))?;
-        let out = self.refine[1].forward(&out, Some(&rn[1]), Some(size(&rn[0])?))?;
-        let out = self.refine[0].forward(&out, Some(&rn[0]), None)?;
+        let out = self.refine[3].forward(&rn[3], None, Some(size(&rn[2])?), clock)?;
+        let out = self.refine[2].forward(&out, Some(&rn[2]), Some(size(&rn[1])?), clock)?;
+        let out = self.refine[1].forward(&out, Some(&rn[1]), Some(size(&rn[0])?), clock)?;
+        let out = self.refine[0].forward(&out, Some(&rn[0]), None, clock)?;
         let out = self.output_conv1.forward(&out)?;
+        clock.lap("output_conv1");
         let out = out.upsample_bilinear2d(h_img, w_img, true)?;
         let pe = uv_position_embedding(out.dim(1)?, h_img, w_img, aspect, 0.1, device)?;
         let out = out.broadcast_add(&pe.to_dtype(out.dtype())?)?;
-        self.output_conv2b
-            .forward(&self.output_conv2a.forward(&out)?.relu()?)
+        clock.lap("full-size upsample + position");
+        let out = self
+            .output_conv2b
+            .forward(&self.output_conv2a.forward(&out)?.relu()?)?;
+        clock.lap("output_conv2");
+        Ok(out)
+    }
+}
+
+/// `conv2(relu(conv1(relu(x)))) + relu(x)` packed for the channels-last CPU kernels.
+#[derive(Debug, Clone)]
+struct CpuResidualUnit {
+    conv1: PackedConv2d,
+    conv2: PackedConv2d,
+}
+
+impl CpuResidualUnit {
+    fn new(unit: &ResidualConvUnit) -> Result<Self> {
+        Ok(Self {
+            conv1: PackedConv2d::from_candle(&unit.conv1)?,
+            conv2: PackedConv2d::from_candle(&unit.conv2)?,
+        })
+    }
+
+    /// The unit on `x` (consumed: its ReLU is the skip), plus `extra` if given; the bias, ReLUs
+    /// and both additions ride in the convolutions' epilogues.
+    fn forward(&self, mut x: FeatureMap, extra: Option<&FeatureMap>) -> Result<FeatureMap> {
+        x.relu_in_place();
+        let hidden = self.conv1.forward(
+            &x,
+            Epilogue {
+                residual: None,
+                relu: true,
+            },
+        )?;
+        if let Some(e) = extra {
+            x.add_assign(e)?;
+        }
+        self.conv2.forward(
+            &hidden,
+            Epilogue {
+                residual: Some(&x),
+                relu: false,
+            },
+        )
+    }
+}
+
+/// A fusion block packed for the CPU kernels.
+#[derive(Debug, Clone)]
+struct CpuFusion {
+    res1: Option<CpuResidualUnit>,
+    res2: CpuResidualUnit,
+    out_conv: PackedConv2d,
+}
+
+impl CpuFusion {
+    fn new(block: &FusionBlock) -> Result<Self> {
+        Ok(Self {
+            res1: block.res1.as_ref().map(CpuResidualUnit::new).transpose()?,
+            res2: CpuResidualUnit::new(&block.res2)?,
+            out_conv: PackedConv2d::from_candle(&block.out_conv)?,
+        })
+    }
+
+    /// As [`FusionBlock::forward`]. The 1×1 `out_conv` and the bilinear resize commute (the
+    /// interpolation weights sum to one), so the convolution runs on the smaller of the two maps.
+    fn forward(
+        &self,
+        x: FeatureMap,
+        skip: Option<FeatureMap>,
+        size: Option<(usize, usize)>,
+        clock: &mut Clock,
+    ) -> Result<FeatureMap> {
+        let x = match (&self.res1, skip) {
+            (Some(res1), Some(skip)) => res1.forward(skip, Some(&x))?,
+            _ => x,
+        };
+        let out = self.res2.forward(x, None)?;
+        clock.lap("fusion residual units");
+        let (th, tw) = size.unwrap_or((2 * out.height, 2 * out.width));
+        if th * tw >= out.height * out.width {
+            let out = self.out_conv.forward(&out, Epilogue::default())?;
+            clock.lap("fusion out_conv");
+            let up = upsample_bilinear(&out, th, tw)?;
+            clock.lap("fusion upsample");
+            Ok(up)
+        } else {
+            let up = upsample_bilinear(&out, th, tw)?;
+            clock.lap("fusion upsample");
+            let out = self.out_conv.forward(&up, Epilogue::default())?;
+            clock.lap("fusion out_conv");
+            Ok(out)
+        }
+    }
+}
+
+/// The resize layer of one DPT input, packed for the CPU kernels.
+#[derive(Debug, Clone)]
+enum CpuResize {
+    Up(PackedConvTranspose2d),
+    Identity,
+    Down(PackedConv2d),
+}
+
+/// The DPT head packed once for the channels-last f32 CPU kernels (used when the head's
+/// input is f32 on the CPU).
+#[derive(Debug, Clone)]
+struct CpuHead {
+    projects: Vec<PackedConv2d>,
+    resize: Vec<CpuResize>,
+    layer_rn: Vec<PackedConv2d>,
+    refine: Vec<CpuFusion>,
+    output_conv1: PackedConv2d,
+    output_conv2a: PackedConv2d,
+    output_conv2b: PackedConv2d,
+}
+
+impl CpuHead {
+    fn new(head: &DptHead) -> Result<Self> {
+        let packed = |convs: &[Conv2d]| -> Result<Vec<PackedConv2d>> {
+            convs.iter().map(PackedConv2d::from_candle).collect()
+        };
+        Ok(Self {
+            projects: packed(&head.projects)?,
+            resize: head
+                .resize
+                .iter()
+                .map(|r| {
+                    Ok(match r {
+                        Resize::Up(c) => CpuResize::Up(PackedConvTranspose2d::from_candle(c)?),
+                        Resize::Identity => CpuResize::Identity,
+                        Resize::Down(c) => CpuResize::Down(PackedConv2d::from_candle(c)?),
+                    })
+                })
+                .collect::<Result<Vec<_>>>()?,
+            layer_rn: packed(&head.layer_rn)?,
+            refine: head
+                .refine
+                .iter()
+                .map(CpuFusion::new)
+                .collect::<Result<Vec<_>>>()?,
+            output_conv1: PackedConv2d::from_candle(&head.output_conv1)?,
+            output_conv2a: PackedConv2d::from_candle(&head.output_conv2a)?,
+            output_conv2b: PackedConv2d::from_candle(&head.output_conv2b)?,
+        })
+    }
+
+    /// [`DptHead::forward`] + sigmoid on channels-last maps → (rgb, mask); `norm` is the head's LayerNorm (candle's
+    /// fused CPU op on the token rows, which already are channels-last).
+    fn forward(
+        &self,
+        norm: &LayerNorm,
+        groups: &[Tensor],
+        hh: usize,
+        ww: usize,
+        image: (usize, usize),
+        clock: &mut Clock,
+    ) -> Result<(Tensor, Tensor)> {
+        let (h_img, w_img) = image;
+        let aspect = w_img as f64 / h_img as f64;
+        let none = Epilogue::default();
+        let mut rn = Vec::with_capacity(4);
+        for (i, g) in groups.iter().enumerate() {
+            let x = FeatureMap::from_tokens(&norm.forward(g)?, hh, ww)?;
+            let mut x = self.projects[i].forward(&x, none)?;
+            let (columns, rows) = uv_embedding_tables(x.channels, hh, ww, aspect, 0.1);
+            x.add_separable(&columns, &rows)?;
+            let x = match &self.resize[i] {
+                CpuResize::Up(c) => c.forward(&x)?,
+                CpuResize::Identity => x,
+                CpuResize::Down(c) => c.forward(&x, none)?,
+            };
+            clock.lap("norm, projects, resize");
+            rn.push(self.layer_rn[i].forward(&x, none)?);
+            clock.lap("layer_rn");
+        }
+        let side = |m: &FeatureMap| Some((m.height, m.width));
+        let (s0, s1, s2) = (side(&rn[0]), side(&rn[1]), side(&rn[2]));
+        let mut rn = rn.into_iter().map(Some).collect::<Vec<_>>();
+        let mut take = |i: usize| {
+            rn[i]
+                .take()
+                .ok_or_else(|| candle_core::Error::Msg(format!("dpt: layer {i} used twice")))
+        };
+        let out = self.refine[3].forward(take(3)?, None, s2, clock)?;
+        let out = self.refine[2].forward(out, Some(take(2)?), s1, clock)?;
+        let out = self.refine[1].forward(out, Some(take(1)?), s0, clock)?;
+        let out = self.refine[0].forward(out, Some(take(0)?), None, clock)?;
+        let out = self.output_conv1.forward(&out, none)?;
+        clock.lap("output_conv1");
+        let mut out = upsample_bilinear(&out, h_img, w_img)?;
+        let (columns, rows) = uv_embedding_tables(out.channels, h_img, w_img, aspect, 0.1);
+        out.add_separable(&columns, &rows)?;
+        clock.lap("full-size upsample + position");
+        let hidden = self.output_conv2a.forward(
+            &out,
+            Epilogue {
+                residual: None,
+                relu: true,
+            },
+        )?;
+        let mut out = self.output_conv2b.forward(&hidden, none)?;
+        clock.lap("output_conv2");
+        out.sigmoid_in_place();
+        let out = out.to_nchw(groups[0].device())?;
+        let rgb_mask = (out.narrow(1, 0, 3)?, out.narrow(1, 3, 1)?);
+        clock.lap("sigmoid, to NCHW");
+        Ok(rgb_mask)
     }
 }
 
@@ -345,21 +621,111 @@ pub struct NeuralRenderer {
     cfg: DptConfig,
     patchify: Linear,
     head: DptHead,
+    /// The head packed for the channels-last CPU kernels (f32 CPU weights only).
+    cpu_head: Option<CpuHead>,
+    /// `patchify` with its input columns reordered `(c, ph, pw)`, for the CPU path's
+    /// channel-major patch gather ([`channel_major_patches`]).
+    cpu_patchify: Option<Linear>,
+}
+
+/// Cuts a channels-last `[B, H, W, C]` f32 map (such as the rasteriser's feature image) into
+/// `[B·hh·ww, p·p·C]` patch rows ordered `(ph, pw, c)`, the order of
+/// [`NeuralRenderer::patch_tokens`]: each patch row is `p` copies of `p·C` contiguous values.
+fn channels_last_patches(data: &[f32], dims: (usize, usize, usize, usize), p: usize) -> Vec<f32> {
+    let (b, h, w, c) = dims;
+    let (hh, ww) = (h / p, w / p);
+    let row = p * p * c;
+    let mut out = vec![0f32; b * hh * ww * row];
+    if out.is_empty() {
+        return out;
+    }
+    out.par_chunks_mut(ww * row)
+        .enumerate()
+        .for_each(|(band, dst)| {
+            let (bi, y) = (band / hh, band % hh);
+            for (x, token) in dst.chunks_exact_mut(row).enumerate() {
+                for (ph, run) in token.chunks_exact_mut(p * c).enumerate() {
+                    let at = ((bi * h + y * p + ph) * w + x * p) * c;
+                    run.copy_from_slice(&data[at..at + p * c]);
+                }
+            }
+        });
+    out
+}
+
+/// Cuts a contiguous `[B, C, H, W]` f32 map into `[B·hh·ww, C·p·p]` patch rows ordered
+/// `(c, ph, pw)`: every `p` values come from one image row, so the gather is a copy of short
+/// runs (the `(ph, pw, c)` order of [`NeuralRenderer::patch_tokens`] needs one strided read per
+/// value). Patch rows of one `hh` band run in parallel.
+fn channel_major_patches(data: &[f32], dims: (usize, usize, usize, usize), p: usize) -> Vec<f32> {
+    let (b, c, h, w) = dims;
+    let (hh, ww) = (h / p, w / p);
+    let row = c * p * p;
+    let mut out = vec![0f32; b * hh * ww * row];
+    if out.is_empty() {
+        return out;
+    }
+    out.par_chunks_mut(ww * row)
+        .enumerate()
+        .for_each(|(band, dst)| {
+            let (bi, y) = (band / hh, band % hh);
+            // one image row at a time (sequential reads), its p-runs dealt to the ww tokens
+            for ci in 0..c {
+                let plane = &data[(bi * c + ci) * h * w..(bi * c + ci + 1) * h * w];
+                for ph in 0..p {
+                    let line = &plane[(y * p + ph) * w..(y * p + ph) * w + ww * p];
+                    let at = (ci * p + ph) * p;
+                    for (token, run) in dst.chunks_exact_mut(row).zip(line.chunks_exact(p)) {
+                        token[at..at + p].copy_from_slice(run);
+                    }
+                }
+            }
+        });
+    out
 }
 
 impl NeuralRenderer {
     /// Build from `vb = root.pp("neural_renderer")`.
     pub fn new(cfg: &DptConfig, vb: VarBuilder) -> Result<Self> {
         let p = cfg.patch_size;
+        let head = DptHead::new(cfg, vb.pp("dense_predictor"))?;
+        let w = head.output_conv1.weight();
+        let cpu_head = if w.device().is_cpu() && w.dtype() == DType::F32 {
+            Some(CpuHead::new(&head)?)
+        } else {
+            None
+        };
+        let patchify = linear_no_bias(
+            p * p * cfg.in_channels,
+            cfg.embed_dim,
+            vb.pp("patchify").pp("1"),
+        )?;
+        let cpu_patchify = match &cpu_head {
+            Some(_) => {
+                let w = patchify
+                    .weight()
+                    .reshape((cfg.embed_dim, p, p, cfg.in_channels))?
+                    .permute((0, 3, 1, 2))?
+                    .reshape((cfg.embed_dim, p * p * cfg.in_channels))?;
+                Some(Linear::new(w, None))
+            }
+            None => None,
+        };
         Ok(Self {
             cfg: cfg.clone(),
-            patchify: linear_no_bias(
-                p * p * cfg.in_channels,
-                cfg.embed_dim,
-                vb.pp("patchify").pp("1"),
-            )?,
-            head: DptHead::new(cfg, vb.pp("dense_predictor"))?,
+            patchify,
+            head,
+            cpu_head,
+            cpu_patchify,
         })
+    }
+
+    /// The same renderer running its head on stock candle ops only (NCHW convolutions), the
+    /// reference the channels-last CPU kernels are checked and benchmarked against.
+    pub fn with_candle_ops(mut self) -> Self {
+        self.cpu_head = None;
+        self.cpu_patchify = None;
+        self
     }
 
     /// Cut `[B, C, H, W]` into `(ph, pw, c)`-ordered patch vectors `[B, hh·ww, p·p·C]`.
@@ -376,6 +742,27 @@ impl NeuralRenderer {
     /// Feature map `[B, C, H, W]` (H, W multiples of `patch_size`) → (rgb `[B,3,H,W]`,
     /// mask `[B,1,H,W]`), both in [0, 1].
     pub fn forward(&self, features: &Tensor) -> Result<(Tensor, Tensor)> {
+        self.forward_inner(features, None)
+    }
+
+    /// [`Self::forward`], adding the wall-clock time of each stage to `times`.
+    pub fn forward_timed(
+        &self,
+        features: &Tensor,
+        times: &mut StageTimes,
+    ) -> Result<(Tensor, Tensor)> {
+        self.forward_inner(features, Some(times))
+    }
+
+    fn forward_inner(
+        &self,
+        features: &Tensor,
+        times: Option<&mut StageTimes>,
+    ) -> Result<(Tensor, Tensor)> {
+        let mut clock = Clock {
+            times,
+            last: Instant::now(),
+        };
         let dims = features.dims().to_vec();
         let p = self.cfg.patch_size;
         let ok = dims.len() == 4
@@ -392,20 +779,66 @@ impl NeuralRenderer {
             }));
         }
         let (h, w) = (dims[2], dims[3]);
-        let tokens = self.patchify.forward(&self.patch_tokens(features)?)?;
+        let (hh, ww) = (h / p, w / p);
         let d = self.cfg.head_dim();
+        let cpu = features.device().is_cpu() && features.dtype() == DType::F32;
+        if let (Some(head), Some(patchify), true) = (&self.cpu_head, &self.cpu_patchify, cpu) {
+            // A channels-last map viewed as [B, C, H, W] (the rasteriser's features permuted)
+            // is gathered in place in the weight's own (ph, pw, c) order; anything else is made
+            // contiguous NCHW and gathered channel-major for the column-permuted weight.
+            let nhwc = features.permute((0, 2, 3, 1))?;
+            let channels_last = nhwc.is_contiguous();
+            let source = if channels_last {
+                nhwc
+            } else {
+                features.contiguous()?
+            };
+            let rows = {
+                let (guard, layout) = source.storage_and_layout();
+                let candle_core::Storage::Cpu(storage) = &*guard else {
+                    candle_core::bail!("neural renderer: CPU tensor without CPU storage");
+                };
+                let data =
+                    super::ops::contiguous_f32(storage, layout, "neural renderer", "features")?;
+                if channels_last {
+                    channels_last_patches(data, (dims[0], h, w, dims[1]), p)
+                } else {
+                    channel_major_patches(data, (dims[0], dims[1], h, w), p)
+                }
+            };
+            let rows = Tensor::from_vec(rows, (dims[0], hh * ww, p * p * dims[1]), &Device::Cpu)?;
+            clock.lap("patch tokens");
+            let linear = if channels_last {
+                &self.patchify
+            } else {
+                patchify
+            };
+            let tokens = linear.forward(&rows)?;
+            let groups = (0..4)
+                .map(|i| tokens.narrow(D::Minus1, i * d, d)?.contiguous())
+                .collect::<Result<Vec<_>>>()?;
+            clock.lap("patchify linear");
+            return head.forward(&self.head.norm, &groups, hh, ww, (h, w), &mut clock);
+        }
+        let patches = self.patch_tokens(features)?;
+        clock.lap("patch tokens");
+        let tokens = self.patchify.forward(&patches)?;
         let groups = (0..4)
             .map(|i| tokens.narrow(D::Minus1, i * d, d)?.contiguous())
             .collect::<Result<Vec<_>>>()?;
-        let logits = self.head.forward(&groups, h / p, w / p, (h, w))?;
+        clock.lap("patchify linear");
+        let logits = self.head.forward(&groups, hh, ww, (h, w), &mut clock)?;
         let out = candle_nn::ops::sigmoid(&logits.to_dtype(DType::F32)?)?;
-        Ok((out.narrow(1, 0, 3)?, out.narrow(1, 3, 1)?))
+        let rgb_mask = (out.narrow(1, 0, 3)?, out.narrow(1, 3, 1)?);
+        clock.lap("sigmoid");
+        Ok(rgb_mask)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::testing::max_abs_diff;
     use candle_nn::VarMap;
 
     fn renderer() -> Result<NeuralRenderer> {
@@ -446,6 +879,34 @@ mod tests {
     }
 
     #[test]
+    fn channels_last_cpu_kernels_match_the_candle_op_path() -> Result<()> {
+        let fast = renderer()?;
+        assert!(fast.cpu_head.is_some());
+        let slow = fast.clone().with_candle_ops();
+        for dims in [(2, 32, 35, 21), (1, 32, 49, 56), (1, 32, 7, 7)] {
+            let feats = Tensor::randn(0f32, 1.0, dims, &Device::Cpu)?;
+            let mut times = StageTimes::default();
+            let (rgb, mask) = fast.forward_timed(&feats, &mut times)?;
+            let (rgb_ref, mask_ref) = slow.forward(&feats)?;
+            let d = max_abs_diff(&rgb, &rgb_ref).max(max_abs_diff(&mask, &mask_ref));
+            // f32 rounding of a different summation order (Winograd, patch column order)
+            assert!(d < 1e-4, "{dims:?}: {d}");
+            // the same map stored channels-last (as the rasteriser emits it)
+            let hwc = feats
+                .permute((0, 2, 3, 1))?
+                .contiguous()?
+                .permute((0, 3, 1, 2))?;
+            assert!(!hwc.is_contiguous());
+            let (rgb_hwc, _) = fast.forward(&hwc)?;
+            let d = max_abs_diff(&rgb_hwc, &rgb_ref);
+            assert!(d < 1e-4, "channels-last input {dims:?}: {d}");
+            let names: Vec<_> = times.stages.iter().map(|(n, _)| *n).collect();
+            assert!(names.contains(&"layer_rn") && names.contains(&"fusion residual units"));
+        }
+        Ok(())
+    }
+
+    #[test]
     fn rejects_sizes_that_are_not_patch_multiples() -> Result<()> {
         let r = renderer()?;
         let bad = Tensor::zeros((1, 32, 20, 21), DType::F32, &Device::Cpu)?;
@@ -475,6 +936,26 @@ mod tests {
         let at = (7 + 2) * 32 + 3;
         assert_eq!(second[at], (3 * 10000 + 8 * 100 + 2) as f32);
         Ok(())
+    }
+
+    #[test]
+    fn channel_major_patches_are_ordered_channel_row_column() {
+        // value = c * 10000 + y * 100 + x over a [2, 3, 14, 21] map
+        let (b, c, h, w) = (2usize, 3usize, 14usize, 21usize);
+        let data: Vec<f32> = (0..b * c * h * w)
+            .map(|i| {
+                let (bi, ci, y, x) = (i / (c * h * w), (i / (h * w)) % c, (i / w) % h, i % w);
+                (bi * 100000 + ci * 10000 + y * 100 + x) as f32
+            })
+            .collect();
+        let rows = channel_major_patches(&data, (b, c, h, w), 7);
+        assert_eq!(rows.len(), b * 2 * 3 * c * 49);
+        // image 1, patch (1, 2) = token 5; entry (c=2, ph=3, pw=4)
+        let token = &rows[(6 + 5) * c * 49..(6 + 6) * c * 49];
+        assert_eq!(
+            token[2 * 49 + 3 * 7 + 4],
+            (100000 + 20000 + 10 * 100 + 18) as f32
+        );
     }
 
     #[test]

@@ -2,7 +2,11 @@
 //! (`scripts/bench-cpu-peer` runs both) timed with our candle code: matmul 1024³, the DINOv2
 //! ViT-S/14 and ViT-B/14 with 4 registers (our `DinoEncoder`, random weights) at 224 and
 //! 518 px, and one SD3-style joint-attention layer (d = 384, 6 heads, 4,096 point tokens +
-//! 256 image tokens per view) written with candle ops and our shared attention.
+//! 256 image tokens per view) written with candle ops and our shared attention; with
+//! `--only dpt` the LHM++ neural renderer (our `NeuralRenderer`, random weights) in the tiny and
+//! lhmpp-700m shapes at `--dpt-sizes`, with a per-stage breakdown (`dpt-candle` times the same
+//! renderer on stock candle ops); `conv3x3` (ours only) times the 3×3 convolution shapes of
+//! the lhmpp-700m head through im2col + gemm, Winograd F(2×2) and F(4×4), one after the other.
 //!
 //! The table uses the peer's piece and config names and columns so the two can be joined.
 
@@ -16,9 +20,13 @@ use clap::Args;
 use lhmpp::model::attention::{attention, attention_reference, merge_heads, split_heads};
 use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::config::EncoderConfig;
+use lhmpp::model::dpt::{DptConfig, NeuralRenderer, StageTimes};
 use lhmpp::model::encoder::DinoEncoder;
+use lhmpp::model::ops::conv2d::{Epilogue, PackedConv2d};
+use lhmpp::model::ops::feature_map::FeatureMap;
 use lhmpp::model::ops::layer_norm::{layer_norm, LayerNorm};
 use lhmpp::model::ops::linear::{linear, Linear};
+use lhmpp::model::ops::winograd::{F2X2, F4X4};
 
 /// Arguments of `lhmpp bench cpu-peer`.
 #[derive(Args, Debug)]
@@ -29,10 +37,15 @@ pub struct CpuPeerArgs {
     /// Timed runs per config (the median is printed); one warm-up run precedes them.
     #[arg(long, default_value_t = 3)]
     runs: usize,
-    /// Comma list of pieces: matmul, vit, joint (the peer's), and `attn` (ours only: the fused
-    /// attention against the plain candle ops at the joint layer's shape).
+    /// Comma list of pieces: matmul, vit, joint, dpt (the peer's), and `attn`, `dpt-candle`,
+    /// `conv3x3` (ours only: the fused attention against the plain candle ops at the joint
+    /// layer's shape; the neural renderer on stock candle ops; the head's 3×3 convolutions by
+    /// each algorithm).
     #[arg(long, value_delimiter = ',', default_value = "matmul,vit,joint")]
     only: Vec<String>,
+    /// Square image sizes of the dpt pieces (multiples of 7).
+    #[arg(long, value_delimiter = ',', default_value = "588")]
+    dpt_sizes: Vec<usize>,
     /// Smallest config of each piece only, 2 timed runs (smoke test).
     #[arg(long)]
     quick: bool,
@@ -170,6 +183,127 @@ fn joint_forward(
     ))
 }
 
+/// Multiply-add GFLOP (2 per MAC) of the renderer's Linear, convolutions and transposed
+/// convolutions at a square `size` (the peer's count).
+fn dpt_gflop(cfg: &DptConfig, size: usize) -> f64 {
+    let hh = size / cfg.patch_size;
+    let n0 = (hh * hh) as f64;
+    let conv = |px: f64, cin: usize, cout: usize, k: usize| 2.0 * px * (cin * cout * k * k) as f64;
+    let (oc, f) = (cfg.out_channels, cfg.features);
+    let p2c = cfg.patch_size * cfg.patch_size * cfg.in_channels;
+    let mut g = 2.0 * n0 * (p2c * cfg.embed_dim) as f64;
+    g += oc
+        .iter()
+        .map(|&o| conv(n0, cfg.head_dim(), o, 1))
+        .sum::<f64>();
+    g += conv(n0, oc[0], oc[0] * 16, 1) + conv(n0, oc[1], oc[1] * 4, 1);
+    g += conv(hh.div_ceil(2).pow(2) as f64, oc[3], oc[3], 3);
+    let sides = [4 * hh, 2 * hh, hh, hh.div_ceil(2)];
+    for (i, (&s, &o)) in sides.iter().zip(&oc).enumerate() {
+        let px = (s * s) as f64;
+        g += conv(px, o, f, 3);
+        g += if i != 3 { 2.0 } else { 1.0 } * 2.0 * conv(px, f, f, 3);
+        let up = if i == 0 { 2 * s } else { sides[i - 1] };
+        g += conv((up * up) as f64, f, f, 1);
+    }
+    g += conv(((8 * hh) * (8 * hh)) as f64, f, f / 2, 3);
+    g += conv((size * size) as f64, f / 2, 32, 3) + conv((size * size) as f64, 32, 4, 1);
+    g / 1e9
+}
+
+/// Times the neural renderer for each preset and size, then prints the per-stage breakdown of
+/// one more forward as `#` lines.
+fn dpt_piece(
+    table: &mut Table,
+    piece: &str,
+    sizes: &[usize],
+    quick: bool,
+    runs: usize,
+) -> anyhow::Result<()> {
+    let dev = Device::Cpu;
+    let presets: &[(&str, DptConfig)] = if quick {
+        &[("tiny", DptConfig::tiny())][..]
+    } else {
+        &[
+            ("tiny", DptConfig::tiny()),
+            ("lhmpp-700m", DptConfig::lhmpp_700m()),
+        ][..]
+    };
+    for (name, cfg) in presets {
+        let vb = seeded_var_builder(7, DType::F32, &dev);
+        let renderer = NeuralRenderer::new(cfg, vb.pp("neural_renderer"))?;
+        let renderer = if piece == "dpt-candle" {
+            renderer.with_candle_ops()
+        } else {
+            renderer
+        };
+        for &size in sizes {
+            let feats = Tensor::randn(0f32, 1.0, (1, cfg.in_channels, size, size), &dev)?;
+            let t = time_runs(runs, || Ok(renderer.forward(&feats).map(|_| ())?))?;
+            table.report(
+                piece,
+                format!("{name} {size}x{size}"),
+                dpt_gflop(cfg, size),
+                t,
+            );
+            let mut times = StageTimes::default();
+            renderer.forward_timed(&feats, &mut times)?;
+            let total: f64 = times.stages.iter().map(|(_, d)| d.as_secs_f64()).sum();
+            println!(
+                "# {piece} {name} {size}x{size} stages of one forward ({:.1} ms):",
+                total * 1e3
+            );
+            for (stage, d) in &times.stages {
+                let ms = d.as_secs_f64() * 1e3;
+                println!(
+                    "#   {stage:32} {ms:9.1} ms {:5.1}%",
+                    100.0 * ms / (total * 1e3)
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Times the 3×3 stride-1 convolutions of the lhmpp-700m head at 588 px (and the tiny head's
+/// widest) through each algorithm; GFLOP are those of direct convolution.
+fn conv3x3_piece(table: &mut Table, quick: bool, runs: usize) -> anyhow::Result<()> {
+    let dev = Device::Cpu;
+    // (c_in, c_out, side): fusion units at 336/84, layer3_rn, output_conv1, output_conv2.0, tiny
+    let shapes: &[(usize, usize, usize)] = if quick {
+        &[(128, 128, 84)]
+    } else {
+        &[
+            (128, 128, 336),
+            (128, 128, 84),
+            (512, 128, 84),
+            (128, 64, 672),
+            (64, 32, 588),
+            (16, 16, 336),
+        ]
+    };
+    for &(c_in, c_out, side) in shapes {
+        let w = Tensor::randn(0f32, 0.05, (c_out, c_in, 3, 3), &dev)?;
+        let b = Tensor::randn(0f32, 0.1, c_out, &dev)?;
+        let x = FeatureMap::from_nchw(&Tensor::randn(0f32, 1.0, (1, c_in, side, side), &dev)?)?;
+        let conv = PackedConv2d::new(&w, Some(&b), 1, 1)?;
+        let gflop = 2.0 * (side * side * c_in * c_out * 9) as f64 / 1e9;
+        let config = format!("{c_in}->{c_out} {side}x{side}");
+        for (piece, variant) in [
+            ("conv3x3-im2col", None),
+            ("conv3x3-wino2", Some(F2X2)),
+            ("conv3x3-wino4", Some(F4X4)),
+        ] {
+            let c = conv.clone().with_winograd(variant);
+            let t = time_runs(runs.max(5), || {
+                Ok(c.forward(&x, Epilogue::default()).map(|_| ())?)
+            })?;
+            table.report(piece, config.clone(), gflop, t);
+        }
+    }
+    Ok(())
+}
+
 /// Runs `lhmpp bench cpu-peer`.
 pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
     if a.threads > 0 {
@@ -264,6 +398,14 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
                 Ok(attention_reference(&q, &k, &w, None).map(|_| ())?)
             })?;
             table.report("attn-candle", format!("B=1 H=6 L={l} D=64"), gflop, t);
+        }
+    }
+    if has("conv3x3") {
+        conv3x3_piece(&mut table, a.quick, runs)?;
+    }
+    for piece in ["dpt", "dpt-candle"] {
+        if has(piece) {
+            dpt_piece(&mut table, piece, &a.dpt_sizes, a.quick, runs)?;
         }
     }
     println!();

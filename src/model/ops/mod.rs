@@ -3,14 +3,21 @@
 //! the gated residual add fused into one matrix product ([`linear`]); LayerNorm
 //! ([`layer_norm`]); softmax ([`softmax`]); and the vectorisable exponential and GELU they use
 //! ([`fast_exp`], [`gelu`]). Each falls back to candle's ops off the CPU or for dtypes other
-//! than f32.
+//! than f32. The DPT neural renderer's CPU path works on channels-last maps ([`feature_map`])
+//! with tiled-gemm convolutions ([`conv2d`], 3×3 ones by Winograd F(2×2, 3×3) in
+//! [`winograd`], [`conv_transpose`]) and a bilinear resize ([`upsample`]).
 
+pub mod conv2d;
+pub mod conv_transpose;
 pub mod fast_exp;
+pub mod feature_map;
 pub mod fused_attention;
 pub mod gelu;
 pub mod layer_norm;
 pub mod linear;
 pub mod softmax;
+pub mod upsample;
+pub mod winograd;
 
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, Layout};
