@@ -13,6 +13,7 @@ use gemm::Parallelism;
 use rayon::prelude::*;
 
 use super::feature_map::FeatureMap;
+use super::matmul::{matmul_into, MatRef};
 use super::winograd::{conv3x3_winograd, Variant, F4X4};
 
 /// Output pixels per tile: the im2col tile (`TILE_PIXELS·k·k·C_in` floats, 2.4 MB at 3×3×128)
@@ -258,34 +259,8 @@ pub(crate) fn host_f32(t: &Tensor) -> Result<Vec<f32>> {
 /// `out [m, n] += lhs [m, k] · rhs [k, n]`, all row-major, on the calling thread.
 pub(crate) fn accumulate(out: &mut [f32], lhs: &[f32], rhs: &[f32], m: usize, n: usize, k: usize) {
     assert!(out.len() == m * n && lhs.len() == m * k && rhs.len() == k * n);
-    if m == 0 || n == 0 || k == 0 {
-        return;
-    }
-    // SAFETY: dst `m × n` row-major in `out`; lhs `m × k` row-major in `lhs`; rhs `k × n`
-    // row-major in `rhs`; the lengths are asserted above.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            out.as_mut_ptr(),
-            1,
-            n as isize,
-            true,
-            lhs.as_ptr(),
-            1,
-            k as isize,
-            rhs.as_ptr(),
-            1,
-            n as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            Parallelism::None,
-        );
-    }
+    let (lhs, rhs) = (MatRef::row_major(lhs, m, k), MatRef::row_major(rhs, k, n));
+    matmul_into(out, n, lhs, rhs, true, 1.0, Parallelism::None);
 }
 
 #[cfg(test)]

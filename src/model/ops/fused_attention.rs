@@ -11,6 +11,7 @@
 //! use the plain candle path in [`crate::model::attention`].
 
 use super::fast_exp::{exp_approx, exp_shifted_sum, max_of};
+use super::matmul::{matmul_into, MatRef};
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use gemm::Parallelism;
@@ -215,33 +216,17 @@ fn attend_block(
         let keys = KEY_BLOCK.min(lk - key);
         let k_block = &k_head[key..];
         let v_block = &v_head[key * dv..(key + keys) * dv];
-        // SAFETY: every pointer/stride pair addresses only elements inside its slice:
-        // dst `rows × keys` with row stride KEY_BLOCK in `scores` (rows·KEY_BLOCK long),
-        // lhs `rows × d` row-major in `q_block`, rhs `d × keys` with row stride `lk` from
-        // column `key` of the `[D, Lk]` head (last element (d−1)·lk + key + keys − 1 < d·lk).
-        unsafe {
-            gemm::gemm(
-                rows,
-                keys,
-                d,
-                scores.as_mut_ptr(),
-                1,
-                KEY_BLOCK as isize,
-                false,
-                q_block.as_ptr(),
-                1,
-                d as isize,
-                k_block.as_ptr(),
-                1,
-                lk as isize,
-                0.0,
-                scale,
-                false,
-                false,
-                false,
-                Parallelism::None,
-            );
-        }
+        // Scores `rows × keys` (rows KEY_BLOCK apart) = scale · Q · K, K read as `d × keys`
+        // with rows `lk` apart from column `key` of the `[D, Lk]` head.
+        matmul_into(
+            &mut scores,
+            KEY_BLOCK,
+            MatRef::row_major(q_block, rows, d),
+            MatRef::rows_apart(k_block, d, keys, lk),
+            false,
+            scale,
+            Parallelism::None,
+        );
         for r in 0..rows {
             let s = &mut scores[r * KEY_BLOCK..r * KEY_BLOCK + keys];
             let new_max = row_max[r].max(max_of(s));
@@ -258,31 +243,15 @@ fn attend_block(
                     .for_each(|a| *a *= correction);
             }
         }
-        // SAFETY: dst `rows × dv` row-major in `acc`, lhs `rows × keys` with row stride
-        // KEY_BLOCK in `scores`, rhs `keys × dv` row-major in `v_block`.
-        unsafe {
-            gemm::gemm(
-                rows,
-                dv,
-                keys,
-                acc.as_mut_ptr(),
-                1,
-                dv as isize,
-                true,
-                scores.as_ptr(),
-                1,
-                KEY_BLOCK as isize,
-                v_block.as_ptr(),
-                1,
-                dv as isize,
-                1.0,
-                1.0,
-                false,
-                false,
-                false,
-                Parallelism::None,
-            );
-        }
+        matmul_into(
+            &mut acc,
+            dv,
+            MatRef::rows_apart(&scores, rows, keys, KEY_BLOCK),
+            MatRef::row_major(v_block, keys, dv),
+            true,
+            1.0,
+            Parallelism::None,
+        );
         key += keys;
     }
     for r in 0..rows {

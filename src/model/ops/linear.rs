@@ -16,6 +16,7 @@ use gemm::Parallelism;
 use rayon::prelude::*;
 
 use super::gelu::{gelu_in_place, gelu_tanh_in_place};
+use super::matmul::{matmul_into, MatRef};
 
 /// Products smaller than this many multiply-adds run on one thread.
 const PARALLEL_MIN_MACS: usize = 1 << 18;
@@ -296,35 +297,16 @@ pub struct Weight<'a> {
 fn accumulate_product(out: &mut [f32], x: &[f32], w: Weight, m: usize, n: usize, k: usize) {
     assert!(out.len() == m * n && x.len() == m * k && w.data.len() == n * k);
     assert!(w.strides == (k, 1) || w.strides == (1, n) || n == 1 || k == 1);
-    if m == 0 || n == 0 || k == 0 {
-        return;
-    }
-    // SAFETY: dst `m × n` row-major in `out` (m·n long); lhs `m × k` row-major in `x`
-    // (m·k long); rhs `k × n` is the weight read with its strides, which address only its
-    // n·k values (dense layouts asserted above).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            out.as_mut_ptr(),
-            1,
-            n as isize,
-            true,
-            x.as_ptr(),
-            1,
-            k as isize,
-            w.data.as_ptr(),
-            w.strides.0 as isize,
-            w.strides.1 as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            parallelism(m, n, k),
-        );
-    }
+    // `Wᵀ [k, n]`: element (t, j) is W[j, t].
+    let wt = MatRef {
+        data: w.data,
+        rows: k,
+        cols: n,
+        row_stride: w.strides.1,
+        col_stride: w.strides.0,
+    };
+    let x = MatRef::row_major(x, m, k);
+    matmul_into(out, n, x, wt, true, 1.0, parallelism(m, n, k));
 }
 
 /// `act(x Wᵀ + b)` on raw slices: `x [m, k]` row-major, `w [n, k]`, `b [n]` → `[m, n]`.

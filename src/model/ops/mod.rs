@@ -4,8 +4,9 @@
 //! ([`layer_norm`]); softmax ([`softmax`]); and the vectorisable exponential and GELU they use
 //! ([`fast_exp`], [`gelu`]). Each falls back to candle's ops off the CPU or for dtypes other
 //! than f32. The DPT neural renderer's CPU path works on channels-last maps ([`feature_map`])
-//! with tiled-gemm convolutions ([`conv2d`], 3×3 ones by Winograd F(2×2, 3×3) in
-//! [`winograd`], [`conv_transpose`]) and a bilinear resize ([`upsample`]).
+//! with tiled-gemm convolutions ([`conv2d`], 3×3 ones by Winograd F(4×4, 3×3) in
+//! [`winograd`], [`conv_transpose`]) and a bilinear resize ([`upsample`]). All of them reach the
+//! `gemm` crate through one checked call (`matmul`).
 
 pub mod conv2d;
 pub mod conv_transpose;
@@ -15,6 +16,7 @@ pub mod fused_attention;
 pub mod gelu;
 pub mod layer_norm;
 pub mod linear;
+mod matmul;
 pub mod softmax;
 pub mod upsample;
 pub mod winograd;

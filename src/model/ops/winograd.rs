@@ -15,6 +15,7 @@ use rayon::prelude::*;
 
 use super::conv2d::Epilogue;
 use super::feature_map::FeatureMap;
+use super::matmul::{matmul_into, MatRef};
 
 /// Bytes of transformed inputs plus products per chunk (sized to the L2 cache).
 const CHUNK_BYTES: usize = 1 << 21;
@@ -309,7 +310,15 @@ pub(crate) fn conv3x3_winograd(
                             let rhs = &u[xi * c_in * c_out..(xi + 1) * c_in * c_out];
                             let lhs = &s.v[xi * c_in..];
                             let prod = &mut s.m[xi * c_out..];
-                            product(prod, aa * c_out, lhs, aa * c_in, rhs, n, c_out, c_in);
+                            matmul_into(
+                                prod,
+                                aa * c_out,
+                                MatRef::rows_apart(lhs, n, c_in, aa * c_in),
+                                MatRef::row_major(rhs, c_in, c_out),
+                                false,
+                                1.0,
+                                Parallelism::None,
+                            );
                         }
                         // 3. output blocks Y = Aᵀ M A, then bias, residual, activation
                         for t in 0..n {
@@ -383,57 +392,5 @@ fn finish(o: &mut [f32], bias: &[f32], residual: Option<&[f32]>, relu: bool) {
                 }
             }
         }
-    }
-}
-
-/// `out [m, n] = lhs [m, k] · rhs [k, n]` on the calling thread: `rhs` row-major, the rows of
-/// `out` and `lhs` `out_rs` and `lhs_rs` elements apart (unit column stride).
-#[allow(clippy::too_many_arguments)]
-fn product(
-    out: &mut [f32],
-    out_rs: usize,
-    lhs: &[f32],
-    lhs_rs: usize,
-    rhs: &[f32],
-    m: usize,
-    n: usize,
-    k: usize,
-) {
-    if m == 0 || n == 0 {
-        return;
-    }
-    assert!(out_rs >= n && lhs_rs >= k && rhs.len() == k * n);
-    assert!(out.len() >= (m - 1) * out_rs + n && lhs.len() >= (m - 1) * lhs_rs + k);
-    if k == 0 {
-        out.chunks_mut(out_rs)
-            .take(m)
-            .for_each(|r| r[..n].fill(0.0));
-        return;
-    }
-    // SAFETY: dst rows `i·out_rs .. i·out_rs + n` (i < m) lie in `out`; lhs rows
-    // `i·lhs_rs .. i·lhs_rs + k` lie in `lhs`; rhs `k × n` row-major; all asserted above.
-    // `read_dst = false`: dst is written, not accumulated.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            out.as_mut_ptr(),
-            1,
-            out_rs as isize,
-            false,
-            lhs.as_ptr(),
-            1,
-            lhs_rs as isize,
-            rhs.as_ptr(),
-            1,
-            n as isize,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            Parallelism::None,
-        );
     }
 }
