@@ -230,8 +230,52 @@ fn dpt_preset(preset: &str) -> Result<lhmpp::model::dpt::DptConfig> {
     })
 }
 
-/// Rasteriser (feature channels) + DPT head per count × size: median of 3 frames after one
-/// warm-up (the head is seconds per frame at the released sizes on a CPU).
+/// The neural-renderer table: for every count × size (rounded down to the renderer's patch),
+/// the medians of `runs` timed frames after one warm-up. `prepare` turns each count's Gaussian
+/// cloud (with the renderer's feature channels) into what `frame` renders; `frame` renders one
+/// frame at the given camera and size and returns (rasteriser ms, DPT head ms).
+fn neural_renderer_rows<S>(
+    a: &RenderBenchArgs,
+    cfg: &lhmpp::model::dpt::DptConfig,
+    runs: usize,
+    mut prepare: impl FnMut(lhmpp::splat::Gaussians) -> Result<S>,
+    mut frame: impl FnMut(&S, &Camera, usize) -> Result<(f64, f64)>,
+) -> Result<()> {
+    println!("| Gaussians | size | rasteriser ms | DPT head ms | total ms | FPS |");
+    println!("|---:|---:|---:|---:|---:|---:|");
+    let p = cfg.patch_size as u32;
+    for &count in &a.counts {
+        let scene = prepare(body_cloud(count, cfg.in_channels, 42))?;
+        for &size in &a.sizes {
+            let size = size - size % p;
+            if size == 0 {
+                continue;
+            }
+            let cam = bench_camera(size);
+            frame(&scene, &cam, size as usize)?; // warm-up
+            let (mut raster_ms, mut head_ms) = (Vec::new(), Vec::new());
+            for _ in 0..runs {
+                let (r, d) = frame(&scene, &cam, size as usize)?;
+                raster_ms.push(r);
+                head_ms.push(d);
+            }
+            let median = |v: &mut Vec<f64>| {
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            };
+            let (r, d) = (median(&mut raster_ms), median(&mut head_ms));
+            println!(
+                "| {count} | {size}×{size} | {r:.2} | {d:.2} | {:.2} | {:.2} |",
+                r + d,
+                1e3 / (r + d)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Rasteriser (feature channels) + DPT head on the CPU: median of 3 frames after one warm-up
+/// (the head is seconds per frame at the released sizes on a CPU).
 fn neural_renderer_table(
     a: &RenderBenchArgs,
     preset: &str,
@@ -247,53 +291,26 @@ fn neural_renderer_table(
         "Neural renderer `{preset}` ({} feature channels, patch {}, DPT head, CPU f32, random weights), median of 3 frames:",
         cfg.in_channels, cfg.patch_size
     );
-    println!("| Gaussians | size | rasteriser ms | DPT head ms | total ms | FPS |");
-    println!("|---:|---:|---:|---:|---:|---:|");
-    let p = cfg.patch_size as u32;
-    for &count in &a.counts {
-        let g = body_cloud(count, cfg.in_channels, 42);
-        for &size in &a.sizes {
-            let size = size - size % p;
-            if size == 0 {
-                continue;
-            }
-            let cam = bench_camera(size);
-            let opts = RenderOptions {
-                render_features: true,
-                ..Default::default()
-            };
-            let mut rasterizer = Rasterizer::new();
-            let mut frame = RenderOutput::default();
-            let mut raster_ms = Vec::new();
-            let mut head_ms = Vec::new();
-            for run in 0..4 {
-                let t = Instant::now();
-                rasterizer.render_into(&g, &cam, &opts, &mut frame);
-                let r = t.elapsed().as_secs_f64() * 1e3;
-                let t = Instant::now();
-                let (h, w, c) = (size as usize, size as usize, cfg.in_channels);
-                let features = Tensor::from_slice(&frame.features, (h, w, c), &dev)?
-                    .permute((2, 0, 1))?
-                    .unsqueeze(0)?;
-                let (rgb, _mask) = renderer.forward(&features)?;
-                anyhow::ensure!(rgb.dims() == [1, 3, h, w], "DPT output {:?}", rgb.dims());
-                let d = t.elapsed().as_secs_f64() * 1e3;
-                if run > 0 {
-                    raster_ms.push(r);
-                    head_ms.push(d);
-                }
-            }
-            let median = |v: &mut Vec<f64>| {
-                v.sort_by(f64::total_cmp);
-                v[v.len() / 2]
-            };
-            let (r, d) = (median(&mut raster_ms), median(&mut head_ms));
-            println!(
-                "| {count} | {size}×{size} | {r:.1} | {d:.1} | {:.1} | {:.2} |",
-                r + d,
-                1e3 / (r + d)
-            );
-        }
-    }
-    Ok(())
+    let opts = RenderOptions {
+        render_features: true,
+        ..Default::default()
+    };
+    let mut rasterizer = Rasterizer::new();
+    let mut frame = RenderOutput::default();
+    neural_renderer_rows(a, cfg, 3, Ok, |g, cam, size| {
+        let t = Instant::now();
+        rasterizer.render_into(g, cam, &opts, &mut frame);
+        let r = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let features = Tensor::from_slice(&frame.features, (size, size, cfg.in_channels), &dev)?
+            .permute((2, 0, 1))?
+            .unsqueeze(0)?;
+        let (rgb, _mask) = renderer.forward(&features)?;
+        anyhow::ensure!(
+            rgb.dims() == [1, 3, size, size],
+            "DPT output {:?}",
+            rgb.dims()
+        );
+        Ok((r, t.elapsed().as_secs_f64() * 1e3))
+    })
 }

@@ -4,7 +4,7 @@
 //! the CPU rasteriser's image (the run fails above 2e-3); with `--neural-renderer PRESET` also
 //! the rasteriser + DPT head with the features kept on the GPU.
 
-use super::{bench_camera, dpt_preset, time_runs, RenderBenchArgs};
+use super::{bench_camera, dpt_preset, neural_renderer_rows, time_runs, RenderBenchArgs};
 use anyhow::{Context, Result};
 use candle_core::{DType, Device, Tensor};
 use lhmpp::model::dpt::NeuralRenderer;
@@ -129,54 +129,29 @@ fn neural_renderer_table(
         "Neural renderer `{preset}` on the GPU ({} feature channels, patch {}, DPT head f32, random weights), median of 5 frames:",
         cfg.in_channels, cfg.patch_size
     );
-    println!("| Gaussians | size | rasteriser ms | DPT head ms | total ms | FPS |");
-    println!("|---:|---:|---:|---:|---:|---:|");
-    let p = cfg.patch_size as u32;
-    for &count in &a.counts {
-        let g = body_cloud(count, cfg.in_channels, 42);
-        let scene = CudaScene::from_gaussians(&g, device)?;
-        for &size in &a.sizes {
-            let size = size - size % p;
-            if size == 0 {
-                continue;
-            }
-            let cam = bench_camera(size);
-            let opts = RenderOptions {
-                render_features: true,
-                ..Default::default()
-            };
-            let (mut raster_ms, mut head_ms) = (Vec::new(), Vec::new());
-            for run in 0..6 {
-                let t = Instant::now();
-                let frame = rasterizer.render(&scene, &cam, &opts)?;
-                device.synchronize()?;
-                let r = t.elapsed().as_secs_f64() * 1e3;
-                let t = Instant::now();
-                let features: Tensor = frame
-                    .features
-                    .context("features were asked for")?
-                    .permute((2, 0, 1))?
-                    .unsqueeze(0)?;
-                let (rgb, _mask) = renderer.forward(&features)?;
-                device.synchronize()?;
-                let d = t.elapsed().as_secs_f64() * 1e3;
-                anyhow::ensure!(rgb.dims()[2..] == [size as usize, size as usize]);
-                if run > 0 {
-                    raster_ms.push(r);
-                    head_ms.push(d);
-                }
-            }
-            let median = |v: &mut Vec<f64>| {
-                v.sort_by(f64::total_cmp);
-                v[v.len() / 2]
-            };
-            let (r, d) = (median(&mut raster_ms), median(&mut head_ms));
-            println!(
-                "| {count} | {size}×{size} | {r:.2} | {d:.2} | {:.2} | {:.1} |",
-                r + d,
-                1e3 / (r + d)
-            );
-        }
-    }
-    Ok(())
+    let opts = RenderOptions {
+        render_features: true,
+        ..Default::default()
+    };
+    let upload = |g: lhmpp::splat::Gaussians| Ok(CudaScene::from_gaussians(&g, device)?);
+    neural_renderer_rows(a, &cfg, 5, upload, |scene, cam, size| {
+        let t = Instant::now();
+        let frame = rasterizer.render(scene, cam, &opts)?;
+        device.synchronize()?;
+        let r = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let features: Tensor = frame
+            .features
+            .context("features were asked for")?
+            .permute((2, 0, 1))?
+            .unsqueeze(0)?;
+        let (rgb, _mask) = renderer.forward(&features)?;
+        device.synchronize()?;
+        anyhow::ensure!(
+            rgb.dims()[2..] == [size, size],
+            "DPT output {:?}",
+            rgb.dims()
+        );
+        Ok((r, t.elapsed().as_secs_f64() * 1e3))
+    })
 }
