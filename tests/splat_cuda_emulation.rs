@@ -7,12 +7,15 @@
 //! with the same visible count and the same number of (tile, Gaussian) pairs. This checks the
 //! kernels' logic without a GPU; `lhmpp bench render --device cuda` checks the GPU build.
 
+mod splat_cuda_support;
+
 use glam::{Affine3A, Quat, Vec3};
 use lhmpp::splat::cuda::{FlatScene, SplatParams};
 use lhmpp::splat::synthetic::body_cloud;
-use lhmpp::splat::{render_timed, Camera, Gaussians, Intrinsics, RenderOptions, RenderOutput};
+use lhmpp::splat::{render_timed, Camera, Gaussians, RenderOptions, RenderOutput};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use splat_cuda_support::{camera, max_abs_diff};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
@@ -122,14 +125,6 @@ fn render_emulated(
     (out, word(0) as usize, word(1) as usize)
 }
 
-fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
-}
-
 /// Renders `gaussians` both ways and asserts the agreement; returns the CPU image.
 fn assert_agrees(
     gaussians: &Gaussians,
@@ -151,15 +146,6 @@ fn assert_agrees(
         assert!(d < TOLERANCE, "{name}: {map} differs by {d}");
     }
     cpu
-}
-
-fn camera(width: u32, height: u32) -> Camera {
-    Camera::look_at(
-        Vec3::new(0.4, 1.1, 2.6),
-        Vec3::new(0.0, 0.9, 0.0),
-        Vec3::Y,
-        Intrinsics::from_fov_y(width, height, 0.9),
-    )
 }
 
 /// `body_cloud` with view-dependent colour: SH degree 3, the DC term kept, 15 random terms.

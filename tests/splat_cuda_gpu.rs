@@ -3,31 +3,17 @@
 //! tensors of the right shapes, and a bad scene tensor is refused with its name.
 #![cfg(feature = "cuda")]
 
+mod splat_cuda_support;
+
 use candle_core::{Device, Tensor};
 use glam::Vec3;
 use lhmpp::splat::cuda::{CudaRasterizer, CudaRenderError, CudaScene};
 use lhmpp::splat::synthetic::body_cloud;
-use lhmpp::splat::{render_timed, Camera, Intrinsics, RenderOptions};
+use lhmpp::splat::{render_timed, RenderOptions};
+use splat_cuda_support::{camera, max_abs_diff};
 
 fn gpu() -> Device {
     Device::new_cuda(0).expect("these tests need CUDA device 0")
-}
-
-fn camera(width: u32, height: u32) -> Camera {
-    Camera::look_at(
-        Vec3::new(0.4, 1.1, 2.6),
-        Vec3::new(0.0, 0.9, 0.0),
-        Vec3::Y,
-        Intrinsics::from_fov_y(width, height, 0.9),
-    )
-}
-
-fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
 }
 
 #[test]

@@ -288,21 +288,21 @@ impl CudaRasterizer {
         camera: &Camera,
         options: &RenderOptions,
     ) -> Result<GpuFrame> {
-        let channels = if options.render_features {
-            scene.feature_channels()
-        } else {
-            0
-        };
-        let mut params = SplatParams::new(&Gaussians::default(), camera, options);
-        params.num_gaussians = scene.len() as i32;
-        params.sh_degree = scene.sh_degree as i32;
-        params.channels = channels as i32;
+        let channels = options.rendered_channels(scene.feature_channels());
+        let params = SplatParams::for_scene(
+            camera,
+            options,
+            scene.len(),
+            scene.sh_degree,
+            scene.feature_channels(),
+        );
         let (w, h) = (params.width as usize, params.height as usize);
         let pixels = w * h;
-        let mut background = options.background_features.clone();
-        background.resize(channels, 0.0);
         let background = (channels > 0)
-            .then(|| Tensor::from_slice(&background, channels, &self.tensor_device))
+            .then(|| {
+                let values = options.background_features_for(channels);
+                Tensor::from_slice(&values, channels, &self.tensor_device)
+            })
             .transpose()?;
         let features_in = match (&scene.features, channels) {
             (Some(f), c) if c > 0 => tensor_ptr(f, "features")?,

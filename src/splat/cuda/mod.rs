@@ -10,7 +10,7 @@
 
 mod params;
 
-pub use params::{rendered_channels, FlatScene, SplatParams};
+pub use params::{FlatScene, SplatParams};
 
 #[cfg(feature = "cuda")]
 mod device;

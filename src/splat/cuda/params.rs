@@ -46,6 +46,24 @@ impl SplatParams {
     /// The parameters of rendering `gaussians` from `camera` with `options` (features are
     /// rendered when the options ask for them and the Gaussians have some).
     pub fn new(gaussians: &Gaussians, camera: &Camera, options: &RenderOptions) -> Self {
+        Self::for_scene(
+            camera,
+            options,
+            gaussians.len(),
+            gaussians.sh_degree,
+            gaussians.feature_channels,
+        )
+    }
+
+    /// The parameters of rendering `num_gaussians` Gaussians with SH colours of `sh_degree`
+    /// and `feature_channels` feature channels from `camera` with `options`.
+    pub fn for_scene(
+        camera: &Camera,
+        options: &RenderOptions,
+        num_gaussians: usize,
+        sh_degree: usize,
+        feature_channels: usize,
+    ) -> Self {
         let view = camera.camera_from_world();
         let m = view.matrix3;
         let t = view.translation;
@@ -69,19 +87,10 @@ impl SplatParams {
             far_plane: options.far,
             low_pass: options.low_pass,
             background: options.background.to_array(),
-            sh_degree: gaussians.sh_degree as i32,
-            channels: rendered_channels(gaussians, options) as i32,
-            num_gaussians: gaussians.len() as i32,
+            sh_degree: sh_degree as i32,
+            channels: options.rendered_channels(feature_channels) as i32,
+            num_gaussians: num_gaussians as i32,
         }
-    }
-}
-
-/// Feature channels a render of `gaussians` with `options` produces.
-pub fn rendered_channels(gaussians: &Gaussians, options: &RenderOptions) -> usize {
-    if options.render_features {
-        gaussians.feature_channels
-    } else {
-        0
     }
 }
 
@@ -107,9 +116,7 @@ pub struct FlatScene {
 impl FlatScene {
     /// Flattens `gaussians` for a render with `options`.
     pub fn new(gaussians: &Gaussians, options: &RenderOptions) -> Self {
-        let channels = rendered_channels(gaussians, options);
-        let mut background_features = options.background_features.clone();
-        background_features.resize(channels, 0.0);
+        let channels = options.rendered_channels(gaussians.feature_channels);
         Self {
             positions: bytemuck::cast_slice(&gaussians.positions).to_vec(),
             scales: bytemuck::cast_slice(&gaussians.scales).to_vec(),
@@ -121,7 +128,7 @@ impl FlatScene {
             } else {
                 Vec::new()
             },
-            background_features,
+            background_features: options.background_features_for(channels),
         }
     }
 }

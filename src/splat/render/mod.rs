@@ -51,6 +51,25 @@ impl Default for RenderOptions {
     }
 }
 
+impl RenderOptions {
+    /// Feature channels a render of Gaussians with `feature_channels` channels produces (0
+    /// unless [`RenderOptions::render_features`]).
+    pub fn rendered_channels(&self, feature_channels: usize) -> usize {
+        if self.render_features {
+            feature_channels
+        } else {
+            0
+        }
+    }
+
+    /// The background features for `channels` rendered channels (missing ones are 0).
+    pub fn background_features_for(&self, channels: usize) -> Vec<f32> {
+        let mut features = self.background_features.clone();
+        features.resize(channels, 0.0);
+        features
+    }
+}
+
 /// A rendered frame; all maps row-major, top row first.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct RenderOutput {
@@ -175,13 +194,8 @@ impl Rasterizer {
         times.visible = self.bins.visible();
         times.tile_pairs = self.bins.pairs();
 
-        let channels = if options.render_features {
-            gaussians.feature_channels
-        } else {
-            0
-        };
-        let mut background_features = options.background_features.clone();
-        background_features.resize(channels, 0.0);
+        let channels = options.rendered_channels(gaussians.feature_channels);
+        let background_features = options.background_features_for(channels);
         out.width = width as u32;
         out.height = height as u32;
         out.feature_channels = channels;
