@@ -1,21 +1,13 @@
 //! Cross-process: `lhmpp shm-echo` in a child process receives 100 avatars and 100 frames
 //! published here, and prints the checksum of exactly what was sent.
 
-use std::io::{BufRead, BufReader, Lines};
-use std::process::{ChildStdout, Command, Stdio};
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod shm_echo_support;
+
+use shm_echo_support::{field, next_line, unique_person};
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
 
 use lhmpp::transport::{AvatarView, FrameView, PayloadBody, ShmNode, ShmOptions, Stamp};
-
-static COUNTER: AtomicUsize = AtomicUsize::new(0);
-
-fn unique_person(tag: &str) -> String {
-    format!(
-        "{tag}{}x{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    )
-}
 
 /// An avatar whose size and values depend on `revision`.
 struct Avatar {
@@ -55,19 +47,6 @@ impl Avatar {
             weights: &self.weights,
         }
     }
-}
-
-fn next_line(lines: &mut Lines<BufReader<ChildStdout>>) -> String {
-    lines
-        .next()
-        .expect("shm-echo ended early (see its stderr)")
-        .expect("readable stdout")
-}
-
-fn field<'a>(line: &'a str, key: &str) -> &'a str {
-    line.split_whitespace()
-        .find_map(|w| w.strip_prefix(key).and_then(|r| r.strip_prefix('=')))
-        .unwrap_or_else(|| panic!("no `{key}=` in {line:?}"))
 }
 
 #[test]

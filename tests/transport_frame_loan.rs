@@ -2,9 +2,11 @@
 //! subscribers, in another process and in this one, with the checksum of what was written; the
 //! node's shared-memory output converts renders through the same path.
 
-use std::io::{BufRead, BufReader, Lines};
-use std::process::{ChildStdout, Command, Stdio};
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod shm_echo_support;
+
+use shm_echo_support::{field, next_line, unique_person};
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use lhmpp::node::pipeline::{Publisher, RenderedFrame};
@@ -14,29 +16,6 @@ use lhmpp::transport::layout::Encoder;
 use lhmpp::transport::{
     FrameShape, FrameView, PayloadBody, ShmNode, ShmOptions, ShmSubscriber, Stamp,
 };
-
-static COUNTER: AtomicUsize = AtomicUsize::new(0);
-
-fn unique_person(tag: &str) -> String {
-    format!(
-        "{tag}{}x{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    )
-}
-
-fn next_line(lines: &mut Lines<BufReader<ChildStdout>>) -> String {
-    lines
-        .next()
-        .expect("shm-echo ended early (see its stderr)")
-        .expect("readable stdout")
-}
-
-fn field<'a>(line: &'a str, key: &str) -> &'a str {
-    line.split_whitespace()
-        .find_map(|w| w.strip_prefix(key).and_then(|r| r.strip_prefix('=')))
-        .unwrap_or_else(|| panic!("no `{key}=` in {line:?}"))
-}
 
 /// Pixels, alpha and depth of frame `revision` (size varies with the revision).
 struct Expected {
