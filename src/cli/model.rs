@@ -1,4 +1,4 @@
-//! `lhmpp model`: create seeded checkpoints and print parameter counts.
+//! `lhmpp model`: create seeded checkpoints, print parameter counts, run one forward pass.
 
 use std::path::PathBuf;
 
@@ -7,6 +7,9 @@ use clap::{Args, Subcommand};
 
 use lhmpp::model::config::{LhmppConfig, ParameterCounts};
 use lhmpp::model::{checkpoint, hub};
+
+#[path = "model_forward.rs"]
+mod model_forward;
 
 /// Arguments of `lhmpp model`.
 #[derive(Args, Debug)]
@@ -40,12 +43,16 @@ enum ModelCommand {
     },
     /// Compare our blocks with PyTorch reference fixtures (scripts/parity): max abs / rel error.
     Parity(super::model_parity::ParityArgs),
+    /// Run the whole network on `images`, `anchors`, `normals` from a safetensors file and
+    /// write the Gaussian-head outputs (parity with the PyTorch twin, scripts/train).
+    Forward(model_forward::ForwardArgs),
 }
 
 /// Runs `lhmpp model`.
 pub fn run(args: ModelArgs) -> anyhow::Result<()> {
     match args.command {
         ModelCommand::Parity(args) => super::model_parity::run(args),
+        ModelCommand::Forward(args) => model_forward::run(args),
         ModelCommand::Init {
             config,
             seed,

@@ -1,0 +1,147 @@
+//! `lhmpp model forward`: one whole forward pass of the network on tensors from a safetensors
+//! file, every Gaussian-head output written to another (for parity with the PyTorch twin in
+//! `scripts/train/lhmpp_torch.py`, checked by `scripts/train/check_parity.py`).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use candle_core::{DType, Device, Tensor};
+use clap::Args;
+
+use lhmpp::body::BodyTemplate;
+use lhmpp::model::config::LhmppConfig;
+use lhmpp::model::lhmpp::Lhmpp;
+use lhmpp::model::{checkpoint, hub};
+
+/// Arguments of `lhmpp model forward`.
+#[derive(Args, Debug)]
+pub struct ForwardArgs {
+    /// Weights: a safetensors file or hub folder, or `random:SEED` for seeded random weights.
+    #[arg(long, required_unless_present = "dump_anchors")]
+    checkpoint: Option<String>,
+    /// Preset (default: the one in the checkpoint's metadata, else `tiny`).
+    #[arg(long)]
+    preset: Option<String>,
+    /// Input safetensors: `images` [V,3,H,W] in [0,1], `anchors` [N,3], `normals` [N,3] (f32).
+    #[arg(long, required_unless_present = "dump_anchors")]
+    input: Option<PathBuf>,
+    /// Output safetensors: features, colors, scales, rotations, opacities, offsets, positions
+    /// (f32; or `anchors` and `normals` with --dump-anchors).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Write the node's body anchors (`anchors`, `normals`: MakeHuman template, --points,
+    /// --seed) to OUTPUT instead of running the network.
+    #[arg(long)]
+    dump_anchors: bool,
+    /// Anchor count for --dump-anchors (the node's `model.num_points`).
+    #[arg(long, default_value_t = 4096)]
+    points: usize,
+    /// Anchor sampling seed for --dump-anchors (the node's `model.seed`).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+/// Runs `lhmpp model forward`.
+pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
+    if args.dump_anchors {
+        return dump_anchors(&args.output, args.points, args.seed);
+    }
+    let (Some(spec), Some(input)) = (&args.checkpoint, &args.input) else {
+        bail!("--checkpoint and --input are required (unless --dump-anchors)");
+    };
+    let dev = Device::Cpu;
+    let model = build(spec, args.preset.as_deref(), &dev)?;
+    let tensors = candle_core::safetensors::load(input, &dev)
+        .with_context(|| format!("reading {}", input.display()))?;
+    let get = |name: &str| -> anyhow::Result<Tensor> {
+        let t = tensors
+            .get(name)
+            .with_context(|| format!("{}: no tensor `{name}`", input.display()))?;
+        Ok(t.to_dtype(DType::F32)?)
+    };
+    let (images, anchors, normals) = (get("images")?, get("anchors")?, get("normals")?);
+    let (v, _, h, w) = images.dims4()?;
+    let start = Instant::now();
+    let views = (0..v)
+        .map(|i| model.encode_view(&images.get(i)?))
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    let feat = model.fuse(&anchors, &normals, &views)?;
+    let g = model.gs_head().forward(&feat, &anchors)?;
+    let secs = start.elapsed().as_secs_f64();
+    let out: HashMap<String, Tensor> = [
+        ("features", g.features),
+        ("colors", g.colors),
+        ("scales", g.scales),
+        ("rotations", g.rotations),
+        ("opacities", g.opacities),
+        ("offsets", g.offsets),
+        ("positions", g.positions),
+    ]
+    .into_iter()
+    .map(|(k, t)| (k.to_string(), t))
+    .collect();
+    candle_core::safetensors::save(&out, &args.output)
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    println!(
+        "forward `{}`: {v} views {h}x{w}, {} anchors -> {} Gaussians (features {:?}) in {secs:.3} s; wrote {}",
+        model.config().preset,
+        anchors.dim(0)?,
+        out["positions"].dim(0)?,
+        out["features"].dims(),
+        args.output.display()
+    );
+    Ok(())
+}
+
+/// The network for `spec` (`random:SEED` or a checkpoint path) in f32 on `dev`.
+fn build(spec: &str, preset: Option<&str>, dev: &Device) -> anyhow::Result<Lhmpp> {
+    if let Some(seed) = spec.strip_prefix("random:") {
+        let seed: u64 = seed
+            .parse()
+            .with_context(|| format!("bad seed in `{spec}`"))?;
+        let cfg = LhmppConfig::preset(preset.unwrap_or("tiny"))?;
+        return Ok(Lhmpp::new(
+            &cfg,
+            checkpoint::seeded_var_builder(seed, DType::F32, dev),
+        )?);
+    }
+    let path = Path::new(spec);
+    let name = match preset {
+        Some(p) => p.to_string(),
+        None if path.is_file() => checkpoint::read_metadata(path)?
+            .0
+            .unwrap_or_else(|| "tiny".into()),
+        None => "tiny".into(),
+    };
+    let loaded = hub::load_checkpoint(path, &LhmppConfig::preset(&name)?, DType::F32, dev)
+        .with_context(|| format!("loading {spec}"))?;
+    Ok(Lhmpp::new(&loaded.config, loaded.var_builder)?)
+}
+
+/// Writes `anchors` and `normals` `[n, 3]` sampled as the node does.
+fn dump_anchors(output: &Path, n: usize, seed: u64) -> anyhow::Result<()> {
+    let a = BodyTemplate::load_default()?.sample_anchors(n, seed);
+    let rows = |v: &[glam::Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+    let dev = Device::Cpu;
+    let n = a.positions.len();
+    let out = HashMap::from([
+        (
+            "anchors".to_string(),
+            Tensor::from_vec(rows(&a.positions), (n, 3), &dev)?,
+        ),
+        (
+            "normals".to_string(),
+            Tensor::from_vec(rows(&a.normals), (n, 3), &dev)?,
+        ),
+    ]);
+    candle_core::safetensors::save(&out, output)
+        .with_context(|| format!("writing {}", output.display()))?;
+    println!(
+        "wrote {} anchors (MakeHuman template, seed {seed}) to {}",
+        n,
+        output.display()
+    );
+    Ok(())
+}
