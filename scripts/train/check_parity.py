@@ -52,9 +52,11 @@ def train(model, inputs, steps, lr):
         loss.backward()
         opt.step()
         print(f"  sgd step {step}: loss {loss.item():.6f}")
-    moved = max(((v - before[k]).abs().max() / before[k].abs().max().clamp_min(1e-12)).item()
-                for k, v in model.state_dict().items())
-    print(f"  largest relative weight change: {moved:.3g}")
+    after = model.state_dict()
+    delta = sum((after[k] - before[k]).double().pow(2).sum() for k in before).sqrt().item()
+    norm = sum(before[k].double().pow(2).sum() for k in before).sqrt().item()
+    biggest = max((after[k] - before[k]).abs().max().item() for k in before)
+    print(f"  weights moved: |dw| / |w| = {delta / norm:.3g}, largest |dw| = {biggest:.3g}")
 
 
 def main():

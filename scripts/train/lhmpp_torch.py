@@ -177,16 +177,18 @@ class Level:
         else:
             self.hilbert = serialize_order(grid, "Hilbert", depth)
         self.neighbours = neighbour_table(grid)
+        self.neighbours_back = neighbour_backward_table(self.neighbours)
         self._patches = {}
 
     def patch_gather(self, order_index, patch):
-        """(row gather [n_pad] into the level, patch length K, inverse [n]) for one block."""
+        """(row gather [n_pad] into the level, patch length K, inverse [n], order [n]) for
+        one block."""
         key = (order_index, patch)
         if key not in self._patches:
             order, inverse = self.orders[order_index]
             pad = torch.from_numpy(patch_padding(self.n, patch))
             k = max(min(patch, self.n), 1)
-            self._patches[key] = (order[pad], k, inverse)
+            self._patches[key] = (order[pad], k, inverse, order)
         return self._patches[key]
 
 
@@ -238,6 +240,95 @@ def geometry_key(anchors, normals):
 
 
 # --------------------------------------------------------------------------------------------
+# Row gathers with gather-only backward passes (torch's generic index backward is a serial
+# scatter-add; these structures know their inverse)
+
+
+class _Permute(torch.autograd.Function):
+    """y = x[perm] for a permutation; dx = dy[inv]."""
+
+    @staticmethod
+    def forward(ctx, x, perm, inv):
+        ctx.save_for_backward(inv)
+        return x.index_select(0, perm)
+
+    @staticmethod
+    def backward(ctx, g):
+        (inv,) = ctx.saved_tensors
+        return g.index_select(0, inv), None, None
+
+
+def permute_rows(x, perm, inv):
+    return _Permute.apply(x, perm, inv)
+
+
+class _PatchGather(torch.autograd.Function):
+    """y = x[order[pad]] ([n_pad] rows, the tail repeating earlier slots); dx gathers dy's
+    first n slots back through `inverse` and adds the tail."""
+
+    @staticmethod
+    def forward(ctx, x, gather, inverse):
+        ctx.save_for_backward(gather, inverse)
+        return x.index_select(0, gather)
+
+    @staticmethod
+    def backward(ctx, g):
+        gather, inverse = ctx.saved_tensors
+        n = inverse.shape[0]
+        dx = g.index_select(0, inverse)
+        if g.shape[0] > n:
+            dx = dx.index_add(0, gather[n:], g[n:])
+        return dx, None, None
+
+
+class _PatchScatterBack(torch.autograd.Function):
+    """y = z[inverse] (the n real slots of the padded sequence, back in point order);
+    dz = [dy[order]; 0 for the padded tail]."""
+
+    @staticmethod
+    def forward(ctx, z, inverse, order):
+        ctx.save_for_backward(order)
+        ctx.n_pad = z.shape[0]
+        return z.index_select(0, inverse)
+
+    @staticmethod
+    def backward(ctx, g):
+        (order,) = ctx.saved_tensors
+        dz = g.index_select(0, order)
+        if ctx.n_pad > dz.shape[0]:
+            dz = torch.cat([dz, dz.new_zeros(ctx.n_pad - dz.shape[0], dz.shape[1])], 0)
+        return dz, None, None
+
+
+class _NeighbourGather(torch.autograd.Function):
+    """y[p, k] = x[nbr[p, k]] (x padded with a zero row at M): [M, 27, C]. The submanifold
+    neighbour relation is symmetric (nbr[p, k] = q <=> nbr[q, 26 - k] = p), so
+    dx[q] = sum_k dy[nbr[q, 26 - k], k]: a gather again."""
+
+    @staticmethod
+    def forward(ctx, x, nbr, flat_back):
+        ctx.save_for_backward(flat_back)
+        m, c = x.shape
+        xp = torch.cat([x, x.new_zeros(1, c)], 0)
+        return F.embedding(nbr, xp)
+
+    @staticmethod
+    def backward(ctx, g):
+        (flat_back,) = ctx.saved_tensors
+        m, k, c = g.shape
+        gp = torch.cat([g.reshape(m * k, c), g.new_zeros(1, c)], 0)
+        return F.embedding(flat_back, gp).sum(1), None, None
+
+
+def neighbour_backward_table(nbr):
+    """Rows of dy (flattened [M*27], M*27 = zero row) that sum into each dx row, [M, 27]."""
+    m = nbr.shape[0]
+    flip = nbr.flip(1)  # offset 26 - k
+    k = torch.arange(27).expand(m, 27)
+    return torch.where(flip < m, flip * 27 + k, torch.full_like(flip, m * 27))
+
+
+# --------------------------------------------------------------------------------------------
 # Point backbone modules (transformer.point_backbone.*)
 
 
@@ -245,12 +336,11 @@ class GatherSubMConv3d(R.SubMConv3d):
     """Submanifold 3x3x3 conv over a neighbour table (same weight layout [out, kx, ky, kz, in]
     and result as the dense reference): out = b + concat_k x[nbr[:, k]] @ W_k."""
 
-    def forward(self, feats, neighbours):
+    def forward(self, feats, level):
         c_out, c_in = self.weight.shape[0], self.weight.shape[-1]
-        x = torch.cat([feats, feats.new_zeros(1, c_in)], 0)
-        g = x[neighbours].reshape(feats.shape[0], 27 * c_in)
+        g = _NeighbourGather.apply(feats, level.neighbours, level.neighbours_back)
         w = self.weight.reshape(c_out, 27 * c_in)
-        return torch.addmm(self.bias, g, w.t())
+        return torch.addmm(self.bias, g.reshape(feats.shape[0], 27 * c_in), w.t())
 
 
 class FastPatchAttention(R.PatchAttention):
@@ -258,11 +348,12 @@ class FastPatchAttention(R.PatchAttention):
 
     def forward(self, x, level, order_index):
         n, c = x.shape
-        gather, k, inverse = level.patch_gather(order_index, self.patch)
+        gather, k, inverse, order = level.patch_gather(order_index, self.patch)
         h = self.heads
-        qkv = self.qkv(x)[gather].reshape(-1, k, 3, h, c // h).permute(2, 0, 3, 1, 4)
+        qkv = _PatchGather.apply(self.qkv(x), gather, inverse)
+        qkv = qkv.reshape(-1, k, 3, h, c // h).permute(2, 0, 3, 1, 4)
         out = F.scaled_dot_product_attention(qkv[0], qkv[1], qkv[2])
-        out = out.transpose(1, 2).reshape(-1, c)[inverse]
+        out = _PatchScatterBack.apply(out.transpose(1, 2).reshape(-1, c), inverse, order)
         return self.proj(out)
 
 
@@ -274,7 +365,7 @@ class FastPtBlock(R.PtBlock):
         self.attn = attn
 
     def forward(self, x, level):
-        x = x + self.cpe[2](self.cpe[1](self.cpe[0](x, level.neighbours)))
+        x = x + self.cpe[2](self.cpe[1](self.cpe[0](x, level)))
         oi = self.order_index % len(level.orders)
         x = x + self.attn(self.norm1[0](x), level, oi)
         return x + self.mlp[0](self.norm2[0](x))
@@ -579,9 +670,9 @@ class LhmppTorch(nn.Module):
     @staticmethod
     def _point_step(block, state, geo, tokens, metric, temb, grid, ratio):
         order, inverse = geo.levels[state["level"]].hilbert
-        points = state["feat"][order]
+        points = permute_rows(state["feat"], order, inverse)
         points, tokens = multi_modal_step(block, tokens, metric, points, temb, grid, ratio)
-        return points[inverse], tokens
+        return permute_rows(points, inverse, order), tokens
 
     def forward(self, images, anchors, normals):
         anchors_t = torch.as_tensor(anchors, dtype=torch.float32)
