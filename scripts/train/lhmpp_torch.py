@@ -186,7 +186,7 @@ class Level:
         key = (order_index, patch)
         if key not in self._patches:
             order, inverse = self.orders[order_index]
-            pad = torch.from_numpy(patch_padding(self.n, patch))
+            pad = torch.from_numpy(patch_padding(self.n, patch)).to(order.device)
             k = max(min(patch, self.n), 1)
             self._patches[key] = (order[pad], k, inverse, order)
         return self._patches[key]
@@ -226,7 +226,25 @@ class PointGeometry:
             self.levels.append(Level(pool.cells, pb["order"]))
 
     def summary(self):
+        """Voxels per level."""
         return [lv.n for lv in self.levels]
+
+    def to(self, device):
+        """Moves every index tensor to `device` (in place; returns self)."""
+        device = torch.device(device)
+        if getattr(self, "device", torch.device("cpu")) == device:
+            return self
+        mv = lambda t: t.to(device)  # noqa: E731
+        self.feat6, self.input_inverse = mv(self.feat6), mv(self.input_inverse)
+        for lv in self.levels:
+            lv.orders = [(mv(o), mv(i)) for o, i in lv.orders]
+            lv.hilbert = tuple(mv(t) for t in lv.hilbert)
+            lv.neighbours, lv.neighbours_back = mv(lv.neighbours), mv(lv.neighbours_back)
+            lv._patches = {}
+        for pool in self.pools[1:]:
+            pool.table, pool.cluster = mv(pool.table), mv(pool.cluster)
+        self.device = device
+        return self
 
 
 def geometry_key(anchors, normals):
@@ -620,8 +638,9 @@ class LhmppTorch(nn.Module):
 
     # -- caches ---------------------------------------------------------------------------
 
-    def geometry(self, anchors, normals):
-        """The cached PointGeometry of one (anchors, normals) set."""
+    def geometry(self, anchors, normals, device=None):
+        """The cached PointGeometry of one (anchors, normals) set (index tensors on `device`,
+        default: the model's)."""
         key = geometry_key(anchors, normals)
         geo = self._geometry.get(key)
         if geo is None:
@@ -629,7 +648,7 @@ class LhmppTorch(nn.Module):
             n = normals.detach().cpu().numpy() if torch.is_tensor(normals) else normals
             geo = PointGeometry(a, n, self.cfg)
             self._geometry[key] = geo
-        return geo
+        return geo.to(device if device is not None else self.transformer.outnorm.weight.device)
 
     def clear_geometry_cache(self):
         self._geometry.clear()
@@ -665,7 +684,7 @@ class LhmppTorch(nn.Module):
             state = pbk.decoder_stage(levels - 1 - j, state, geo)
             state["feat"], tokens = self._point_step(block, state, geo, tokens, metric, temb, grid, ratio)
         feat = t.outnorm(state["feat"])
-        return feat[geo.input_inverse.to(feat.device)]
+        return feat.index_select(0, geo.input_inverse)
 
     @staticmethod
     def _point_step(block, state, geo, tokens, metric, temb, grid, ratio):
