@@ -33,6 +33,7 @@ State-dict keys are our checkpoint's (the official LHM++ names), so
     save_checkpoint(model, "trained.safetensors")
 """
 
+import collections
 import hashlib
 import json
 import math
@@ -598,7 +599,7 @@ class LhmppTorch(nn.Module):
     `scales [N, 3]`, `rotations [N, 4]` (w, x, y, z), `opacities [N, 1]`, `offsets [N, 3]`,
     `positions [N, 3]` (= anchors + offsets)."""
 
-    def __init__(self, cfg, neural_renderer=True):
+    def __init__(self, cfg, neural_renderer=True, geometry_cache_size=512):
         super().__init__()
         cfg = read_config(cfg)
         self.cfg = cfg
@@ -628,12 +629,14 @@ class LhmppTorch(nn.Module):
             nr = cfg["neural_renderer"]
             self.neural_renderer = R.NeuralRenderer(nr["in_channels"], nr["patch_size"], nr["embed_dim"],
                                                     nr["features"], list(nr["out_channels"]))
-        self._geometry = {}
+        self._geometry = collections.OrderedDict()  # LRU of PointGeometry per anchor set
+        self.geometry_cache_size = geometry_cache_size
 
     @classmethod
     def from_config_json(cls, path_or_dict, **kw):
-        """Builds the (untrained, zero-initialised) network from a config: dict, JSON string,
-        `.json` file or a checkpoint's metadata."""
+        """Builds the network from a config: dict, JSON string, `.json` file or a checkpoint's
+        metadata. Its weights are PyTorch's default init, not ours: to train from scratch, load
+        the weights of `lhmpp model init` (load_checkpoint)."""
         return cls(read_config(path_or_dict), **kw)
 
     # -- caches ---------------------------------------------------------------------------
@@ -648,9 +651,14 @@ class LhmppTorch(nn.Module):
             n = normals.detach().cpu().numpy() if torch.is_tensor(normals) else normals
             geo = PointGeometry(a, n, self.cfg)
             self._geometry[key] = geo
+            while len(self._geometry) > max(self.geometry_cache_size, 1):
+                self._geometry.popitem(last=False)
+        else:
+            self._geometry.move_to_end(key)
         return geo.to(device if device is not None else self.transformer.outnorm.weight.device)
 
     def clear_geometry_cache(self):
+        """Drops every cached PointGeometry."""
         self._geometry.clear()
 
     # -- forward --------------------------------------------------------------------------
@@ -694,6 +702,8 @@ class LhmppTorch(nn.Module):
         return permute_rows(points, inverse, order), tokens
 
     def forward(self, images, anchors, normals):
+        """images [V, 3, H, W] in [0, 1], anchors [N, 3], normals [N, 3] -> dict of the GS-head
+        outputs (OUTPUT_NAMES) for the N anchors; differentiable in the weights."""
         anchors_t = torch.as_tensor(anchors, dtype=torch.float32)
         feat = self.fuse(images, anchors, normals)
         out = dict(self.renderer(feat, anchors_t.to(feat.device)))
@@ -709,14 +719,22 @@ def state_dict_f32(model):
     return {k: v.detach().float().cpu().contiguous() for k, v in model.state_dict().items()}
 
 
-def save_checkpoint(model, path, cfg=None):
+def save_checkpoint(model, path, cfg=None, base=None):
     """Writes `model`'s weights as f32 safetensors in our checkpoint layout, with the preset
-    name and config JSON in the metadata (as `lhmpp model init`), for `model.checkpoint`."""
-    from safetensors.torch import save_file
+    name and config JSON in the metadata (as `lhmpp model init`), for `model.checkpoint`.
+    Tensors the model lacks (`neural_renderer.*` of a model built with
+    neural_renderer=False) are copied from the checkpoint `base`; our loader needs them all."""
+    from safetensors.torch import load_file, save_file
 
     cfg = read_config(cfg if cfg is not None else model.cfg)
+    tensors = state_dict_f32(model)
+    if base is not None:
+        for k, v in load_file(str(base)).items():
+            tensors.setdefault(k, v.float().contiguous())
+    if not any(k.startswith("neural_renderer.") for k in tensors):
+        raise ValueError("no neural_renderer.* tensors: pass base= (e.g. the init checkpoint)")
     meta = {META_PRESET: cfg["preset"], META_CONFIG: json.dumps(cfg, separators=(",", ":"))}
-    save_file(state_dict_f32(model), str(path), metadata=meta)
+    save_file(tensors, str(path), metadata=meta)
 
 
 def load_checkpoint(path, cfg=None, neural_renderer=True, strict=True):
