@@ -118,7 +118,8 @@ pub struct FrameStoreConfig {
 pub struct ModelConfig {
     /// Network preset: `tiny`, `s`, `m`, `l` or `lhmpp-700m`.
     pub preset: String,
-    /// Checkpoint (safetensors file or hub folder); empty means the embedded default.
+    /// Checkpoint (safetensors file or hub folder); empty means the embedded default (the
+    /// trained `tiny` network), `random` or `random:SEED` seeded random weights.
     pub checkpoint: String,
     /// `cpu` or `cuda` (or `cuda:N`).
     pub device: String,

@@ -49,7 +49,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         "model: preset {}, {}",
         config.model.preset,
         if config.model.checkpoint.is_empty() {
-            "embedded default weights (seeded random until a trained checkpoint ships)".to_string()
+            "embedded default weights (trained on synthetic people; `random` for seeded random)".to_string()
         } else {
             config.model.checkpoint.clone()
         }

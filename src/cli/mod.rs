@@ -15,6 +15,7 @@ mod replay;
 mod run;
 mod shm_echo;
 mod synth;
+mod synth_dataset;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -39,6 +40,8 @@ enum Command {
     Replay(replay::ReplayArgs),
     /// Render a seeded synthetic person into an MCAP bag with ground truth.
     Synth(synth::SynthArgs),
+    /// Write training samples (synthetic people, preprocessed views, ground truth) as shards.
+    SynthDataset(synth_dataset::SynthDatasetArgs),
     /// Score reconstructions on held-out views of synthetic bags (PSNR, SSIM, mask IoU).
     Eval(eval::EvalArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
@@ -72,6 +75,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),
+        Command::SynthDataset(args) => synth_dataset::run(args),
         Command::Model(args) => model::run(args),
         Command::ShmEcho(args) => shm_echo::run(args),
     }

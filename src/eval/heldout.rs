@@ -6,12 +6,15 @@ use super::metrics::{mask_iou, psnr, ssim, ImageRef};
 use crate::bag::{BagError, BagReader};
 use crate::body::Pose;
 use crate::config::ModelConfig;
-use crate::msgs::{BodyPose, CameraInfo, Image, TFMessage};
+use crate::msgs::{BodyPose, BodyShape, CameraInfo, Image, TFMessage};
 use crate::node::image_decode::{decode_raw, RawImage};
 use crate::node::pipeline::reconstructor::{ReconstructError, Reconstructor};
 use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::splat::{render, Camera, RenderOptions};
-use crate::synth::capture::{image_topic, info_topic, mask_topic, POSE_TOPIC, TF_STATIC_TOPIC};
+use crate::node::pipeline::shape::check_shape;
+use crate::synth::capture::{
+    image_topic, info_topic, mask_topic, POSE_TOPIC, SHAPE_TOPIC, TF_STATIC_TOPIC,
+};
 use glam::{Affine3A, Quat, Vec3};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -80,6 +83,8 @@ struct GroundTruth {
     inputs: Vec<(String, image::RgbImage)>,
     heldout: Vec<HeldoutView>,
     pose: Pose,
+    /// The person's body shape, when the bag carries one (`lhmpp synth --publish-shape`).
+    shape: Option<BodyShape>,
 }
 
 fn first<'a>(bag: &'a BagReader, topic: &str) -> Option<&'a crate::bag::BagMessage> {
@@ -199,14 +204,23 @@ fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
             "needs input views (/camN/image_raw) and held-out views (/heldoutN/...), as made by `lhmpp synth`".into(),
         ));
     }
+    let shape = first(bag, SHAPE_TOPIC).map(|m| bag.decode(m)).transpose()?;
     Ok(GroundTruth {
         inputs,
         heldout,
         pose,
+        shape,
     })
 }
 
-/// Reconstructs from the first `k` input views for each `k` in `view_counts` (clamped to the
+/// `k` of `n` view indices spread evenly over `0..n` (all of them when `k >= n`).
+fn spread(n: usize, k: usize) -> Vec<usize> {
+    let k = k.clamp(1, n.max(1));
+    (0..k).map(|i| i * n / k).collect()
+}
+
+/// Reconstructs from `k` input views spread evenly over the bag's views (every `n/k`-th: on a
+/// camera ring, cameras all around the person) for each `k` in `view_counts` (clamped to the
 /// views in the bag) and scores the held-out views. Every frame of an input camera topic is a
 /// view (a moving-camera bag has one topic with several frames).
 pub fn evaluate_bag(
@@ -217,6 +231,16 @@ pub fn evaluate_bag(
     let bag = BagReader::open(path)?;
     let gt = read_ground_truth(&bag)?;
     let mut recon = Reconstructor::new(model, gt.inputs.len())?;
+    // Reconstruct on the person's body shape, as the node does when a shape topic is set.
+    if let Some(shape) = &gt.shape {
+        let accepted = check_shape(SHAPE_TOPIC, shape, recon.body_model()).map_err(|e| {
+            EvalError::MissingGroundTruth {
+                path: path.display().to_string(),
+                message: e.to_string(),
+            }
+        })?;
+        recon.set_shape(accepted)?;
+    }
     let (h, w) = recon.input_size();
     let pre = PreprocessConfig {
         out_height: h,
@@ -245,11 +269,9 @@ pub fn evaluate_bag(
         .collect();
     counts.dedup();
     for k in counts {
-        let views: Vec<_> = images
-            .iter()
-            .take(k)
-            .enumerate()
-            .map(|(i, im)| (i as u64 + 1, im))
+        let views: Vec<_> = spread(images.len(), k)
+            .into_iter()
+            .map(|i| (i as u64 + 1, &images[i]))
             .collect();
         let avatar = recon.reconstruct(&views)?;
         let posed = avatar.animate(&matrices);

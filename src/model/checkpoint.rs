@@ -324,7 +324,7 @@ fn scan_files(
     cfg: &LhmppConfig,
     load: Option<(DType, &Device)>,
 ) -> Result<(HashMap<String, Tensor>, CheckpointSummary), CheckpointError> {
-    let mut summary = CheckpointSummary {
+    let summary = CheckpointSummary {
         ignored: IGNORED_PREFIXES
             .iter()
             .map(|p| (p.to_string(), 0, 0))
@@ -350,14 +350,63 @@ fn scan_files(
         })?;
         maps.push((file, map));
     }
-    let mut problems = Vec::new();
-    let mut tensors = HashMap::with_capacity(expected.len());
-    let mut seen: HashMap<String, &PathBuf> = HashMap::new();
+    let mut parsed = Vec::with_capacity(maps.len());
     for (file, map) in &maps {
         let st = map.deserialize().map_err(|e| CheckpointError::Format {
             path: file.to_path_buf(),
             reason: e.to_string(),
         })?;
+        parsed.push((file.as_path(), st));
+    }
+    scan_tensors(&parsed, origin, cfg, load, summary, &expected)
+}
+
+/// Validates embedded safetensors `bytes` (named `origin` in errors) against `cfg` like a
+/// checkpoint file, and returns a `VarBuilder` over its tensors in `dtype` on `device`.
+pub fn load_var_builder_from_bytes(
+    bytes: &[u8],
+    origin: &Path,
+    cfg: &LhmppConfig,
+    dtype: DType,
+    device: &Device,
+) -> Result<VarBuilder<'static>, CheckpointError> {
+    let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| CheckpointError::Format {
+        path: origin.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    let summary = CheckpointSummary {
+        ignored: IGNORED_PREFIXES
+            .iter()
+            .map(|p| (p.to_string(), 0, 0))
+            .collect(),
+        ..Default::default()
+    };
+    let expected = expected_tensors(cfg)?;
+    let (tensors, _) = scan_tensors(
+        &[(origin, st)],
+        origin,
+        cfg,
+        Some((dtype, device)),
+        summary,
+        &expected,
+    )?;
+    Ok(VarBuilder::from_tensors(tensors, dtype, device))
+}
+
+/// The checks of [`scan_files`] over already parsed files.
+fn scan_tensors(
+    parsed: &[(&Path, safetensors::SafeTensors<'_>)],
+    origin: &Path,
+    cfg: &LhmppConfig,
+    load: Option<(DType, &Device)>,
+    mut summary: CheckpointSummary,
+    expected: &BTreeMap<String, Vec<usize>>,
+) -> Result<(HashMap<String, Tensor>, CheckpointSummary), CheckpointError> {
+    let mut problems = Vec::new();
+    let mut tensors = HashMap::with_capacity(expected.len());
+    let mut seen: HashMap<String, &Path> = HashMap::new();
+    for (file, st) in parsed {
+        let file = *file;
         let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
         names.sort();
         for name in names {
@@ -417,7 +466,7 @@ fn scan_files(
             }
         }
     }
-    for (name, dims) in &expected {
+    for (name, dims) in expected {
         if !seen.contains_key(name) {
             problems.push(format!("missing tensor `{name}` {dims:?}"));
         }

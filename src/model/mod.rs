@@ -9,6 +9,7 @@ pub mod bicubic;
 pub mod cache;
 pub mod checkpoint;
 pub mod config;
+pub mod default_weights;
 pub mod dpt;
 pub mod encoder;
 pub mod frame_block;

@@ -3,6 +3,7 @@
 //! `lhmpp eval`.
 
 pub mod capture;
+pub mod dataset;
 pub mod outfit;
 pub mod person;
 pub mod random_pose;

@@ -42,6 +42,9 @@ pub enum SynthError {
     /// A pose refers to unknown bones.
     #[error("pose: {0}")]
     Pose(String),
+    /// A training sample could not be made or written.
+    #[error("dataset: {0}")]
+    Dataset(String),
 }
 
 impl SyntheticPerson {

@@ -8,7 +8,10 @@ use crate::body::official::{OfficialPrior, PriorPaths, SMPLX_MODEL_ID};
 use crate::body::{BodyTemplate, SkinWeights, MAKEHUMAN_MODEL_ID};
 use crate::config::ModelConfig;
 use crate::model::cache::ViewTokenCache;
-use crate::model::checkpoint::seeded_var_builder;
+use crate::model::default_weights::{
+    default_var_builder, random_var_builder, WeightsSource, DEFAULT_CHECKPOINT_PATH,
+    DEFAULT_PRESET, RANDOM_WEIGHTS_SEED,
+};
 use crate::model::hub::load_checkpoint;
 use crate::model::{Lhmpp, LhmppConfig};
 use crate::node::preprocess::Preprocessed;
@@ -16,9 +19,6 @@ use crate::splat::Gaussians;
 use candle_core::{DType, Device, Tensor};
 use glam::{Quat, Vec3};
 use std::path::Path;
-
-/// Seed of the embedded default weights (random until a trained checkpoint ships).
-pub const DEFAULT_WEIGHTS_SEED: u64 = 1;
 
 /// A reconstruction problem, naming the input that caused it.
 #[derive(Debug, thiserror::Error)]
@@ -105,18 +105,46 @@ impl Reconstructor {
         let device = select_device(&config.device)?;
         let dtype = parse_dtype(&config.dtype)?;
         // The prior first: a missing prior file fails before gigabytes of weights are read.
-        let official = cfg.preset == "lhmpp-700m" || Path::new(&config.checkpoint).is_dir();
+        let official = cfg.preset == "lhmpp-700m"
+            || (!config.checkpoint.is_empty() && Path::new(&config.checkpoint).is_dir());
         let prior = load_prior(config, official, &cfg.preset)?;
-        let (vb, weights) = if config.checkpoint.is_empty() {
-            (
-                seeded_var_builder(DEFAULT_WEIGHTS_SEED, dtype, &device),
-                format!("embedded default (seeded random weights, seed {DEFAULT_WEIGHTS_SEED})"),
-            )
-        } else {
-            let loaded = load_checkpoint(Path::new(&config.checkpoint), &cfg, dtype, &device)
-                .map_err(|e| ReconstructError::Model(e.to_string()))?;
-            cfg = loaded.config;
-            (loaded.var_builder, loaded.description)
+        let source = WeightsSource::parse(&config.checkpoint).ok_or_else(|| {
+            ReconstructError::Model(format!(
+                "model.checkpoint `{}`: expected a path, `random` or `random:SEED`",
+                config.checkpoint
+            ))
+        })?;
+        let (vb, weights) = match source {
+            WeightsSource::Embedded if cfg.preset == DEFAULT_PRESET => {
+                let (default_cfg, vb) = default_var_builder(dtype, &device)
+                    .map_err(|e| ReconstructError::Model(e.to_string()))?;
+                cfg = default_cfg;
+                (
+                    vb,
+                    format!("embedded default ({DEFAULT_CHECKPOINT_PATH}, trained on synthetic people)"),
+                )
+            }
+            WeightsSource::Embedded => {
+                tracing::warn!(
+                    "preset `{}` has no trained default: using seeded random weights (seed \
+                     {RANDOM_WEIGHTS_SEED}); set model.checkpoint to real weights",
+                    cfg.preset
+                );
+                (
+                    random_var_builder(RANDOM_WEIGHTS_SEED, dtype, &device),
+                    format!("seeded random weights, seed {RANDOM_WEIGHTS_SEED} (no trained default for `{}`)", cfg.preset),
+                )
+            }
+            WeightsSource::Random(seed) => (
+                random_var_builder(seed, dtype, &device),
+                format!("seeded random weights, seed {seed}"),
+            ),
+            WeightsSource::Path(path) => {
+                let loaded = load_checkpoint(Path::new(&path), &cfg, dtype, &device)
+                    .map_err(|e| ReconstructError::Model(e.to_string()))?;
+                cfg = loaded.config;
+                (loaded.var_builder, loaded.description)
+            }
         };
         let model = Lhmpp::new(&cfg, vb)?;
         let base_template = match &prior {

@@ -1,0 +1,227 @@
+"""Trains the `tiny` LHM++ of this repo on synthetic people (shards from `lhmpp synth-dataset`).
+
+The network is the PyTorch twin of our Rust forward (lhmpp_torch.py, checked against our binary
+by check_parity.py); losses follow the paper where they apply:
+  - L1 colour and mask of the posed Gaussians splatted into target cameras (held-out views
+    and one input view; splat_torch.py), lambda_rgb = 1, lambda_mask = 0.5;
+  - direct L1 on the canonical colour of every anchor (synthetic ground truth);
+  - ASAP (isotropic scales, lambda 20) and ACAP (offsets within 2 cm, lambda 5) regularisers.
+AdamW, seeded, resumable (state.pt every --save-every steps), a progress line (step, loss,
+steps/s, ETA), log.txt, loss.png and config.json beside the weights.
+
+Usage (scripts/train/run does all of it):
+  python scripts/train/train.py --data target/dataset --out target/train [--steps N]
+      [--max-minutes M] [--resume]
+"""
+
+import argparse
+import json
+import math
+import os
+import random
+import sys
+import time
+
+import torch
+import torch.nn.functional as F
+from safetensors import safe_open
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import lhmpp_torch  # noqa: E402
+import splat_torch  # noqa: E402
+
+
+def load_shards(folder):
+    """All samples of every shard in `folder`, as dicts of tensors (u8 images kept as u8)."""
+    samples = []
+    names = sorted(f for f in os.listdir(folder) if f.endswith(".safetensors"))
+    if not names:
+        sys.exit(f"{folder}: no shard-*.safetensors (make them with `lhmpp synth-dataset`)")
+    for name in names:
+        path = os.path.join(folder, name)
+        with safe_open(path, framework="pt") as f:
+            meta = f.metadata() or {}
+            if meta.get("format") != "lhmpp-training-shard-v1":
+                sys.exit(f"{path}: not an lhmpp training shard (format {meta.get('format')!r})")
+            seeds = [int(s) for s in meta["seeds"].split(",")]
+            for k, seed in enumerate(seeds):
+                s = {key: f.get_tensor(f"{k}.{key}") for key in (
+                    "images", "anchors", "normals", "colors", "posed_anchors", "posed_rotations",
+                    "target_rgb", "target_alpha", "target_intrinsics", "target_camera_from_world")}
+                s["seed"] = seed
+                samples.append(s)
+    return samples
+
+
+def losses(model, s, weights):
+    """The training losses of one sample: a dict of scalar tensors (and `total`)."""
+    images = s["images"].float() / 255.0
+    out = model(images, s["anchors"], s["normals"])
+    means, quats = splat_torch.pose_gaussians(out, s["posed_anchors"], s["posed_rotations"])
+    rgb_l, mask_l = 0.0, 0.0
+    targets = s["target_rgb"].shape[0]
+    size = s["target_rgb"].shape[-1]
+    for t in range(targets):
+        rgb, alpha = splat_torch.render(
+            means, quats, out["scales"], out["opacities"], out["colors"],
+            s["target_intrinsics"][t], s["target_camera_from_world"][t], size)
+        rgb_l = rgb_l + (rgb - s["target_rgb"][t].float() / 255.0).abs().mean()
+        mask_l = mask_l + (alpha - s["target_alpha"][t].float() / 255.0).abs().mean()
+    rgb_l, mask_l = rgb_l / targets, mask_l / targets
+    color = (out["colors"] - s["colors"]).abs().mean()
+    sc = out["scales"]
+    asap = ((sc - sc.mean(-1, keepdim=True)) ** 2).sum(-1).mean()
+    acap = F.relu(out["offsets"].norm(dim=-1) - 0.02).mean()
+    parts = {"rgb": rgb_l, "mask": mask_l, "color": color, "asap": asap, "acap": acap}
+    parts["total"] = sum(weights[k] * v for k, v in parts.items())
+    return parts
+
+
+def lr_at(step, total, peak, warmup):
+    if step < warmup:
+        return peak * (step + 1) / warmup
+    t = (step - warmup) / max(1, total - warmup)
+    return 1e-5 + 0.5 * (peak - 1e-5) * (1 + math.cos(math.pi * min(1.0, t)))
+
+
+def plot(history, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [h["step"] for h in history]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for key in ("total", "rgb", "mask", "color"):
+        ys = [h[key] for h in history]
+        # Smoothed over 50 steps so the trend shows through the per-sample noise.
+        k = 50
+        sm = [sum(ys[max(0, i - k + 1): i + 1]) / len(ys[max(0, i - k + 1): i + 1]) for i in range(len(ys))]
+        ax.plot(steps, sm, label=key)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss (50-step mean)")
+    ax.set_title("lhmpp tiny on synthetic people")
+    ax.legend()
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def fmt_time(seconds):
+    seconds = int(max(0, seconds))
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", required=True, help="folder of shards from `lhmpp synth-dataset`")
+    ap.add_argument("--out", required=True, help="run folder (state, log, plot, weights)")
+    ap.add_argument("--config", default=None, help="network config JSON (default: the tiny preset dump in --out)")
+    ap.add_argument("--init", default=None, help="initial weights (safetensors, our layout)")
+    ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument("--max-minutes", type=float, default=0.0, help="stop (and save) after this long")
+    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--warmup", type=int, default=200)
+    ap.add_argument("--weight-decay", type=float, default=0.01)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--save-every", type=int, default=200)
+    ap.add_argument("--resume", action="store_true")
+    args = ap.parse_args()
+
+    torch.set_num_threads(args.threads)
+    os.makedirs(args.out, exist_ok=True)
+    weights = {"rgb": 1.0, "mask": 0.5, "color": 1.0, "asap": 20.0, "acap": 5.0}
+    state_path = os.path.join(args.out, "state.pt")
+    log = open(os.path.join(args.out, "log.txt"), "a")
+
+    def say(line):
+        print(line, flush=True)
+        log.write(line + "\n")
+        log.flush()
+
+    samples = load_shards(args.data)
+    seeds = [s["seed"] for s in samples]
+    cfg_path = args.config or args.init
+    if not cfg_path:
+        sys.exit("--config or --init is required (the network config)")
+    if args.init:
+        model = lhmpp_torch.load_checkpoint(args.init, cfg=args.config)
+    else:
+        model = lhmpp_torch.LhmppTorch.from_config_json(cfg_path)
+    params = [p for p in model.parameters() if p.requires_grad]
+    decay = [p for p in params if p.dim() >= 2]
+    no_decay = [p for p in params if p.dim() < 2]
+    opt = torch.optim.AdamW(
+        [{"params": decay, "weight_decay": args.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+        lr=args.lr, betas=(0.9, 0.99))
+    step, history, elapsed_before = 0, [], 0.0
+    if args.resume and os.path.exists(state_path):
+        st = torch.load(state_path, weights_only=False)
+        model.load_state_dict(st["model"])
+        opt.load_state_dict(st["optimizer"])
+        step, history, elapsed_before = st["step"], st["history"], st.get("elapsed", 0.0)
+        torch.set_rng_state(st["torch_rng"])
+        random.setstate(st["py_rng"])
+        say(f"resumed at step {step} from {state_path}")
+    else:
+        random.seed(args.seed)
+        torch.manual_seed(args.seed)
+    config = {
+        "data": os.path.abspath(args.data), "samples": len(samples),
+        "seeds": f"{min(seeds)}..{max(seeds) + 1}", "steps": args.steps, "lr": args.lr,
+        "warmup": args.warmup, "weight_decay": args.weight_decay, "seed": args.seed,
+        "threads": args.threads, "loss_weights": weights, "optimizer": "AdamW(0.9, 0.99)",
+        "torch": torch.__version__,
+        "parameters": sum(p.numel() for p in params),
+    }
+    with open(os.path.join(args.out, "config.json"), "w") as f:
+        json.dump(config, f, indent=2)
+    say(f"training {config['parameters']} parameters on {len(samples)} samples "
+        f"(seeds {config['seeds']}), {args.steps} steps, {args.threads} threads")
+
+    def save():
+        torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                    "history": history, "torch_rng": torch.get_rng_state(),
+                    "py_rng": random.getstate(), "elapsed": elapsed_before + time.time() - t0},
+                   state_path + ".tmp")
+        os.replace(state_path + ".tmp", state_path)
+        plot(history, os.path.join(args.out, "loss.png"))
+
+    t0 = time.time()
+    start_step = step
+    model.train()
+    while step < args.steps:
+        if args.max_minutes and (elapsed_before + time.time() - t0) > 60 * args.max_minutes:
+            say(f"time budget of {args.max_minutes} min reached at step {step}")
+            break
+        s = samples[random.randrange(len(samples))]
+        for g in opt.param_groups:
+            g["lr"] = lr_at(step, args.steps, args.lr, args.warmup)
+        parts = losses(model, s, weights)
+        opt.zero_grad(set_to_none=True)
+        parts["total"].backward()
+        torch.nn.utils.clip_grad_norm_(params, 1.0)
+        opt.step()
+        step += 1
+        history.append({"step": step, **{k: float(v) for k, v in parts.items()}})
+        if step % 10 == 0 or step == args.steps:
+            rate = (step - start_step) / max(1e-9, time.time() - t0)
+            recent = history[-50:]
+            mean = {k: sum(h[k] for h in recent) / len(recent) for k in parts}
+            say(f"step {step}/{args.steps}  loss {mean['total']:.4f} (rgb {mean['rgb']:.4f} "
+                f"mask {mean['mask']:.4f} color {mean['color']:.4f} asap {mean['asap']:.2e} "
+                f"acap {mean['acap']:.2e})  {rate:.2f} steps/s  ETA {fmt_time((args.steps - step) / max(rate, 1e-9))}")
+        if step % args.save_every == 0:
+            save()
+    save()
+    model.eval()
+    lhmpp_torch.save_checkpoint(model, os.path.join(args.out, "model.safetensors"))
+    say(f"saved {os.path.join(args.out, 'model.safetensors')} at step {step} "
+        f"({fmt_time(elapsed_before + time.time() - t0)} of training)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,93 @@
+//! `lhmpp synth-dataset`: training samples for the default model, written as safetensors shards
+//! (see `lhmpp::synth::dataset` for the layout).
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use lhmpp::synth::dataset::{make_sample, write_shard, DatasetOptions, TRAIN_SEED_START};
+use rayon::prelude::*;
+use std::path::PathBuf;
+
+/// Arguments of `lhmpp synth-dataset`.
+#[derive(clap::Args, Debug)]
+pub struct SynthDatasetArgs {
+    /// First person seed (training seeds start at 1000000; lower seeds are evaluation people).
+    #[arg(long, default_value_t = TRAIN_SEED_START)]
+    first_seed: u64,
+    /// Number of samples (one person each, consecutive seeds).
+    #[arg(long, default_value_t = 2000)]
+    samples: u64,
+    /// Samples per shard file.
+    #[arg(long, default_value_t = 250)]
+    shard_size: u64,
+    /// Anchor points per person (the node's model.num_points).
+    #[arg(long, default_value_t = 4096)]
+    points: usize,
+    /// Most input views per sample.
+    #[arg(long, default_value_t = 8)]
+    max_views: usize,
+    /// Encoder input side in pixels (the preset's image size).
+    #[arg(long, default_value_t = 112)]
+    input_size: u32,
+    /// Target view side in pixels.
+    #[arg(long, default_value_t = 96)]
+    target_size: u32,
+    /// Output folder (shard-00000.safetensors, ...); existing complete shards are kept.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+/// Writes the shards with a progress bar; a shard already on disk is not made again.
+pub fn run(args: SynthDatasetArgs) -> Result<()> {
+    anyhow::ensure!(
+        args.first_seed >= TRAIN_SEED_START,
+        "--first-seed {} is an evaluation seed (training seeds start at {TRAIN_SEED_START})",
+        args.first_seed
+    );
+    anyhow::ensure!(args.shard_size >= 1, "--shard-size must be at least 1");
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("creating {}", args.output.display()))?;
+    let options = DatasetOptions {
+        points: args.points,
+        max_views: args.max_views,
+        input_size: args.input_size,
+        target_size: args.target_size,
+        ..DatasetOptions::default()
+    };
+    let bar = ProgressBar::new(args.samples);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} samples {per_sec} eta {eta}")
+            .expect("valid template"),
+    );
+    let shards = args.samples.div_ceil(args.shard_size);
+    for shard in 0..shards {
+        let path = args.output.join(format!("shard-{shard:05}.safetensors"));
+        let start = shard * args.shard_size;
+        let end = (start + args.shard_size).min(args.samples);
+        if path.exists() {
+            bar.inc(end - start);
+            continue;
+        }
+        let samples = (start..end)
+            .into_par_iter()
+            .map(|k| {
+                let s = make_sample(args.first_seed + k, &options);
+                bar.inc(1);
+                s
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        // Written under a temporary name first: a killed run leaves no half shard behind.
+        let tmp = path.with_extension("partial");
+        write_shard(&tmp, &samples)?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("renaming {}", tmp.display()))?;
+    }
+    bar.finish();
+    println!(
+        "wrote {} samples (seeds {}..{}) in {} shards to {}",
+        args.samples,
+        args.first_seed,
+        args.first_seed + args.samples,
+        shards,
+        args.output.display()
+    );
+    Ok(())
+}

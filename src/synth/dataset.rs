@@ -1,0 +1,398 @@
+//! Training samples for the default model (`lhmpp synth-dataset`): one seeded synthetic person
+//! per sample, its input views preprocessed exactly as the node does, the anchor points the
+//! node samples on that person's (shaped) template, per-anchor ground truth (canonical colour)
+//! and low-resolution target views (cameras, images, alpha) for render losses.
+//!
+//! Seeds below [`TRAIN_SEED_START`] are reserved for evaluation and are refused here, so an
+//! evaluation person is never trained on.
+
+use super::outfit::Rgb;
+use super::person::{SynthError, SyntheticPerson};
+use super::random_pose::grounded_random_pose;
+use super::scene::{Rig, RigCamera};
+use crate::avatar::Avatar;
+use crate::body::{motion, Pose, MAKEHUMAN_MODEL_ID};
+use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::splat::{render, Camera, Gaussians, RenderOptions};
+use glam::{Affine3A, Quat, Vec3};
+use image::{GrayImage, RgbImage};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::path::Path;
+
+/// First seed that may be trained on; seeds below it are evaluation people.
+pub const TRAIN_SEED_START: u64 = 1_000_000;
+
+/// What the samples look like.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DatasetOptions {
+    /// Anchor points per person (the node's `model.num_points`).
+    pub points: usize,
+    /// Anchor sampling seed (the node's `model.seed`).
+    pub anchor_seed: u64,
+    /// Encoder input side (the preset's image size; square).
+    pub input_size: u32,
+    /// Side of the target views.
+    pub target_size: u32,
+    /// Most input views of one sample (at least 1).
+    pub max_views: usize,
+    /// Held-out target cameras per sample (besides one input camera).
+    pub heldout_targets: usize,
+    /// Gaussians of the ground-truth person.
+    pub person_points: usize,
+}
+
+impl Default for DatasetOptions {
+    fn default() -> Self {
+        Self {
+            points: 4096,
+            anchor_seed: 1,
+            input_size: 112,
+            target_size: 96,
+            max_views: 8,
+            heldout_targets: 2,
+            person_points: 20_000,
+        }
+    }
+}
+
+/// One training sample (flat row-major arrays; shapes in the field docs).
+#[derive(Debug, Clone)]
+pub struct TrainingSample {
+    /// The person's seed.
+    pub seed: u64,
+    /// Input views `V`.
+    pub views: usize,
+    /// Preprocessed input views `[V, 3, S, S]`, 8-bit (the node's f32 input is `v / 255`).
+    pub images: Vec<u8>,
+    /// Anchor positions `[N, 3]` on the shaped template (canonical frame).
+    pub anchors: Vec<f32>,
+    /// Anchor normals `[N, 3]`.
+    pub normals: Vec<f32>,
+    /// Ground-truth canonical colour per anchor `[N, 3]`.
+    pub colors: Vec<f32>,
+    /// Anchors posed by the sample's body pose `[N, 3]` (world frame).
+    pub posed_anchors: Vec<f32>,
+    /// Per-anchor skinning rotation of that pose, `[N, 4]` as (w, x, y, z).
+    pub posed_rotations: Vec<f32>,
+    /// Target images `[T, 3, R, R]` on white, 8-bit.
+    pub target_rgb: Vec<u8>,
+    /// Target alpha `[T, R, R]`, 8-bit.
+    pub target_alpha: Vec<u8>,
+    /// Target intrinsics `[T, 4]`: fx, fy, cx, cy (pixels of the R×R target).
+    pub target_intrinsics: Vec<f32>,
+    /// Target extrinsics `[T, 3, 4]`: camera_from_world (optical frame, +Z forward).
+    pub target_camera_from_world: Vec<f32>,
+    /// Height scale and girth scale of the person (the BodyShape the node would receive).
+    pub shape: [f32; 2],
+}
+
+/// Background behind an input view.
+#[derive(Debug, Clone, Copy)]
+enum Background {
+    Solid(Rgb),
+    Gradient(Rgb, Rgb),
+    Noise(u64),
+}
+
+impl Background {
+    fn random(rng: &mut ChaCha8Rng) -> Self {
+        let color = |rng: &mut ChaCha8Rng| [rng.gen(), rng.gen(), rng.gen()];
+        match rng.gen_range(0..100) {
+            0..=49 => Background::Solid([1.0; 3]),
+            50..=69 => Background::Solid(color(rng)),
+            70..=88 => Background::Gradient(color(rng), color(rng)),
+            _ => Background::Noise(rng.gen()),
+        }
+    }
+
+    fn at(&self, x: u32, y: u32, w: u32, h: u32) -> Vec3 {
+        match *self {
+            Background::Solid(c) => Vec3::from(c),
+            Background::Gradient(a, b) => {
+                let t = y as f32 / h.max(1) as f32;
+                Vec3::from(a).lerp(Vec3::from(b), t)
+            }
+            Background::Noise(seed) => {
+                // Blocky value noise: 8 px cells, hashed per cell and channel.
+                let (cx, cy) = (x / 8, y / 8);
+                let mut c = [0f32; 3];
+                for (k, v) in c.iter_mut().enumerate() {
+                    let mut hsh = seed ^ (u64::from(cx) << 32) ^ u64::from(cy);
+                    hsh = (hsh ^ (k as u64 + 1).wrapping_mul(0xD6E8_FEB8_6659_FD93))
+                        .wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                    hsh ^= hsh >> 29;
+                    *v = (hsh & 0xFFFF) as f32 / 65535.0;
+                }
+                let _ = (w, h);
+                Vec3::from(c)
+            }
+        }
+    }
+}
+
+/// A random body pose for a sample: walk cycle, random within joint limits, or rest.
+fn sample_pose(person: &SyntheticPerson, seed: u64, rng: &mut ChaCha8Rng) -> Pose {
+    match rng.gen_range(0..10) {
+        0..=3 => motion::walk_pose(rng.gen_range(0.0..48.0)),
+        4..=7 => grounded_random_pose(&person.template, seed, 0),
+        _ => Pose::identity(),
+    }
+}
+
+/// Rolls a camera about its optical axis by `angle` radians.
+fn rolled(camera: &Camera, angle: f32) -> Camera {
+    Camera {
+        world_from_camera: camera.world_from_camera
+            * Affine3A::from_quat(Quat::from_rotation_z(angle)),
+        ..*camera
+    }
+}
+
+/// The same camera seen at another image size (intrinsics scaled).
+fn resized(camera: &Camera, size: u32) -> Camera {
+    let i = camera.intrinsics;
+    let s = size as f32 / i.width as f32;
+    let mut intrinsics = i;
+    intrinsics.fx *= s;
+    intrinsics.fy *= s;
+    intrinsics.cx = (i.cx + 0.5) * s - 0.5;
+    intrinsics.cy = (i.cy + 0.5) * s - 0.5;
+    intrinsics.width = size;
+    intrinsics.height = (i.height as f32 * s).round() as u32;
+    Camera {
+        intrinsics,
+        ..*camera
+    }
+}
+
+/// Makes the training sample of `seed` (≥ [`TRAIN_SEED_START`]).
+pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample, SynthError> {
+    if seed < TRAIN_SEED_START {
+        return Err(SynthError::Dataset(format!(
+            "seed {seed} is reserved for evaluation (training seeds start at {TRAIN_SEED_START})"
+        )));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6461_7461);
+    let person = SyntheticPerson::new(seed, options.person_points)?;
+    let height = person.template.height();
+    let views = rng.gen_range(1..=options.max_views.max(1));
+    let size = [128u32, 192, 256][rng.gen_range(0..3)];
+    let rig = if rng.gen_bool(0.7) {
+        Rig::ring(seed, views, options.heldout_targets, size, height)
+    } else {
+        Rig::moving(seed, views, options.heldout_targets, size, height)
+    };
+    let pose = sample_pose(&person, seed, &mut rng);
+    let matrices = person
+        .template
+        .skeleton
+        .try_skinning_matrices(&pose)
+        .map_err(|e| SynthError::Pose(e.to_string()))?;
+    let posed_person = person.avatar.animate(&matrices);
+
+    // Input views: rendered over a random background, preprocessed like the node.
+    let pre = PreprocessConfig {
+        out_height: options.input_size,
+        out_width: options.input_size,
+        ..PreprocessConfig::default()
+    };
+    let black = RenderOptions::default();
+    let mut images = Vec::with_capacity(views * 3 * (options.input_size as usize).pow(2));
+    for rig_camera in &rig.inputs {
+        let camera = rolled(&rig_camera.camera, rng.gen_range(-0.12..0.12));
+        let out = render(&posed_person, &camera, &black);
+        let bg = Background::random(&mut rng);
+        let (w, h) = (out.width, out.height);
+        let rgb = RgbImage::from_fn(w, h, |x, y| {
+            let i = (y * w + x) as usize;
+            let a = out.alpha[i];
+            let c = Vec3::from_slice(&out.rgb[3 * i..3 * i + 3]) + (1.0 - a) * bg.at(x, y, w, h);
+            let c = (c.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
+            image::Rgb([c.x as u8, c.y as u8, c.z as u8])
+        });
+        let masked = rng.gen_bool(0.25);
+        let mask = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([if out.alpha[(y * w + x) as usize] >= 0.5 { 255 } else { 0 }])
+        });
+        let subject = if masked {
+            Subject::Mask(&mask)
+        } else {
+            Subject::FullFrame
+        };
+        let view = preprocess(&rgb, subject, &pre)
+            .or_else(|_| preprocess(&rgb, Subject::FullFrame, &pre))
+            .map_err(|e| SynthError::Dataset(format!("preprocess: {e}")))?;
+        images.extend(view.chw.iter().map(|v| (v * 255.0).round() as u8));
+    }
+
+    // Anchors as the node samples them on the shaped template, their ground truth and pose.
+    let anchors = person
+        .template
+        .sample_anchors(options.points, options.anchor_seed);
+    let n = anchors.len();
+    let colors: Vec<f32> = anchors
+        .positions
+        .iter()
+        .zip(&anchors.part_labels)
+        .flat_map(|(p, label)| {
+            let part = person.template.part_names[*label as usize].as_str();
+            person.outfit.color(part, *p, height)
+        })
+        .collect();
+    let frame = Gaussians::from_rgb(
+        anchors.positions.clone(),
+        vec![Vec3::splat(0.01); n],
+        vec![Quat::IDENTITY; n],
+        vec![1.0; n],
+        &vec![Vec3::ZERO; n],
+    )?;
+    let posed_frame =
+        Avatar::new(frame, anchors.skin.clone(), MAKEHUMAN_MODEL_ID)?.animate(&matrices);
+    let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+
+    // Targets: the held-out cameras and one input camera, at the target size, on white.
+    let mut targets: Vec<&RigCamera> = rig.heldout.iter().collect();
+    targets.push(&rig.inputs[rng.gen_range(0..rig.inputs.len())]);
+    let white = RenderOptions {
+        background: Vec3::ONE,
+        ..RenderOptions::default()
+    };
+    let r = options.target_size;
+    let mut target_rgb = Vec::new();
+    let mut target_alpha = Vec::new();
+    let mut target_intrinsics = Vec::new();
+    let mut target_camera_from_world = Vec::new();
+    for t in targets.iter() {
+        let camera = resized(&t.camera, r);
+        let out = render(&posed_person, &camera, &white);
+        for c in 0..3 {
+            target_rgb.extend(
+                out.rgb
+                    .chunks_exact(3)
+                    .map(|p| (p[c].clamp(0.0, 1.0) * 255.0).round() as u8),
+            );
+        }
+        target_alpha.extend(
+            out.alpha
+                .iter()
+                .map(|a| (a.clamp(0.0, 1.0) * 255.0).round() as u8),
+        );
+        let i = camera.intrinsics;
+        target_intrinsics.extend([i.fx, i.fy, i.cx, i.cy]);
+        let m = glam::Mat4::from(camera.camera_from_world());
+        for row in 0..3 {
+            target_camera_from_world.extend((0..4).map(|col| m.col(col)[row]));
+        }
+    }
+    Ok(TrainingSample {
+        seed,
+        views,
+        images,
+        anchors: flat(&anchors.positions),
+        normals: flat(&anchors.normals),
+        colors,
+        posed_anchors: flat(&posed_frame.positions),
+        posed_rotations: posed_frame
+            .rotations
+            .iter()
+            .flat_map(|q| [q.w, q.x, q.y, q.z])
+            .collect(),
+        target_rgb,
+        target_alpha,
+        target_intrinsics,
+        target_camera_from_world,
+        shape: [person.height_scale, person.girth_scale],
+    })
+}
+
+/// Writes `samples` to one safetensors shard: tensors `{k}.images` (u8 `[V,3,S,S]`),
+/// `{k}.anchors`, `{k}.normals`, `{k}.colors`, `{k}.posed_anchors` (f32 `[N,3]`),
+/// `{k}.posed_rotations` (f32 `[N,4]`), `{k}.target_rgb` (u8 `[T,3,R,R]`), `{k}.target_alpha`
+/// (u8 `[T,R,R]`), `{k}.target_intrinsics` (f32 `[T,4]`), `{k}.target_camera_from_world`
+/// (f32 `[T,3,4]`), `{k}.shape` (f32 `[2]`) for sample `k`, and the seeds in the metadata.
+pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthError> {
+    use safetensors::tensor::{Dtype, TensorView};
+    let f32_bytes = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let mut buffers: Vec<(String, Dtype, Vec<usize>, Vec<u8>)> = Vec::new();
+    for (k, s) in samples.iter().enumerate() {
+        let n = s.anchors.len() / 3;
+        let t = s.target_intrinsics.len() / 4;
+        let side = |len: usize, per: usize| ((len / per) as f64).sqrt().round() as usize;
+        let si = side(s.images.len(), s.views * 3);
+        let r = side(s.target_alpha.len(), t);
+        let mut push = |name: &str, dtype, shape: Vec<usize>, bytes: Vec<u8>| {
+            buffers.push((format!("{k}.{name}"), dtype, shape, bytes));
+        };
+        push("images", Dtype::U8, vec![s.views, 3, si, si], s.images.clone());
+        push("anchors", Dtype::F32, vec![n, 3], f32_bytes(&s.anchors));
+        push("normals", Dtype::F32, vec![n, 3], f32_bytes(&s.normals));
+        push("colors", Dtype::F32, vec![n, 3], f32_bytes(&s.colors));
+        push("posed_anchors", Dtype::F32, vec![n, 3], f32_bytes(&s.posed_anchors));
+        push("posed_rotations", Dtype::F32, vec![n, 4], f32_bytes(&s.posed_rotations));
+        push("target_rgb", Dtype::U8, vec![t, 3, r, r], s.target_rgb.clone());
+        push("target_alpha", Dtype::U8, vec![t, r, r], s.target_alpha.clone());
+        push("target_intrinsics", Dtype::F32, vec![t, 4], f32_bytes(&s.target_intrinsics));
+        push(
+            "target_camera_from_world",
+            Dtype::F32,
+            vec![t, 3, 4],
+            f32_bytes(&s.target_camera_from_world),
+        );
+        push("shape", Dtype::F32, vec![2], f32_bytes(&s.shape));
+    }
+    let views = buffers
+        .iter()
+        .map(|(name, dtype, shape, bytes)| {
+            TensorView::new(*dtype, shape.clone(), bytes)
+                .map(|v| (name.clone(), v))
+                .map_err(|e| SynthError::Dataset(format!("{name}: {e}")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let seeds = samples
+        .iter()
+        .map(|s| s.seed.to_string())
+        .collect::<Vec<_>>()
+        .join(",");
+    let metadata = std::collections::HashMap::from([
+        ("format".to_string(), "lhmpp-training-shard-v1".to_string()),
+        ("samples".to_string(), samples.len().to_string()),
+        ("seeds".to_string(), seeds),
+    ]);
+    safetensors::tensor::serialize_to_file(views, Some(metadata), path)
+        .map_err(|e| SynthError::Dataset(format!("{}: {e}", path.display())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn evaluation_seeds_are_refused() {
+        assert!(make_sample(5, &DatasetOptions::default()).is_err());
+    }
+
+    #[test]
+    fn sample_shapes_agree_and_repeat_per_seed() {
+        let o = DatasetOptions {
+            points: 512,
+            person_points: 3000,
+            max_views: 3,
+            ..DatasetOptions::default()
+        };
+        let a = make_sample(TRAIN_SEED_START + 7, &o).unwrap();
+        let b = make_sample(TRAIN_SEED_START + 7, &o).unwrap();
+        assert_eq!(a.images, b.images);
+        assert_eq!(a.images.len(), a.views * 3 * 112 * 112);
+        assert_eq!(a.anchors.len(), 512 * 3);
+        assert_eq!(a.colors.len(), 512 * 3);
+        assert_eq!(a.posed_rotations.len(), 512 * 4);
+        let t = o.heldout_targets + 1;
+        assert_eq!(a.target_rgb.len(), t * 3 * 96 * 96);
+        assert_eq!(a.target_alpha.len(), t * 96 * 96);
+        assert_eq!(a.target_camera_from_world.len(), t * 12);
+        // The person covers part of each target, not all of it.
+        let covered = a.target_alpha.iter().filter(|v| **v > 128).count();
+        assert!(covered > t * 400 && covered < t * 96 * 96 / 2, "{covered}");
+    }
+}
