@@ -53,8 +53,76 @@ def load_shards(folder):
     return samples
 
 
-def losses(model, s, weights):
-    """The training losses of one sample: a dict of scalar tensors (and `total`)."""
+PER_ANCHOR = ("anchors", "normals", "colors", "posed_anchors", "posed_rotations")
+
+
+def subsample(s, n):
+    """The sample with only its first `n` anchors (the anchors are drawn i.i.d., so a prefix is
+    a uniform subset of the body surface)."""
+    if n >= s["anchors"].shape[0]:
+        return s
+    out = dict(s)
+    for k in PER_ANCHOR:
+        out[k] = s[k][:n]
+    return out
+
+
+def white_views(s):
+    """The sample with only its views on a white background (all four corners white), or
+    None when it has none (for the first phase: no background to explain away)."""
+    im = s["images"]
+    corners = torch.stack([im[:, :, 0, 0], im[:, :, 0, -1], im[:, :, -1, 0], im[:, :, -1, -1]], 1)
+    keep = (corners >= 250).flatten(1).all(1)
+    if not keep.any():
+        return None
+    out = dict(s)
+    out["images"] = im[keep]
+    return out
+
+
+def open_gates(model):
+    """Opens the gated branches of the fresh network: the PIT blocks' AdaLN-Zero gates start at
+    1 instead of ~0 (bias of the gate chunks), the encoder's LayerScale at 1 and the frame
+    blocks' at 0.5, so image content reaches the CLS token, the conditioning and the points
+    from the first step instead of through branches scaled by 1e-1..1e-2."""
+    with torch.no_grad():
+        for blocks in (model.transformer.pi_transformer_enc, model.transformer.pi_transformer_dec):
+            for b in blocks:
+                for norm in (b.norm1, b.norm1_context):
+                    lin = norm.linear
+                    d = lin.bias.shape[0] // 6
+                    if lin.bias.shape[0] == 6 * d:  # AdaLayerNormZero: shift, scale, gate, x2
+                        lin.bias[2 * d:3 * d] = 1.0
+                        lin.bias[5 * d:6 * d] = 1.0
+        for name, p in model.named_parameters():
+            if name.startswith("transformer.image_backbone.") and name.endswith(".gamma"):
+                p.fill_(0.5)
+            if name.startswith("encoder.model.blocks.") and name.endswith(".gamma"):
+                p.fill_(1.0)
+
+
+BANDS = (0.0, 0.1, 0.5, 0.8, 1.01)
+
+
+def band_colors(s):
+    """Mean ground-truth colour of the anchors in four height bands of the canonical body
+    (shoes, trousers, shirt, head): the target of the conditioning probe, `[12]`."""
+    y = s["anchors"][:, 1]
+    h = (y - y.min()) / (y.max() - y.min()).clamp_min(1e-6)
+    out = []
+    for lo, hi in zip(BANDS[:-1], BANDS[1:]):
+        sel = (h >= lo) & (h < hi)
+        out.append(s["colors"][sel].mean(0) if sel.any() else torch.full((3,), 0.5))
+    return torch.cat(out)
+
+
+def losses(model, s, weights, probe=None):
+    """The training losses of one sample: a dict of scalar tensors (and `total`).
+
+    With `probe` (a trainer-only linear map, not part of the shipped network), the conditioning
+    vector temb (mean over views of motion_embed_mlp(CLS), which modulates every PIT block) is
+    also asked to predict the person's band colours: it makes the image encoder's global token
+    carry the clothing colours, which the points then read through their AdaLN modulation."""
     images = s["images"].float() / 255.0
     out = model(images, s["anchors"], s["normals"])
     means, quats = splat_torch.pose_gaussians(out, s["posed_anchors"], s["posed_rotations"])
@@ -73,14 +141,20 @@ def losses(model, s, weights):
     asap = ((sc - sc.mean(-1, keepdim=True)) ** 2).sum(-1).mean()
     acap = F.relu(out["offsets"].norm(dim=-1) - 0.02).mean()
     parts = {"rgb": rgb_l, "mask": mask_l, "color": color, "asap": asap, "acap": acap}
+    if probe is not None:
+        cls, _ = model.encode(images)
+        temb = model.motion_embed_mlp(cls).mean(0)
+        parts["probe"] = (torch.sigmoid(probe(temb)) - band_colors(s)).abs().mean()
     parts["total"] = sum(weights[k] * v for k, v in parts.items())
     return parts
 
 
-def lr_at(step, total, peak, warmup):
-    if step < warmup:
-        return peak * (step + 1) / warmup
-    t = (step - warmup) / max(1, total - warmup)
+def lr_at(progress, peak, warmup):
+    """Linear warm-up over the first `warmup` of the run, then cosine decay to 1e-5 (both in
+    run fractions, so a time-budgeted run decays on time)."""
+    if progress < warmup:
+        return peak * max(progress, 1e-3) / warmup
+    t = (progress - warmup) / max(1e-9, 1 - warmup)
     return 1e-5 + 0.5 * (peak - 1e-5) * (1 + math.cos(math.pi * min(1.0, t)))
 
 
@@ -129,11 +203,20 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--save-every", type=int, default=200)
     ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--white-first", type=float, default=0.0,
+                    help="until this fraction of the run, use only the views on white")
+    ap.add_argument("--probe", action="store_true",
+                    help="auxiliary loss: a linear probe on temb predicts the band colours")
+    ap.add_argument("--open-gates", action="store_true",
+                    help="open the PIT gates and frame-block LayerScale of the initial weights")
+    ap.add_argument("--points-schedule", default="",
+                    help="anchors per phase, e.g. 1024:0.4,2048:0.65,4096:1 (fractions of the "
+                         "run: of --max-minutes when set, else of --steps)")
     args = ap.parse_args()
 
     torch.set_num_threads(args.threads)
     os.makedirs(args.out, exist_ok=True)
-    weights = {"rgb": 1.0, "mask": 0.5, "color": 1.0, "asap": 20.0, "acap": 5.0}
+    weights = {"rgb": 1.0, "mask": 0.5, "color": 1.0, "asap": 20.0, "acap": 5.0, "probe": 1.0}
     state_path = os.path.join(args.out, "state.pt")
     log = open(os.path.join(args.out, "log.txt"), "a")
 
@@ -151,18 +234,29 @@ def main():
         model = lhmpp_torch.load_checkpoint(args.init, cfg=args.config)
     else:
         model = lhmpp_torch.LhmppTorch.from_config_json(cfg_path)
+    if args.open_gates and not (args.resume and os.path.exists(state_path)):
+        open_gates(model)
+    schedule = []
+    for part in filter(None, args.points_schedule.split(",")):
+        n, until = part.split(":")
+        schedule.append((int(n), float(until)))
     params = [p for p in model.parameters() if p.requires_grad]
     decay = [p for p in params if p.dim() >= 2]
     no_decay = [p for p in params if p.dim() < 2]
     opt = torch.optim.AdamW(
         [{"params": decay, "weight_decay": args.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
         lr=args.lr, betas=(0.9, 0.99))
+    probe = torch.nn.Linear(model.cfg["transformer"]["transformer_dim"], 12) if args.probe else None
+    probe_opt = torch.optim.AdamW(probe.parameters(), lr=args.lr) if probe is not None else None
     step, history, elapsed_before = 0, [], 0.0
     if args.resume and os.path.exists(state_path):
         st = torch.load(state_path, weights_only=False)
         model.load_state_dict(st["model"])
         opt.load_state_dict(st["optimizer"])
         step, history, elapsed_before = st["step"], st["history"], st.get("elapsed", 0.0)
+        if probe is not None and "probe" in st:
+            probe.load_state_dict(st["probe"])
+            probe_opt.load_state_dict(st["probe_optimizer"])
         torch.set_rng_state(st["torch_rng"])
         random.setstate(st["py_rng"])
         say(f"resumed at step {step} from {state_path}")
@@ -173,7 +267,9 @@ def main():
         "data": os.path.abspath(args.data), "samples": len(samples),
         "seeds": f"{min(seeds)}..{max(seeds) + 1}", "steps": args.steps, "lr": args.lr,
         "warmup": args.warmup, "weight_decay": args.weight_decay, "seed": args.seed,
-        "threads": args.threads, "loss_weights": weights, "optimizer": "AdamW(0.9, 0.99)",
+        "threads": args.threads, "loss_weights": weights, "open_gates": args.open_gates,
+        "white_first": args.white_first, "probe": args.probe,
+        "points_schedule": args.points_schedule, "max_minutes": args.max_minutes, "optimizer": "AdamW(0.9, 0.99)",
         "torch": torch.__version__,
         "parameters": sum(p.numel() for p in params),
     }
@@ -183,7 +279,9 @@ def main():
         f"(seeds {config['seeds']}), {args.steps} steps, {args.threads} threads")
 
     def save():
-        torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+        extra = {} if probe is None else {"probe": probe.state_dict(),
+                                          "probe_optimizer": probe_opt.state_dict()}
+        torch.save({**extra, "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
                     "history": history, "torch_rng": torch.get_rng_state(),
                     "py_rng": random.getstate(), "elapsed": elapsed_before + time.time() - t0},
                    state_path + ".tmp")
@@ -197,23 +295,43 @@ def main():
         if args.max_minutes and (elapsed_before + time.time() - t0) > 60 * args.max_minutes:
             say(f"time budget of {args.max_minutes} min reached at step {step}")
             break
+        elapsed = elapsed_before + time.time() - t0
+        progress = step / args.steps
+        if args.max_minutes:
+            progress = max(progress, elapsed / (60 * args.max_minutes))
+        points = next((n for n, until in schedule if progress < until), None)
         s = samples[random.randrange(len(samples))]
+        if progress < args.white_first:
+            s = white_views(s)
+            if s is None:
+                continue
+        if points:
+            s = subsample(s, points)
         for g in opt.param_groups:
-            g["lr"] = lr_at(step, args.steps, args.lr, args.warmup)
-        parts = losses(model, s, weights)
+            g["lr"] = lr_at(progress, args.lr, args.warmup / args.steps)
+        parts = losses(model, s, weights, probe)
         opt.zero_grad(set_to_none=True)
+        if probe_opt is not None:
+            probe_opt.zero_grad(set_to_none=True)
         parts["total"].backward()
         torch.nn.utils.clip_grad_norm_(params, 1.0)
         opt.step()
+        if probe_opt is not None:
+            probe_opt.step()
         step += 1
-        history.append({"step": step, **{k: float(v) for k, v in parts.items()}})
+        history.append({"step": step, "points": s["anchors"].shape[0],
+                        **{k: float(v.detach()) for k, v in parts.items()}})
         if step % 10 == 0 or step == args.steps:
             rate = (step - start_step) / max(1e-9, time.time() - t0)
+            eta = (args.steps - step) / max(rate, 1e-9)
+            if args.max_minutes:
+                eta = min(eta, 60 * args.max_minutes - (elapsed_before + time.time() - t0))
             recent = history[-50:]
-            mean = {k: sum(h[k] for h in recent) / len(recent) for k in parts}
-            say(f"step {step}/{args.steps}  loss {mean['total']:.4f} (rgb {mean['rgb']:.4f} "
+            mean = {k: sum(h.get(k, 0.0) for h in recent) / len(recent) for k in parts}
+            probe_text = f" probe {mean['probe']:.4f}" if "probe" in mean else ""
+            say(f"step {step}/{args.steps}  {s['anchors'].shape[0]} pts  lr {opt.param_groups[0]['lr']:.2e}  loss {mean['total']:.4f} (rgb {mean['rgb']:.4f} "
                 f"mask {mean['mask']:.4f} color {mean['color']:.4f} asap {mean['asap']:.2e} "
-                f"acap {mean['acap']:.2e})  {rate:.2f} steps/s  ETA {fmt_time((args.steps - step) / max(rate, 1e-9))}")
+                f"acap {mean['acap']:.2e}{probe_text})  {rate:.2f} steps/s  ETA {fmt_time(eta)}")
         if step % args.save_every == 0:
             save()
     save()

@@ -1,6 +1,6 @@
 //! `lhmpp eval BAG`: held-out-view PSNR / SSIM / mask IoU of reconstructions from a synthetic bag.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use lhmpp::config::NodeConfig;
 use lhmpp::eval::heldout::evaluate_bag;
 use std::path::PathBuf;
@@ -11,9 +11,13 @@ pub struct EvalArgs {
     /// Bags made by `lhmpp synth` (input views, held-out views with masks, pose, tf).
     #[arg(required = true)]
     bags: Vec<PathBuf>,
-    /// Input view counts to reconstruct from (the first N views of each bag).
+    /// Input view counts to reconstruct from (N views spread evenly over each bag's views).
     #[arg(long, value_delimiter = ',', default_value = "1,4,8")]
     views: Vec<usize>,
+    /// Write a picture of the first bag's largest view count: input views | held-out ground
+    /// truth | our render from the held-out camera (PNG).
+    #[arg(long)]
+    picture: Option<PathBuf>,
     /// Parameter file for the model settings; omitted = built-in defaults.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -34,8 +38,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
     println!(
         "| bag | input views | held-out views | PSNR (dB) | SSIM | mask IoU |\n| --- | ---: | ---: | ---: | ---: | ---: |"
     );
-    for bag in &args.bags {
-        for row in evaluate_bag(bag, &config.model, &args.views)? {
+    for (b, bag) in args.bags.iter().enumerate() {
+        let rows = evaluate_bag(bag, &config.model, &args.views)?;
+        if let (0, Some(path), Some(last)) = (b, &args.picture, rows.last()) {
+            last.picture
+                .save(path)
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+        for row in rows {
             let (p, s, i) = row.means();
             println!(
                 "| {} | {} | {} | {p:.2} | {s:.4} | {i:.4} |",
@@ -49,7 +59,8 @@ pub fn run(args: EvalArgs) -> Result<()> {
         "model: preset {}, {}",
         config.model.preset,
         if config.model.checkpoint.is_empty() {
-            "embedded default weights (trained on synthetic people; `random` for seeded random)".to_string()
+            "embedded default weights (trained on synthetic people; `random` for seeded random)"
+                .to_string()
         } else {
             config.model.checkpoint.clone()
         }

@@ -9,9 +9,9 @@ use crate::config::ModelConfig;
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, Image, TFMessage};
 use crate::node::image_decode::{decode_raw, RawImage};
 use crate::node::pipeline::reconstructor::{ReconstructError, Reconstructor};
+use crate::node::pipeline::shape::check_shape;
 use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::splat::{render, Camera, RenderOptions};
-use crate::node::pipeline::shape::check_shape;
 use crate::synth::capture::{
     image_topic, info_topic, mask_topic, POSE_TOPIC, SHAPE_TOPIC, TF_STATIC_TOPIC,
 };
@@ -58,6 +58,9 @@ pub struct EvalRow {
     pub views: usize,
     /// Per held-out view.
     pub per_view: Vec<ViewScore>,
+    /// A strip for people: up to four of the input views used | the first held-out view's
+    /// ground truth | our render from that camera (all at the held-out height).
+    pub picture: image::RgbImage,
 }
 
 impl EvalRow {
@@ -275,11 +278,15 @@ pub fn evaluate_bag(
             .collect();
         let avatar = recon.reconstruct(&views)?;
         let posed = avatar.animate(&matrices);
+        let mut first_render = None;
         let per_view = gt
             .heldout
             .iter()
             .map(|v| {
                 let out = render(&posed, &v.camera, &options);
+                if first_render.is_none() {
+                    first_render = Some(out.to_rgb8());
+                }
                 let rgb: Vec<f32> = out.rgb.iter().map(|x| x.clamp(0.0, 1.0)).collect();
                 let (w, h) = (out.width as usize, out.height as usize);
                 ViewScore {
@@ -290,7 +297,54 @@ pub fn evaluate_bag(
                 }
             })
             .collect();
-        rows.push(EvalRow { views: k, per_view });
+        let shown: Vec<&image::RgbImage> = spread(gt.inputs.len(), k.min(4))
+            .into_iter()
+            .map(|i| &gt.inputs[i].1)
+            .collect();
+        let picture = comparison_strip(&shown, &gt.heldout[0], first_render.as_ref());
+        rows.push(EvalRow {
+            views: k,
+            per_view,
+            picture,
+        });
     }
     Ok(rows)
+}
+
+/// Input views | held-out ground truth | render, side by side at the held-out height.
+fn comparison_strip(
+    inputs: &[&image::RgbImage],
+    heldout: &HeldoutView,
+    render: Option<&image::RgbImage>,
+) -> image::RgbImage {
+    use image::imageops::{resize, FilterType};
+    let (w, h) = (
+        heldout.camera.intrinsics.width,
+        heldout.camera.intrinsics.height,
+    );
+    let truth = image::RgbImage::from_fn(w, h, |x, y| {
+        let i = 3 * (y * w + x) as usize;
+        let c = |k: usize| (heldout.rgb[i + k].clamp(0.0, 1.0) * 255.0).round() as u8;
+        image::Rgb([c(0), c(1), c(2)])
+    });
+    let mut tiles: Vec<image::RgbImage> = inputs
+        .iter()
+        .map(|im| {
+            let tw = (im.width() as u64 * h as u64 / im.height().max(1) as u64).max(1) as u32;
+            resize(*im, tw, h, FilterType::Triangle)
+        })
+        .collect();
+    tiles.push(truth);
+    if let Some(r) = render {
+        tiles.push(r.clone());
+    }
+    let gap = 4;
+    let width = tiles.iter().map(|t| t.width() + gap).sum::<u32>() - gap;
+    let mut strip = image::RgbImage::from_pixel(width, h, image::Rgb([128, 128, 128]));
+    let mut x = 0;
+    for t in &tiles {
+        image::imageops::replace(&mut strip, t, i64::from(x), 0);
+        x += t.width() + gap;
+    }
+    strip
 }

@@ -56,8 +56,8 @@ pub fn default_config() -> Result<LhmppConfig, CheckpointError> {
         path: DEFAULT_CHECKPOINT_PATH.into(),
         reason,
     };
-    let (_, meta) =
-        safetensors::SafeTensors::read_metadata(DEFAULT_CHECKPOINT).map_err(|e| bad(e.to_string()))?;
+    let (_, meta) = safetensors::SafeTensors::read_metadata(DEFAULT_CHECKPOINT)
+        .map_err(|e| bad(e.to_string()))?;
     let json = meta
         .metadata()
         .as_ref()

@@ -213,7 +213,11 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
         });
         let masked = rng.gen_bool(0.25);
         let mask = GrayImage::from_fn(w, h, |x, y| {
-            image::Luma([if out.alpha[(y * w + x) as usize] >= 0.5 { 255 } else { 0 }])
+            image::Luma([if out.alpha[(y * w + x) as usize] >= 0.5 {
+                255
+            } else {
+                0
+            }])
         });
         let subject = if masked {
             Subject::Mask(&mask)
@@ -324,15 +328,45 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
         let mut push = |name: &str, dtype, shape: Vec<usize>, bytes: Vec<u8>| {
             buffers.push((format!("{k}.{name}"), dtype, shape, bytes));
         };
-        push("images", Dtype::U8, vec![s.views, 3, si, si], s.images.clone());
+        push(
+            "images",
+            Dtype::U8,
+            vec![s.views, 3, si, si],
+            s.images.clone(),
+        );
         push("anchors", Dtype::F32, vec![n, 3], f32_bytes(&s.anchors));
         push("normals", Dtype::F32, vec![n, 3], f32_bytes(&s.normals));
         push("colors", Dtype::F32, vec![n, 3], f32_bytes(&s.colors));
-        push("posed_anchors", Dtype::F32, vec![n, 3], f32_bytes(&s.posed_anchors));
-        push("posed_rotations", Dtype::F32, vec![n, 4], f32_bytes(&s.posed_rotations));
-        push("target_rgb", Dtype::U8, vec![t, 3, r, r], s.target_rgb.clone());
-        push("target_alpha", Dtype::U8, vec![t, r, r], s.target_alpha.clone());
-        push("target_intrinsics", Dtype::F32, vec![t, 4], f32_bytes(&s.target_intrinsics));
+        push(
+            "posed_anchors",
+            Dtype::F32,
+            vec![n, 3],
+            f32_bytes(&s.posed_anchors),
+        );
+        push(
+            "posed_rotations",
+            Dtype::F32,
+            vec![n, 4],
+            f32_bytes(&s.posed_rotations),
+        );
+        push(
+            "target_rgb",
+            Dtype::U8,
+            vec![t, 3, r, r],
+            s.target_rgb.clone(),
+        );
+        push(
+            "target_alpha",
+            Dtype::U8,
+            vec![t, r, r],
+            s.target_alpha.clone(),
+        );
+        push(
+            "target_intrinsics",
+            Dtype::F32,
+            vec![t, 4],
+            f32_bytes(&s.target_intrinsics),
+        );
         push(
             "target_camera_from_world",
             Dtype::F32,

@@ -121,7 +121,9 @@ impl Reconstructor {
                 cfg = default_cfg;
                 (
                     vb,
-                    format!("embedded default ({DEFAULT_CHECKPOINT_PATH}, trained on synthetic people)"),
+                    format!(
+                        "embedded default ({DEFAULT_CHECKPOINT_PATH}, trained on synthetic people)"
+                    ),
                 )
             }
             WeightsSource::Embedded => {
