@@ -317,7 +317,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
 /// (f32 `[T,3,4]`), `{k}.shape` (f32 `[2]`) for sample `k`, and the seeds in the metadata.
 pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthError> {
     use safetensors::tensor::{Dtype, TensorView};
-    let f32_bytes = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let le = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
     let mut buffers: Vec<(String, Dtype, Vec<usize>, Vec<u8>)> = Vec::new();
     for (k, s) in samples.iter().enumerate() {
         let n = s.anchors.len() / 3;
@@ -325,55 +325,33 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
         let side = |len: usize, per: usize| ((len / per) as f64).sqrt().round() as usize;
         let si = side(s.images.len(), s.views * 3);
         let r = side(s.target_alpha.len(), t);
-        let mut push = |name: &str, dtype, shape: Vec<usize>, bytes: Vec<u8>| {
+        let (u8s, f32s) = (Dtype::U8, Dtype::F32);
+        let entries: [(&str, Dtype, Vec<usize>, Vec<u8>); 11] = [
+            ("images", u8s, vec![s.views, 3, si, si], s.images.clone()),
+            ("anchors", f32s, vec![n, 3], le(&s.anchors)),
+            ("normals", f32s, vec![n, 3], le(&s.normals)),
+            ("colors", f32s, vec![n, 3], le(&s.colors)),
+            ("posed_anchors", f32s, vec![n, 3], le(&s.posed_anchors)),
+            ("posed_rotations", f32s, vec![n, 4], le(&s.posed_rotations)),
+            ("target_rgb", u8s, vec![t, 3, r, r], s.target_rgb.clone()),
+            ("target_alpha", u8s, vec![t, r, r], s.target_alpha.clone()),
+            (
+                "target_intrinsics",
+                f32s,
+                vec![t, 4],
+                le(&s.target_intrinsics),
+            ),
+            (
+                "target_camera_from_world",
+                f32s,
+                vec![t, 3, 4],
+                le(&s.target_camera_from_world),
+            ),
+            ("shape", f32s, vec![2], le(&s.shape)),
+        ];
+        for (name, dtype, shape, bytes) in entries {
             buffers.push((format!("{k}.{name}"), dtype, shape, bytes));
-        };
-        push(
-            "images",
-            Dtype::U8,
-            vec![s.views, 3, si, si],
-            s.images.clone(),
-        );
-        push("anchors", Dtype::F32, vec![n, 3], f32_bytes(&s.anchors));
-        push("normals", Dtype::F32, vec![n, 3], f32_bytes(&s.normals));
-        push("colors", Dtype::F32, vec![n, 3], f32_bytes(&s.colors));
-        push(
-            "posed_anchors",
-            Dtype::F32,
-            vec![n, 3],
-            f32_bytes(&s.posed_anchors),
-        );
-        push(
-            "posed_rotations",
-            Dtype::F32,
-            vec![n, 4],
-            f32_bytes(&s.posed_rotations),
-        );
-        push(
-            "target_rgb",
-            Dtype::U8,
-            vec![t, 3, r, r],
-            s.target_rgb.clone(),
-        );
-        push(
-            "target_alpha",
-            Dtype::U8,
-            vec![t, r, r],
-            s.target_alpha.clone(),
-        );
-        push(
-            "target_intrinsics",
-            Dtype::F32,
-            vec![t, 4],
-            f32_bytes(&s.target_intrinsics),
-        );
-        push(
-            "target_camera_from_world",
-            Dtype::F32,
-            vec![t, 3, 4],
-            f32_bytes(&s.target_camera_from_world),
-        );
-        push("shape", Dtype::F32, vec![2], f32_bytes(&s.shape));
+        }
     }
     let views = buffers
         .iter()
