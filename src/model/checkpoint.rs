@@ -324,14 +324,6 @@ fn scan_files(
     cfg: &LhmppConfig,
     load: Option<(DType, &Device)>,
 ) -> Result<(HashMap<String, Tensor>, CheckpointSummary), CheckpointError> {
-    let summary = CheckpointSummary {
-        ignored: IGNORED_PREFIXES
-            .iter()
-            .map(|p| (p.to_string(), 0, 0))
-            .collect(),
-        ..Default::default()
-    };
-    let expected = expected_tensors(cfg)?;
     let mut maps = Vec::with_capacity(files.len());
     for file in files {
         if let Err(source) = std::fs::metadata(file) {
@@ -358,7 +350,7 @@ fn scan_files(
         })?;
         parsed.push((file.as_path(), st));
     }
-    scan_tensors(&parsed, origin, cfg, load, summary, &expected)
+    scan_tensors(&parsed, origin, cfg, load)
 }
 
 /// Validates embedded safetensors `bytes` (named `origin` in errors) against `cfg` like a
@@ -374,22 +366,7 @@ pub fn load_var_builder_from_bytes(
         path: origin.to_path_buf(),
         reason: e.to_string(),
     })?;
-    let summary = CheckpointSummary {
-        ignored: IGNORED_PREFIXES
-            .iter()
-            .map(|p| (p.to_string(), 0, 0))
-            .collect(),
-        ..Default::default()
-    };
-    let expected = expected_tensors(cfg)?;
-    let (tensors, _) = scan_tensors(
-        &[(origin, st)],
-        origin,
-        cfg,
-        Some((dtype, device)),
-        summary,
-        &expected,
-    )?;
+    let (tensors, _) = scan_tensors(&[(origin, st)], origin, cfg, Some((dtype, device)))?;
     Ok(VarBuilder::from_tensors(tensors, dtype, device))
 }
 
@@ -399,9 +376,15 @@ fn scan_tensors(
     origin: &Path,
     cfg: &LhmppConfig,
     load: Option<(DType, &Device)>,
-    mut summary: CheckpointSummary,
-    expected: &BTreeMap<String, Vec<usize>>,
 ) -> Result<(HashMap<String, Tensor>, CheckpointSummary), CheckpointError> {
+    let mut summary = CheckpointSummary {
+        ignored: IGNORED_PREFIXES
+            .iter()
+            .map(|p| (p.to_string(), 0, 0))
+            .collect(),
+        ..Default::default()
+    };
+    let expected = expected_tensors(cfg)?;
     let mut problems = Vec::new();
     let mut tensors = HashMap::with_capacity(expected.len());
     let mut seen: HashMap<String, &Path> = HashMap::new();
@@ -466,7 +449,7 @@ fn scan_tensors(
             }
         }
     }
-    for (name, dims) in expected {
+    for (name, dims) in &expected {
         if !seen.contains_key(name) {
             problems.push(format!("missing tensor `{name}` {dims:?}"));
         }

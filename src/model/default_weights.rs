@@ -8,7 +8,7 @@ use candle_core::{DType, Device};
 use candle_nn::VarBuilder;
 use std::path::Path;
 
-use super::checkpoint::{load_var_builder_from_bytes, seeded_var_builder, CheckpointError};
+use super::checkpoint::{load_var_builder_from_bytes, CheckpointError};
 use super::config::LhmppConfig;
 
 /// Where the embedded default was read from at build time (for messages).
@@ -80,11 +80,6 @@ pub fn default_var_builder(
         device,
     )?;
     Ok((cfg, vb))
-}
-
-/// Seeded random weights (see [`seeded_var_builder`]).
-pub fn random_var_builder(seed: u64, dtype: DType, device: &Device) -> VarBuilder<'static> {
-    seeded_var_builder(seed, dtype, device)
 }
 
 #[cfg(test)]

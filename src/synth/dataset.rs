@@ -106,7 +106,7 @@ impl Background {
         }
     }
 
-    fn at(&self, x: u32, y: u32, w: u32, h: u32) -> Vec3 {
+    fn at(&self, x: u32, y: u32, h: u32) -> Vec3 {
         match *self {
             Background::Solid(c) => Vec3::from(c),
             Background::Gradient(a, b) => {
@@ -124,7 +124,6 @@ impl Background {
                     hsh ^= hsh >> 29;
                     *v = (hsh & 0xFFFF) as f32 / 65535.0;
                 }
-                let _ = (w, h);
                 Vec3::from(c)
             }
         }
@@ -207,7 +206,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
         let rgb = RgbImage::from_fn(w, h, |x, y| {
             let i = (y * w + x) as usize;
             let a = out.alpha[i];
-            let c = Vec3::from_slice(&out.rgb[3 * i..3 * i + 3]) + (1.0 - a) * bg.at(x, y, w, h);
+            let c = Vec3::from_slice(&out.rgb[3 * i..3 * i + 3]) + (1.0 - a) * bg.at(x, y, h);
             let c = (c.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
             image::Rgb([c.x as u8, c.y as u8, c.z as u8])
         });

@@ -8,9 +8,10 @@ use crate::body::official::{OfficialPrior, PriorPaths, SMPLX_MODEL_ID};
 use crate::body::{BodyTemplate, SkinWeights, MAKEHUMAN_MODEL_ID};
 use crate::config::ModelConfig;
 use crate::model::cache::ViewTokenCache;
+use crate::model::checkpoint::seeded_var_builder;
 use crate::model::default_weights::{
-    default_var_builder, random_var_builder, WeightsSource, DEFAULT_CHECKPOINT_PATH,
-    DEFAULT_PRESET, RANDOM_WEIGHTS_SEED,
+    default_var_builder, WeightsSource, DEFAULT_CHECKPOINT_PATH, DEFAULT_PRESET,
+    RANDOM_WEIGHTS_SEED,
 };
 use crate::model::hub::load_checkpoint;
 use crate::model::{Lhmpp, LhmppConfig};
@@ -133,12 +134,12 @@ impl Reconstructor {
                     cfg.preset
                 );
                 (
-                    random_var_builder(RANDOM_WEIGHTS_SEED, dtype, &device),
+                    seeded_var_builder(RANDOM_WEIGHTS_SEED, dtype, &device),
                     format!("seeded random weights, seed {RANDOM_WEIGHTS_SEED} (no trained default for `{}`)", cfg.preset),
                 )
             }
             WeightsSource::Random(seed) => (
-                random_var_builder(seed, dtype, &device),
+                seeded_var_builder(seed, dtype, &device),
                 format!("seeded random weights, seed {seed}"),
             ),
             WeightsSource::Path(path) => {
