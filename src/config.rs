@@ -154,10 +154,39 @@ pub struct OutputConfig {
     /// Rasteriser of the rendered frames: `cpu`, or `cuda` (GPU 0; needs a build with the
     /// `cuda` feature).
     pub render_device: String,
+    /// How frames are made: `gaussians` splats the Gaussians' RGB, `neural` splats their
+    /// latent features and decodes them with the network's DPT neural renderer (as the
+    /// official app does), `auto` picks `neural` when the checkpoint's RGB is not display-ready
+    /// (the released LHMPP-700M / LHMPPS-700M) and its neural renderer fits, else `gaussians`.
+    pub renderer: RendererChoice,
     /// Publish over ROS 2 DDS.
     pub ros: bool,
     /// Publish over iceoryx2 shared memory.
     pub shm: bool,
+}
+
+/// `outputs.renderer`: how the node makes its frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RendererChoice {
+    /// `neural` for checkpoints whose Gaussian RGB is not display-ready, else `gaussians`.
+    #[default]
+    Auto,
+    /// Splat the Gaussians' RGB.
+    Gaussians,
+    /// Splat the latent features and decode them with the DPT neural renderer.
+    Neural,
+}
+
+impl RendererChoice {
+    /// The value as written in a parameter file.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Gaussians => "gaussians",
+            Self::Neural => "neural",
+        }
+    }
 }
 
 /// Replay settings.
@@ -236,6 +265,7 @@ impl Default for OutputConfig {
             render_size: 256,
             virtual_cameras: 1,
             render_device: "cpu".into(),
+            renderer: RendererChoice::Auto,
             ros: true,
             shm: false,
         }
@@ -537,6 +567,37 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    #[test]
+    fn renderer_is_auto_gaussians_or_neural_and_a_bad_value_names_the_key() {
+        let yaml =
+            |r: &str| format!("lhmpp:\n  ros__parameters:\n    outputs:\n      renderer: {r}\n");
+        assert_eq!(
+            load("lhmpp:\n  ros__parameters: {}\n", &[])
+                .unwrap()
+                .outputs
+                .renderer,
+            RendererChoice::Auto
+        );
+        for (text, want) in [
+            ("auto", RendererChoice::Auto),
+            ("gaussians", RendererChoice::Gaussians),
+            ("neural", RendererChoice::Neural),
+        ] {
+            assert_eq!(load(&yaml(text), &[]).unwrap().outputs.renderer, want);
+            assert_eq!(want.as_str(), text);
+        }
+        let e = load(&yaml("dpt"), &[]).unwrap_err().to_string();
+        assert!(
+            e.contains("outputs.renderer") && e.contains("dpt") && e.contains(FILE),
+            "{e}"
+        );
+        assert!(e.contains("neural") && e.contains("gaussians"), "{e}");
+        let e = load(&yaml("gaussians"), &["outputs.renderer=Neural"])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("outputs.renderer"), "{e}");
     }
 
     #[test]

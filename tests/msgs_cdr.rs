@@ -115,6 +115,7 @@ fn every_message_type_round_trips_and_rejects_every_truncation() {
         views_held: 4,
         revision: 3,
         last_latency_ms: 812.5,
+        last_render_ms: 37.5,
         state: ReconstructionStatus::STATE_RECONSTRUCTING,
         message: String::new(),
     });

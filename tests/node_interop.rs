@@ -75,6 +75,8 @@ fn test_avatar() -> GaussianAvatar {
         body_model: "makehuman-cc0".into(),
         shape_params: Vec::new(),
         sh_degree: 0,
+        rgb_display_ready: true,
+        neural_renderer: String::new(),
         bone_names: vec!["root".into(), "spine".into(), "head".into()],
         bone_parents: vec![-1, 0, 1],
         bone_rest_positions: vec![

@@ -25,16 +25,7 @@ struct Captured(Arc<Mutex<Vec<GaussianAvatar>>>);
 
 impl Publisher for Captured {
     fn avatar(&self, u: &AvatarUpdate<'_>) {
-        let msg = avatar_message(
-            u.avatar,
-            u.template,
-            u.person,
-            u.revision,
-            u.views_used,
-            u.stamp_ns,
-            u.shape_params,
-        )
-        .unwrap();
+        let msg = avatar_message(u).unwrap();
         self.0.lock().unwrap().push(msg);
     }
     fn status(&self, _: ReconstructionStatus) {}

@@ -720,6 +720,11 @@ impl NeuralRenderer {
         })
     }
 
+    /// The config this renderer was built for.
+    pub fn config(&self) -> &DptConfig {
+        &self.cfg
+    }
+
     /// The same renderer running its head on stock candle ops only (NCHW convolutions), the
     /// reference the channels-last CPU kernels are checked and benchmarked against.
     pub fn with_candle_ops(mut self) -> Self {

@@ -310,6 +310,8 @@ pub struct LoadedCheckpoint {
     pub var_builder: VarBuilder<'static>,
     /// Where the weights came from.
     pub description: String,
+    /// The official `neural_renderer.type` of a hub folder (`None` for a single file).
+    pub neural_renderer_type: Option<String>,
 }
 
 /// Loads `path` the way the node does: a hub folder (config from its `config.json`) or a
@@ -346,6 +348,7 @@ pub fn load_checkpoint(
                 path.display(),
                 hub.weights.len()
             ),
+            neural_renderer_type: Some(hub.official.neural_renderer.kind.clone()),
             config: hub.config,
             var_builder,
         });
@@ -355,6 +358,7 @@ pub fn load_checkpoint(
         config: preset.clone(),
         var_builder,
         description: path.display().to_string(),
+        neural_renderer_type: None,
     })
 }
 

@@ -19,6 +19,7 @@ pub mod joint_block;
 pub mod lhmpp;
 pub mod ops;
 pub mod point;
+pub mod rgb_kind;
 pub mod token_merge;
 
 #[cfg(test)]
@@ -27,6 +28,7 @@ mod testing;
 pub use config::LhmppConfig;
 pub use gs_head::GaussianOutput;
 pub use lhmpp::{Lhmpp, ViewTokens};
+pub use rgb_kind::RgbKind;
 
 /// Builds every tensor of the network for `cfg` from `vb` (used to enumerate checkpoint keys).
 pub(crate) fn build_network(

@@ -23,6 +23,12 @@ pub struct GaussianAvatar {
     pub shape_params: Vec<f32>,
     /// Spherical-harmonics degree of the colours (0: plain `r g b`).
     pub sh_degree: u8,
+    /// Whether the `r g b` fields are colours to display (false: a latent intermediate that
+    /// the neural renderer named by `neural_renderer` decodes).
+    pub rgb_display_ready: bool,
+    /// `<official neural_renderer.type>@<checkpoint>` when the RGB is not display-ready,
+    /// else empty.
+    pub neural_renderer: String,
     /// Skeleton bone names, indexed by the `bone_*` point fields.
     pub bone_names: Vec<String>,
     /// Parent index of each bone, -1 for the root.

@@ -17,6 +17,8 @@ pub struct ReconstructionStatus {
     pub revision: u32,
     /// Duration of the last reconstruction in milliseconds.
     pub last_latency_ms: f64,
+    /// Per-frame render time of the last rendered batch in milliseconds (0: none yet).
+    pub last_render_ms: f64,
     /// One of the `STATE_*` constants; see [`ReconstructionState`].
     pub state: u8,
     /// Human-readable detail, e.g. an error.

@@ -17,15 +17,7 @@ pub struct RosPublisher(pub Arc<RosNode>);
 
 impl Publisher for RosPublisher {
     fn avatar(&self, u: &AvatarUpdate<'_>) {
-        match avatar_message(
-            u.avatar,
-            u.template,
-            u.person,
-            u.revision,
-            u.views_used,
-            u.stamp_ns,
-            u.shape_params,
-        ) {
+        match avatar_message(u) {
             Ok(msg) => {
                 if let Err(e) = self.0.publish_avatar(msg) {
                     tracing::warn!("{e}");

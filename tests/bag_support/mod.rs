@@ -56,6 +56,8 @@ pub fn avatar() -> GaussianAvatar {
         body_model: "makehuman-cc0".into(),
         shape_params: vec![0.5, -0.25],
         sh_degree: 0,
+        rgb_display_ready: false,
+        neural_renderer: "patch_4dptonly@/models/LHMPP-700M".into(),
         bone_names: vec!["root".into(), "spine".into()],
         bone_parents: vec![-1, 0],
         bone_rest_positions: vec![
@@ -251,6 +253,7 @@ pub fn write_every_type(writer: &mut BagWriter, copies: u64) -> Value {
             GaussianAvatar::TYPE_NAME,
             json!({"person_id": "person_7", "revision": 3, "views_used": 4,
                    "body_model": "makehuman-cc0", "shape_params": [0.5, -0.25], "sh_degree": 0,
+                   "rgb_display_ready": false, "neural_renderer": "patch_4dptonly@/models/LHMPP-700M",
                    "bone_names": ["root", "spine"], "bone_parents": [-1, 0],
                    "bone_rest_positions.1.y": 1.25, "gaussians.width": 2,
                    "gaussians.data": av.gaussians.data.clone()}),
@@ -274,6 +277,7 @@ pub fn write_every_type(writer: &mut BagWriter, copies: u64) -> Value {
             views_held: 4,
             revision: 3,
             last_latency_ms: 812.5,
+            last_render_ms: 41.25,
             state: ReconstructionStatus::STATE_RECONSTRUCTING,
             message: "running".into(),
         };
@@ -281,7 +285,7 @@ pub fn write_every_type(writer: &mut BagWriter, copies: u64) -> Value {
         put(
             "/status",
             ReconstructionStatus::TYPE_NAME,
-            json!({"views_held": 4, "last_latency_ms": 812.5, "state": 2, "message": "running"}),
+            json!({"views_held": 4, "last_latency_ms": 812.5, "last_render_ms": 41.25, "state": 2, "message": "running"}),
         );
     }
     Value::Object(expected)

@@ -73,6 +73,8 @@ class GaussianAvatar(IdlStruct, typename="lhmpp_msgs::msg::dds_::GaussianAvatar_
     body_model: str
     shape_params: sequence[float32]
     sh_degree: uint8
+    rgb_display_ready: bool
+    neural_renderer: str
     bone_names: sequence[str]
     bone_parents: sequence[int32]
     bone_rest_positions: sequence[Point]

@@ -2,6 +2,7 @@
 //! decode → preprocess → frame store → scheduler → reconstruction → avatar → render → outputs.
 //! Live topics and bag replay feed it the same events, so both share this code path.
 
+pub mod neural_frames;
 pub mod outputs;
 pub mod reconstructor;
 pub mod render;
@@ -16,10 +17,14 @@ use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::node::ros::{CameraFrame, InputEvent};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use image::GrayImage;
+use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
 use outputs::{status_message, FileOutputs};
 use reconstructor::{ReconstructError, Reconstructor};
 pub use render::RenderedFrame;
-use render::{display_pose, render_frames, FrameRasterizer, FrameRasterizerError, VirtualCameras};
+use render::{
+    display_pose, render_frames, FrameRasterizer, FrameRasterizerError, FrameRenderer,
+    VirtualCameras,
+};
 use std::collections::VecDeque;
 use std::path::Path;
 use std::sync::Arc;
@@ -48,6 +53,10 @@ pub struct AvatarUpdate<'a> {
     pub template: &'a crate::body::BodyTemplate,
     /// Shape coefficients of the avatar's body model (empty: the unshaped template).
     pub shape_params: &'a [f32],
+    /// Whether the Gaussians' RGB is display-ready (false: latent, see `neural_renderer`).
+    pub rgb_display_ready: bool,
+    /// The neural renderer that decodes a latent RGB avatar (empty when display-ready).
+    pub neural_renderer: &'a str,
 }
 
 /// Where the pipeline publishes (ROS 2, shared memory); implemented by the node's endpoints.
@@ -95,6 +104,11 @@ pub struct PipelineStats {
     pub run_times_ms: VecDeque<f64>,
     /// Rendered frames produced.
     pub rendered_frames: u64,
+    /// Render periods skipped because rendering a batch took longer than the period of
+    /// `outputs.render_rate_hz` (the newest pose wins; per virtual camera).
+    pub frames_dropped: u64,
+    /// Per-frame render time of the last rendered batch, milliseconds (0: none yet).
+    pub last_render_ms: f64,
     /// Body shapes accepted (changes of the shape in use).
     pub shapes_applied: u64,
     /// Body shapes rejected (wrong model, length or values).
@@ -122,9 +136,15 @@ pub struct Pipeline {
     files: Option<FileOutputs>,
     publisher: Option<Box<dyn Publisher>>,
     cameras: VirtualCameras,
-    rasterizer: FrameRasterizer,
+    frames: FrameRenderer,
     render_period: Option<Duration>,
+    render_rate_hz: f64,
     next_render: Duration,
+    /// Fractional render periods skipped, not yet counted in `frames_dropped`.
+    drop_debt: f64,
+    /// Whether the "renders slower than the rate" warning was logged.
+    slow_render_noted: bool,
+    neural_renderer_id: String,
     stats: PipelineStats,
 }
 
@@ -140,6 +160,9 @@ pub enum PipelineError {
     /// The frame rasteriser's device is unavailable.
     #[error(transparent)]
     Rasterizer(#[from] FrameRasterizerError),
+    /// `outputs.renderer` cannot be honoured with this network.
+    #[error(transparent)]
+    Renderer(#[from] RendererSetupError),
 }
 
 impl Pipeline {
@@ -150,15 +173,43 @@ impl Pipeline {
     ) -> Result<Self, PipelineError> {
         let recon = Reconstructor::new(&config.model, config.frame_store.max_views)?;
         let (h, w) = recon.input_size();
+        let rgb = recon.rgb_kind();
         let files = (!config.outputs.dir.is_empty())
             .then(|| FileOutputs::new(Path::new(&config.outputs.dir)))
-            .transpose()?;
+            .transpose()?
+            .map(|f| match rgb.display_ready() {
+                true => f,
+                false => f.with_latent_rgb(recon.checkpoint_kind()),
+            });
         let cameras = VirtualCameras::ring(
             config.outputs.virtual_cameras,
             config.outputs.render_size,
             recon.template().height(),
         );
         let rasterizer = FrameRasterizer::new(&config.outputs.render_device)?;
+        let neural_renderer_id = recon.neural_renderer_id();
+        let decision = choose_renderer(
+            config.outputs.renderer,
+            rgb,
+            recon.feature_channels(),
+            recon.neural_renderer_config().in_channels,
+        )?;
+        let neural = match decision.source {
+            FrameSource::Gaussians => None,
+            FrameSource::Neural => Some(NeuralFrames::new(
+                recon.neural_renderer(),
+                &recon.white_background_feature()?,
+            )?),
+        };
+        tracing::info!(
+            renderer = match decision.source {
+                FrameSource::Gaussians => "gaussians",
+                FrameSource::Neural => "neural",
+            },
+            checkpoint = recon.checkpoint_kind(),
+            "frames: {}",
+            decision.reason
+        );
         let render_period = (config.outputs.render_rate_hz > 0.0)
             .then(|| Duration::from_secs_f64(1.0 / config.outputs.render_rate_hz));
         tracing::info!(
@@ -188,11 +239,21 @@ impl Pipeline {
             files,
             publisher,
             cameras,
-            rasterizer,
+            frames: FrameRenderer::new(rasterizer, neural),
             render_period,
+            render_rate_hz: config.outputs.render_rate_hz,
             next_render: Duration::ZERO,
+            drop_debt: 0.0,
+            slow_render_noted: false,
+            neural_renderer_id,
             stats: PipelineStats::default(),
         })
+    }
+
+    /// Whether frames go through the network's neural renderer (`outputs.renderer` resolved
+    /// to `neural`).
+    pub fn neural_frames(&self) -> bool {
+        self.frames.is_neural()
     }
 
     /// Run counters so far.
@@ -371,9 +432,49 @@ impl Pipeline {
         }
         if let (Some(period), Some(_)) = (self.render_period, &self.publisher) {
             if self.current.is_some() && now >= self.next_render {
+                let started = clock();
                 self.publish_frames(now);
+                let took = clock().saturating_sub(started);
                 self.next_render = now + period;
+                self.note_render_time(took, period);
             }
+        }
+    }
+
+    /// Counts the render periods a batch that took `took` skipped (the next batch starts when
+    /// this one ends: the newest pose wins) and says so once, in the log and the status.
+    fn note_render_time(&mut self, took: Duration, period: Duration) {
+        let periods = took.as_secs_f64() / period.as_secs_f64();
+        if periods <= 1.0 {
+            return;
+        }
+        self.drop_debt += periods - 1.0;
+        let whole = self.drop_debt.floor();
+        self.drop_debt -= whole;
+        self.stats.frames_dropped += whole as u64 * self.cameras.cameras().len() as u64;
+        if !self.slow_render_noted {
+            self.slow_render_noted = true;
+            let achieved = 1.0 / took.as_secs_f64();
+            let message = format!(
+                "rendering holds {achieved:.2} Hz per camera, below outputs.render_rate_hz {:.2} \
+                 ({:.0} ms per batch of {} frame(s), {} renderer): frames drop, the newest pose \
+                 wins",
+                self.render_rate_hz,
+                took.as_secs_f64() * 1e3,
+                self.cameras.cameras().len(),
+                if self.frames.is_neural() {
+                    "neural"
+                } else {
+                    "gaussians"
+                },
+            );
+            tracing::warn!("{message}");
+            self.publish_status(
+                self.revision(),
+                0.0,
+                ReconstructionStatus::STATE_IDLE,
+                message,
+            );
         }
     }
 
@@ -458,6 +559,8 @@ impl Pipeline {
                 avatar,
                 template: self.recon.template(),
                 shape_params: &shape_params,
+                rgb_display_ready: self.recon.rgb_kind().display_ready(),
+                neural_renderer: &self.neural_renderer_id,
             });
         }
     }
@@ -475,6 +578,7 @@ impl Pipeline {
                 self.views_held(),
                 revision,
                 latency_ms,
+                self.stats.last_render_ms,
                 state,
                 message,
                 0,
@@ -487,13 +591,16 @@ impl Pipeline {
             return;
         };
         let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
+        let started = std::time::Instant::now();
         let frames = render_frames(
             &current.avatar,
             self.recon.template(),
             &pose,
             &self.cameras,
-            &mut self.rasterizer,
+            &mut self.frames,
         );
+        self.stats.last_render_ms =
+            started.elapsed().as_secs_f64() * 1e3 / frames.len().max(1) as f64;
         let stamp = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos() as i64);
@@ -512,13 +619,16 @@ impl Pipeline {
         let mut written = 0;
         for f in 0..frames {
             let pose = display_pose(None, f as f32 / 24.0);
+            let started = std::time::Instant::now();
             let images = render_frames(
                 &current.avatar,
                 self.recon.template(),
                 &pose,
                 &self.cameras,
-                &mut self.rasterizer,
+                &mut self.frames,
             );
+            self.stats.last_render_ms =
+                started.elapsed().as_secs_f64() * 1e3 / images.len().max(1) as f64;
             for (c, image) in images.iter().enumerate() {
                 match files.write_frame(&format!("{}_cam{c}_{f:03}", self.person), image.rgb8()) {
                     Ok(_) => written += 1,

@@ -1,8 +1,8 @@
 //! Where results go: avatar PLY files and PNG frames under the output directory, and the
 //! ROS 2 messages (GaussianAvatar, rendered Image, ReconstructionStatus) built from them.
 
+use super::AvatarUpdate;
 use crate::avatar::Avatar;
-use crate::body::BodyTemplate;
 use crate::msgs::{
     GaussianAvatar, GaussianCloud, GaussianColors, Header, Image, Point, ReconstructionStatus, Time,
 };
@@ -33,6 +33,10 @@ pub enum OutputError {
 #[derive(Debug, Clone)]
 pub struct FileOutputs {
     dir: PathBuf,
+    /// The checkpoint kind when its Gaussian RGB is not display-ready (PLY colours warn).
+    latent_rgb: Option<String>,
+    /// Set once the latent-RGB warning was logged.
+    warned: std::sync::OnceLock<()>,
 }
 
 impl FileOutputs {
@@ -46,7 +50,16 @@ impl FileOutputs {
         }
         Ok(Self {
             dir: dir.to_path_buf(),
+            latent_rgb: None,
+            warned: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Notes that the avatars' RGB is not display-ready (`checkpoint_kind` names the
+    /// checkpoint): the first PLY written logs a warning that its colours are latent.
+    pub fn with_latent_rgb(mut self, checkpoint_kind: &str) -> Self {
+        self.latent_rgb = Some(checkpoint_kind.to_owned());
+        self
     }
 
     /// Writes `avatar_<person>_rev<N>.ply` and `avatar_<person>.ply` (the latest); returns the
@@ -58,6 +71,16 @@ impl FileOutputs {
         avatar: &Avatar,
     ) -> Result<PathBuf, OutputError> {
         let versioned = self.dir.join(format!("avatar_{person}_rev{revision}.ply"));
+        if let Some(kind) = &self.latent_rgb {
+            if self.warned.set(()).is_ok() {
+                tracing::warn!(
+                    "avatar PLY colours (f_dc) are not display-ready: the checkpoint ({kind}) \
+                     never supervised its Gaussian RGB against images; they are a latent \
+                     intermediate that the network's neural renderer decodes (the node's frames \
+                     use it with outputs.renderer: auto or neural), not colours to show"
+                );
+            }
+        }
         write_ply(
             &versioned,
             &avatar.canonical,
@@ -83,16 +106,20 @@ impl FileOutputs {
     }
 }
 
-/// The GaussianAvatar message of `avatar` (canonical Gaussians, skinning, skeleton).
-pub fn avatar_message(
-    avatar: &Avatar,
-    template: &BodyTemplate,
-    person: &str,
-    revision: u64,
-    views_used: usize,
-    stamp_ns: i64,
-    shape_params: &[f32],
-) -> Result<GaussianAvatar, OutputError> {
+/// The GaussianAvatar message of an avatar revision (canonical Gaussians, skinning,
+/// skeleton, and whether its RGB is display-ready).
+pub fn avatar_message(update: &AvatarUpdate<'_>) -> Result<GaussianAvatar, OutputError> {
+    let AvatarUpdate {
+        person,
+        revision,
+        views_used,
+        stamp_ns,
+        avatar,
+        template,
+        shape_params,
+        rgb_display_ready,
+        neural_renderer,
+    } = *update;
     let g = &avatar.canonical;
     let colors = (0..g.len())
         .map(|i| sh_dc_to_rgb(g.sh_of(i)[0]).to_array())
@@ -116,6 +143,8 @@ pub fn avatar_message(
         body_model: avatar.body_model.clone(),
         shape_params: shape_params.to_vec(),
         sh_degree: 0,
+        rgb_display_ready,
+        neural_renderer: neural_renderer.to_owned(),
         bone_names: skeleton.bone_names.clone(),
         bone_parents: skeleton
             .parents
@@ -126,12 +155,15 @@ pub fn avatar_message(
     })
 }
 
-/// A ReconstructionStatus message.
+/// A ReconstructionStatus message; `render_ms` is the per-frame render time of the last
+/// rendered batch (0 before the first).
+#[allow(clippy::too_many_arguments)]
 pub fn status_message(
     person: &str,
     views_held: usize,
     revision: u64,
     latency_ms: f64,
+    render_ms: f64,
     state: u8,
     message: impl Into<String>,
     stamp_ns: i64,
@@ -142,6 +174,7 @@ pub fn status_message(
         views_held: views_held as u32,
         revision: revision as u32,
         last_latency_ms: latency_ms,
+        last_render_ms: render_ms,
         state,
         message: message.into(),
     }

@@ -13,8 +13,10 @@ use crate::model::default_weights::{
     default_var_builder, WeightsSource, DEFAULT_CHECKPOINT_PATH, DEFAULT_PRESET,
     RANDOM_WEIGHTS_SEED,
 };
+use crate::model::dpt::{DptConfig, NeuralRenderer};
 use crate::model::hub::load_checkpoint;
-use crate::model::{Lhmpp, LhmppConfig};
+use crate::model::rgb_kind::LATENT_RGB_RENDERER_TYPE;
+use crate::model::{Lhmpp, LhmppConfig, RgbKind};
 use crate::node::preprocess::Preprocessed;
 use crate::splat::Gaussians;
 use candle_core::{DType, Device, Tensor};
@@ -93,8 +95,12 @@ pub struct Reconstructor {
     base_template: Option<BodyTemplate>,
     num_points: usize,
     seed: u64,
+    /// `model.checkpoint` as configured (names the weights in `neural_renderer_id`).
+    checkpoint: String,
     shape: Option<AcceptedShape>,
     betas_noted: bool,
+    rgb_kind: RgbKind,
+    checkpoint_kind: String,
 }
 
 impl Reconstructor {
@@ -115,6 +121,7 @@ impl Reconstructor {
                 config.checkpoint
             ))
         })?;
+        let mut renderer_type: Option<String> = None;
         let (vb, weights) = match source {
             WeightsSource::Embedded if cfg.preset == DEFAULT_PRESET => {
                 let (default_cfg, vb) = default_var_builder(dtype, &device)
@@ -146,7 +153,33 @@ impl Reconstructor {
                 let loaded = load_checkpoint(Path::new(&path), &cfg, dtype, &device)
                     .map_err(|e| ReconstructError::Model(e.to_string()))?;
                 cfg = loaded.config;
+                renderer_type = loaded.neural_renderer_type;
                 (loaded.var_builder, loaded.description)
+            }
+        };
+        let (rgb_kind, checkpoint_kind) = match &renderer_type {
+            Some(kind) => (
+                RgbKind::of_official_renderer(kind),
+                if kind == LATENT_RGB_RENDERER_TYPE {
+                    format!(
+                        "hub folder with neural_renderer.type `{kind}` (LHMPP-700M / \
+                         LHMPPS-700M, Gaussian RGB never supervised against images)"
+                    )
+                } else {
+                    format!("hub folder with neural_renderer.type `{kind}`")
+                },
+            ),
+            None => {
+                let rgb = RgbKind::of_preset(&cfg.preset);
+                let kind = match rgb {
+                    RgbKind::Latent => format!(
+                        "preset `{}` (the released LHMPP-700M layout, Gaussian RGB never \
+                         supervised against images)",
+                        cfg.preset
+                    ),
+                    RgbKind::DisplayReady => format!("preset `{}`", cfg.preset),
+                };
+                (rgb, kind)
             }
         };
         let model = Lhmpp::new(&cfg, vb)?;
@@ -183,9 +216,61 @@ impl Reconstructor {
             base_template,
             num_points: config.num_points,
             seed: config.seed,
+            checkpoint: match config.checkpoint.as_str() {
+                "" => "embedded".to_string(),
+                other => other.to_string(),
+            },
             shape: None,
             betas_noted: false,
+            rgb_kind,
+            checkpoint_kind,
         })
+    }
+
+    /// What the predicted Gaussians' RGB is: display-ready colours, or the latent intermediate
+    /// of the released LHMPP-700M / LHMPPS-700M checkpoints (preset `lhmpp-700m`, or a hub
+    /// folder whose `neural_renderer.type` is `patch_4dptonly`), which only the neural
+    /// renderer turns into images.
+    pub fn rgb_kind(&self) -> RgbKind {
+        self.rgb_kind
+    }
+
+    /// The checkpoint's kind in words (for logs and warnings), e.g. "preset `tiny`".
+    pub fn checkpoint_kind(&self) -> &str {
+        &self.checkpoint_kind
+    }
+
+    /// Feature channels of the predicted Gaussians (`gs_head.gs_query_dim`).
+    pub fn feature_channels(&self) -> usize {
+        self.cfg.gs_head.gs_query_dim
+    }
+
+    /// The neural renderer's config (`neural_renderer.*`).
+    pub fn neural_renderer_config(&self) -> &DptConfig {
+        &self.cfg.neural_renderer
+    }
+
+    /// A clone of the network's neural renderer (its tensors are shared, not copied), on the
+    /// model's device.
+    pub fn neural_renderer(&self) -> NeuralRenderer {
+        self.model.neural_renderer().clone()
+    }
+
+    /// The background feature the official renderer splats behind a white background
+    /// (`background_embedding[int(1.0 / 0.5)]`, index 2): `[gs_query_dim]`, model dtype and
+    /// device.
+    pub fn white_background_feature(&self) -> Result<Tensor, ReconstructError> {
+        Ok(self.model.gs_head().background_feature(1.0)?)
+    }
+
+    /// The id a subscriber needs to render this network's avatars when their RGB is not
+    /// display-ready: `<official neural_renderer.type>@<model.checkpoint>`; empty when the RGB
+    /// is display-ready.
+    pub fn neural_renderer_id(&self) -> String {
+        match self.rgb_kind {
+            RgbKind::DisplayReady => String::new(),
+            RgbKind::Latent => format!("{LATENT_RGB_RENDERER_TYPE}@{}", self.checkpoint),
+        }
     }
 
     /// Body-model id of the avatars this reconstructor makes (what a body shape must name).

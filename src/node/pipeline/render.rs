@@ -2,8 +2,11 @@
 //! avatar (latest BodyPose, or the built-in walk for demos), splatting into [`RenderedFrame`]s
 //! that publishers convert to 8-bit wherever they need it (a `Vec` for ROS 2 and PNG, a loaned
 //! shared-memory sample for iceoryx2). Frames are rasterised on the CPU or, with
-//! `outputs.render_device: cuda`, on the GPU ([`FrameRasterizer`]).
+//! `outputs.render_device: cuda`, on the GPU ([`FrameRasterizer`]), from the Gaussians' RGB or,
+//! with `outputs.renderer: neural`, from their features through the network's DPT neural
+//! renderer ([`NeuralFrames`]).
 
+use super::neural_frames::NeuralFrames;
 use crate::avatar::Avatar;
 use crate::body::{motion, BodyTemplate, Pose};
 #[cfg(feature = "cuda")]
@@ -195,24 +198,48 @@ impl FrameRasterizer {
     }
 }
 
-/// Poses `avatar` with `pose` on `template`'s skeleton and renders every virtual camera on a
-/// white background with `rasterizer`.
+/// What makes the node's frames: the rasteriser, and the neural renderer when
+/// `outputs.renderer` resolved to `neural` (set up once, at pipeline construction).
+#[derive(Debug)]
+pub struct FrameRenderer {
+    rasterizer: FrameRasterizer,
+    neural: Option<NeuralFrames>,
+}
+
+impl FrameRenderer {
+    /// Frames from the Gaussians' RGB (`neural: None`) or through `neural`.
+    pub fn new(rasterizer: FrameRasterizer, neural: Option<NeuralFrames>) -> Self {
+        Self { rasterizer, neural }
+    }
+
+    /// Whether frames go through the neural renderer.
+    pub fn is_neural(&self) -> bool {
+        self.neural.is_some()
+    }
+}
+
+/// Poses `avatar` with `pose` on `template`'s skeleton (its features travel with the
+/// Gaussians) and renders every virtual camera on a white background with `renderer`.
 pub fn render_frames(
     avatar: &Avatar,
     template: &BodyTemplate,
     pose: &Pose,
     cameras: &VirtualCameras,
-    rasterizer: &mut FrameRasterizer,
+    renderer: &mut FrameRenderer,
 ) -> Vec<RenderedFrame> {
     let matrices = template.skeleton.skinning_matrices(pose);
     let posed = avatar.animate(&matrices);
-    let options = RenderOptions {
-        background: Vec3::ONE,
-        ..RenderOptions::default()
+    let outputs = match &renderer.neural {
+        Some(neural) => neural.render(&mut renderer.rasterizer, &posed, cameras.cameras()),
+        None => {
+            let options = RenderOptions {
+                background: Vec3::ONE,
+                ..RenderOptions::default()
+            };
+            renderer
+                .rasterizer
+                .render_all(&posed, cameras.cameras(), &options)
+        }
     };
-    rasterizer
-        .render_all(&posed, cameras.cameras(), &options)
-        .into_iter()
-        .map(RenderedFrame::new)
-        .collect()
+    outputs.into_iter().map(RenderedFrame::new).collect()
 }
