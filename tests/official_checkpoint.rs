@@ -143,6 +143,16 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
     let mut recon = Reconstructor::new(&config, 4).unwrap();
     let t_load = t1.elapsed();
     assert_eq!(recon.input_size(), (840, 504), "the official input canvas");
+    // The released layout's Gaussian RGB is latent: the node decodes it with the DPT head.
+    assert_eq!(recon.rgb_kind(), lhmpp::model::RgbKind::Latent);
+    assert_eq!(
+        recon.neural_renderer_id(),
+        format!("patch_4dptonly@{}", hub.display())
+    );
+    assert_eq!(
+        recon.feature_channels(),
+        recon.neural_renderer_config().in_channels
+    );
     assert_eq!(
         recon.template().skeleton.len(),
         55,
@@ -190,7 +200,7 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
 
     drop(recon);
 
-    // The neural renderer (not used by the node yet) runs on the same weights: a 131-channel
+    // The neural renderer (the node's frames with outputs.renderer auto) runs on the same weights: a 131-channel
     // splat is reduced to its 128 features, patchified 7×7 and decoded to RGB + mask.
     // The folder was validated above; map only the renderer's tensors.
     let folder = hub::HubFolder::open(&hub).unwrap();
