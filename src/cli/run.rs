@@ -45,7 +45,8 @@ pub fn run(args: RunArgs) -> Result<()> {
     println!(
         "frames {} (rejected {}, duplicates {}), views held {}, views encoded {}, \
          reconstructions {} (failed {}), revision {}, median latency {:.0} ms, \
-         median reconstruction {:.0} ms, rendered frames {}, wall {:.1} s",
+         median reconstruction {:.0} ms, rendered frames {} (dropped {}, last {:.1} ms/frame), \
+         wall {:.1} s",
         s.frames,
         s.rejected,
         s.duplicates,
@@ -57,6 +58,8 @@ pub fn run(args: RunArgs) -> Result<()> {
         median(&s.latencies_ms),
         median(&s.run_times_ms),
         s.rendered_frames,
+        s.frames_dropped,
+        s.last_render_ms,
         summary.wall.as_secs_f64()
     );
     if !config.outputs.dir.is_empty() {
