@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from safetensors import safe_open
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import attention_supervision  # noqa: E402
 import lhmpp_torch  # noqa: E402
 import splat_torch  # noqa: E402
 
@@ -48,6 +49,8 @@ def load_shards(folder):
                 s = {key: f.get_tensor(f"{k}.{key}") for key in (
                     "images", "anchors", "normals", "colors", "posed_anchors", "posed_rotations",
                     "target_rgb", "target_alpha", "target_intrinsics", "target_camera_from_world")}
+                if f"{k}.anchor_pixels" in f.keys():
+                    s["anchor_pixels"] = f.get_tensor(f"{k}.anchor_pixels").to(torch.int32)
                 s["seed"] = seed
                 samples.append(s)
     return samples
@@ -64,6 +67,8 @@ def subsample(s, n):
     out = dict(s)
     for k in PER_ANCHOR:
         out[k] = s[k][:n]
+    if "anchor_pixels" in s:
+        out["anchor_pixels"] = s["anchor_pixels"][:, :n]
     return out
 
 
@@ -77,6 +82,8 @@ def white_views(s):
         return None
     out = dict(s)
     out["images"] = im[keep]
+    if "anchor_pixels" in s:
+        out["anchor_pixels"] = s["anchor_pixels"][keep]
     return out
 
 
@@ -116,13 +123,17 @@ def band_colors(s):
     return torch.cat(out)
 
 
-def losses(model, s, weights, probe=None):
+def losses(model, s, weights, probe=None, attention=None):
     """The training losses of one sample: a dict of scalar tensors (and `total`).
 
     With `probe` (a trainer-only linear map, not part of the shipped network), the conditioning
     vector temb (mean over views of motion_embed_mlp(CLS), which modulates every PIT block) is
     also asked to predict the person's band colours: it makes the image encoder's global token
-    carry the clothing colours, which the points then read through their AdaLN modulation."""
+    carry the clothing colours, which the points then read through their AdaLN modulation.
+
+    With `attention` (an attention_supervision.AttentionCapture) and a sample that carries
+    `anchor_pixels`, one head of the last PIT block is asked to attend to the image tokens that
+    show each anchor (trainer only; `attn`)."""
     images = s["images"].float() / 255.0
     out = model(images, s["anchors"], s["normals"])
     means, quats = splat_torch.pose_gaussians(out, s["posed_anchors"], s["posed_rotations"])
@@ -141,6 +152,10 @@ def losses(model, s, weights, probe=None):
     asap = ((sc - sc.mean(-1, keepdim=True)) ** 2).sum(-1).mean()
     acap = F.relu(out["offsets"].norm(dim=-1) - 0.02).mean()
     parts = {"rgb": rgb_l, "mask": mask_l, "color": color, "asap": asap, "acap": acap}
+    if attention is not None and "anchor_pixels" in s:
+        attn = attention.loss(s, model.cfg["encoder"]["patch_size"])
+        if attn is not None:
+            parts["attn"] = attn
     if probe is not None:
         cls, _ = model.encode(images)
         temb = model.motion_embed_mlp(cls).mean(0)
@@ -166,8 +181,10 @@ def plot(history, path):
 
     steps = [h["step"] for h in history]
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    for key in ("total", "rgb", "mask", "color"):
-        ys = [h[key] for h in history]
+    for key in ("total", "rgb", "mask", "color", "attn"):
+        if not any(key in h for h in history):
+            continue
+        ys = [h.get(key, 0.0) for h in history]
         # Smoothed over 50 steps so the trend shows through the per-sample noise.
         k = 50
         sm = [sum(ys[max(0, i - k + 1): i + 1]) / len(ys[max(0, i - k + 1): i + 1]) for i in range(len(ys))]
@@ -207,6 +224,8 @@ def main():
                     help="until this fraction of the run, use only the views on white")
     ap.add_argument("--probe", action="store_true",
                     help="auxiliary loss: a linear probe on temb predicts the band colours")
+    ap.add_argument("--attention", type=float, default=0.0,
+                    help="weight of the attention supervision (needs shards with anchor_pixels)")
     ap.add_argument("--open-gates", action="store_true",
                     help="open the PIT gates and frame-block LayerScale of the initial weights")
     ap.add_argument("--points-schedule", default="",
@@ -216,7 +235,8 @@ def main():
 
     torch.set_num_threads(args.threads)
     os.makedirs(args.out, exist_ok=True)
-    weights = {"rgb": 1.0, "mask": 0.5, "color": 1.0, "asap": 20.0, "acap": 5.0, "probe": 1.0}
+    weights = {"rgb": 1.0, "mask": 0.5, "color": 1.0, "asap": 20.0, "acap": 5.0, "probe": 1.0,
+               "attn": args.attention}
     state_path = os.path.join(args.out, "state.pt")
     log = open(os.path.join(args.out, "log.txt"), "a")
 
@@ -246,6 +266,9 @@ def main():
     opt = torch.optim.AdamW(
         [{"params": decay, "weight_decay": args.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
         lr=args.lr, betas=(0.9, 0.99))
+    attention = attention_supervision.AttentionCapture(model) if args.attention > 0 else None
+    if attention is not None and not any("anchor_pixels" in x for x in samples):
+        sys.exit(f"--attention: no shard in {args.data} has anchor_pixels (remake it with `lhmpp synth-dataset`)")
     probe = torch.nn.Linear(model.cfg["transformer"]["transformer_dim"], 12) if args.probe else None
     probe_opt = torch.optim.AdamW(probe.parameters(), lr=args.lr) if probe is not None else None
     step, history, elapsed_before = 0, [], 0.0
@@ -268,7 +291,8 @@ def main():
         "seeds": f"{min(seeds)}..{max(seeds) + 1}", "steps": args.steps, "lr": args.lr,
         "warmup": args.warmup, "weight_decay": args.weight_decay, "seed": args.seed,
         "threads": args.threads, "loss_weights": weights, "open_gates": args.open_gates,
-        "white_first": args.white_first, "probe": args.probe,
+        "white_first": args.white_first, "probe": args.probe, "attention": args.attention,
+        "init": os.path.abspath(args.init) if args.init else None,
         "points_schedule": args.points_schedule, "max_minutes": args.max_minutes, "optimizer": "AdamW(0.9, 0.99)",
         "torch": torch.__version__,
         "parameters": sum(p.numel() for p in params),
@@ -309,7 +333,7 @@ def main():
             s = subsample(s, points)
         for g in opt.param_groups:
             g["lr"] = lr_at(progress, args.lr, args.warmup / args.steps)
-        parts = losses(model, s, weights, probe)
+        parts = losses(model, s, weights, probe, attention)
         opt.zero_grad(set_to_none=True)
         if probe_opt is not None:
             probe_opt.zero_grad(set_to_none=True)
@@ -329,6 +353,8 @@ def main():
             recent = history[-50:]
             mean = {k: sum(h.get(k, 0.0) for h in recent) / len(recent) for k in parts}
             probe_text = f" probe {mean['probe']:.4f}" if "probe" in mean else ""
+            if "attn" in mean:
+                probe_text += f" attn {mean['attn']:.3f}"
             say(f"step {step}/{args.steps}  {s['anchors'].shape[0]} pts  lr {opt.param_groups[0]['lr']:.2e}  loss {mean['total']:.4f} (rgb {mean['rgb']:.4f} "
                 f"mask {mean['mask']:.4f} color {mean['color']:.4f} asap {mean['asap']:.2e} "
                 f"acap {mean['acap']:.2e}{probe_text})  {rate:.2f} steps/s  ETA {fmt_time(eta)}")

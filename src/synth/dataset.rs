@@ -85,6 +85,54 @@ pub struct TrainingSample {
     pub target_camera_from_world: Vec<f32>,
     /// Height scale and girth scale of the person (the BodyShape the node would receive).
     pub shape: [f32; 2],
+    /// Where each anchor shows in each preprocessed input view, `[V, N, 2]` as (column, row)
+    /// pixel of the `S × S` encoder input, [`HIDDEN_ANCHOR`] for both where the anchor is
+    /// hidden (behind the body, outside the view): for trainer-only losses that need to know
+    /// which image patch shows which anchor. The network never receives it.
+    pub anchor_pixels: Vec<u16>,
+}
+
+/// [`TrainingSample::anchor_pixels`] of an anchor a view does not show.
+pub const HIDDEN_ANCHOR: u16 = u16::MAX;
+
+/// An input view as rendered before preprocessing, kept to locate the anchors in it.
+struct RenderedInput {
+    camera: Camera,
+    region: crate::node::preprocess::BBox,
+    width: u32,
+    height: u32,
+    alpha: Vec<f32>,
+    depth: Vec<f32>,
+}
+
+/// Depth slack of the visibility test: an anchor this far behind the rendered surface still
+/// counts as seen (metres; the surface's expected depth blends a few Gaussians).
+const VISIBLE_DEPTH_SLACK: f32 = 0.04;
+
+impl RenderedInput {
+    /// The (column, row) pixel of world point `p` in the preprocessed `size × size` input, or
+    /// `None` when the view does not show it (outside the frame, on the background, or behind
+    /// the rendered surface).
+    fn locate(&self, p: Vec3, size: u32) -> Option<[u16; 2]> {
+        let q = self.camera.camera_from_world().transform_point3(p);
+        if q.z <= 1e-3 {
+            return None;
+        }
+        let uv = self.camera.project_camera_point(q);
+        let (x, y) = (uv.x.round(), uv.y.round());
+        if x < 0.0 || y < 0.0 || x >= self.width as f32 || y >= self.height as f32 {
+            return None;
+        }
+        let i = (y as u32 * self.width + x as u32) as usize;
+        if self.alpha[i] < 0.5 || q.z > self.depth[i] + VISIBLE_DEPTH_SLACK {
+            return None;
+        }
+        let r = self.region;
+        let u = (uv.x - r.x0 as f32 + 0.5) * size as f32 / r.width() as f32 - 0.5;
+        let v = (uv.y - r.y0 as f32 + 0.5) * size as f32 / r.height() as f32 - 0.5;
+        let (u, v) = (u.round(), v.round());
+        (u >= 0.0 && v >= 0.0 && u < size as f32 && v < size as f32).then_some([u as u16, v as u16])
+    }
 }
 
 /// Background behind an input view.
@@ -198,6 +246,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
     };
     let black = RenderOptions::default();
     let mut images = Vec::with_capacity(views * 3 * (options.input_size as usize).pow(2));
+    let mut rendered_inputs = Vec::with_capacity(views);
     for rig_camera in &rig.inputs {
         let camera = rolled(&rig_camera.camera, rng.gen_range(-0.12..0.12));
         let out = render(&posed_person, &camera, &black);
@@ -227,6 +276,14 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
             .or_else(|_| preprocess(&rgb, Subject::FullFrame, &pre))
             .map_err(|e| SynthError::Dataset(format!("preprocess: {e}")))?;
         images.extend(view.chw.iter().map(|v| (v * 255.0).round() as u8));
+        rendered_inputs.push(RenderedInput {
+            camera,
+            region: view.region,
+            width: w,
+            height: h,
+            alpha: out.alpha,
+            depth: out.depth,
+        });
     }
 
     // Anchors as the node samples them on the shaped template, their ground truth and pose.
@@ -253,6 +310,15 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
     let posed_frame =
         Avatar::new(frame, anchors.skin.clone(), MAKEHUMAN_MODEL_ID)?.animate(&matrices);
     let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+    let anchor_pixels = rendered_inputs
+        .iter()
+        .flat_map(|view| {
+            posed_frame.positions.iter().flat_map(|p| {
+                view.locate(*p, options.input_size)
+                    .unwrap_or([HIDDEN_ANCHOR; 2])
+            })
+        })
+        .collect();
 
     // Targets: the held-out cameras and one input camera, at the target size, on white.
     let mut targets: Vec<&RigCamera> = rig.heldout.iter().collect();
@@ -306,6 +372,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
         target_intrinsics,
         target_camera_from_world,
         shape: [person.height_scale, person.girth_scale],
+        anchor_pixels,
     })
 }
 
@@ -313,7 +380,8 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
 /// `{k}.anchors`, `{k}.normals`, `{k}.colors`, `{k}.posed_anchors` (f32 `[N,3]`),
 /// `{k}.posed_rotations` (f32 `[N,4]`), `{k}.target_rgb` (u8 `[T,3,R,R]`), `{k}.target_alpha`
 /// (u8 `[T,R,R]`), `{k}.target_intrinsics` (f32 `[T,4]`), `{k}.target_camera_from_world`
-/// (f32 `[T,3,4]`), `{k}.shape` (f32 `[2]`) for sample `k`, and the seeds in the metadata.
+/// (f32 `[T,3,4]`), `{k}.shape` (f32 `[2]`), `{k}.anchor_pixels` (u16 `[V,N,2]`) for sample
+/// `k`, and the seeds in the metadata.
 pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthError> {
     use safetensors::tensor::{Dtype, TensorView};
     let le = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
@@ -325,7 +393,8 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
         let si = side(s.images.len(), s.views * 3);
         let r = side(s.target_alpha.len(), t);
         let (u8s, f32s) = (Dtype::U8, Dtype::F32);
-        let entries: [(&str, Dtype, Vec<usize>, Vec<u8>); 11] = [
+        let u16le = |v: &[u16]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+        let entries: [(&str, Dtype, Vec<usize>, Vec<u8>); 12] = [
             ("images", u8s, vec![s.views, 3, si, si], s.images.clone()),
             ("anchors", f32s, vec![n, 3], le(&s.anchors)),
             ("normals", f32s, vec![n, 3], le(&s.normals)),
@@ -347,6 +416,12 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
                 le(&s.target_camera_from_world),
             ),
             ("shape", f32s, vec![2], le(&s.shape)),
+            (
+                "anchor_pixels",
+                Dtype::U16,
+                vec![s.views, n, 2],
+                u16le(&s.anchor_pixels),
+            ),
         ];
         for (name, dtype, shape, bytes) in entries {
             buffers.push((format!("{k}.{name}"), dtype, shape, bytes));
@@ -405,5 +480,66 @@ mod tests {
         // The person covers part of each target, not all of it.
         let covered = a.target_alpha.iter().filter(|v| **v > 128).count();
         assert!(covered > t * 400 && covered < t * 96 * 96 / 2, "{covered}");
+        assert_eq!(a.anchor_pixels.len(), a.views * 512 * 2);
+    }
+
+    #[test]
+    fn anchor_pixels_show_the_anchor_colour() {
+        let o = DatasetOptions {
+            points: 1024,
+            person_points: 8000,
+            max_views: 4,
+            ..DatasetOptions::default()
+        };
+        let s = make_sample(TRAIN_SEED_START + 11, &o).unwrap();
+        let (n, size) = (1024, 112usize);
+        let pixel = |view: usize, x: usize, y: usize| -> [f32; 3] {
+            let at = |c: usize| s.images[((view * 3 + c) * size + y) * size + x] as f32 / 255.0;
+            [at(0), at(1), at(2)]
+        };
+        // Mean colour error over the seen anchor-views, reading each anchor's pixel moved by
+        // (dx, dy), and against another anchor's colour.
+        let score = |dx: i32, dy: i32, other: bool| -> (usize, f32) {
+            let (mut seen, mut err) = (0usize, 0f32);
+            for view in 0..s.views {
+                for i in 0..n {
+                    let px = &s.anchor_pixels[(view * n + i) * 2..(view * n + i) * 2 + 2];
+                    if px[0] == HIDDEN_ANCHOR {
+                        continue;
+                    }
+                    let x = (px[0] as i32 + dx).clamp(0, size as i32 - 1) as usize;
+                    let y = (px[1] as i32 + dy).clamp(0, size as i32 - 1) as usize;
+                    let got = pixel(view, x, y);
+                    let j = if other { (i * 7 + 313) % n } else { i };
+                    seen += 1;
+                    err += (0..3)
+                        .map(|c| (got[c] - s.colors[3 * j + c]).abs())
+                        .sum::<f32>()
+                        / 3.0;
+                }
+            }
+            (seen, err / seen.max(1) as f32)
+        };
+        let (seen, err) = score(0, 0, false);
+        let (_, shuffled) = score(0, 0, true);
+        // Every view shows a good part of the body; the pixel an anchor lands on has that
+        // anchor's colour (up to the 112-px resampling) far more than another anchor's, and
+        // better than the pixels 2 px beside it.
+        assert!(
+            seen > s.views * n / 5,
+            "{seen} of {} anchor-views seen",
+            s.views * n
+        );
+        for (dx, dy) in [(2, 0), (-2, 0), (0, 2), (0, -2)] {
+            let (_, moved) = score(dx, dy, false);
+            assert!(
+                err < moved,
+                "error {err} at the pixel, {moved} moved by ({dx}, {dy})"
+            );
+        }
+        assert!(
+            err < 0.75 * shuffled,
+            "colour error {err} vs shuffled {shuffled}"
+        );
     }
 }
