@@ -107,8 +107,10 @@ fn replay(cfg: &NodeConfig) -> (Pipeline, Captured) {
 }
 
 /// A hub folder in the official layout with small widths: the released `config.json` with a
-/// ViT-S encoder, the tiny point backbone, 32 feature channels per Gaussian and a neural
-/// renderer reading `renderer_channels`; seeded random f32 weights for exactly its tensors.
+/// ViT-S encoder (frame blocks and `pcl_dim` at its width), a small point backbone, 128
+/// feature channels per Gaussian (the width of the official `background_embedding`, so the
+/// white background feature can be splatted with them) and a neural renderer reading
+/// `renderer_channels`; seeded random f32 weights for exactly its tensors.
 fn small_hub_folder(dir: &Path, renderer_channels: usize) {
     use serde_json::json;
     std::fs::create_dir_all(dir).unwrap();
@@ -117,16 +119,19 @@ fn small_hub_folder(dir: &Path, renderer_channels: usize) {
     v["encoder_feat_dim"] = json!(384);
     v["transformer_dim"] = json!(384);
     v["transformer_heads"] = json!(6);
+    v["pcl_dim"] = json!(384);
+    v["transformer_decoder"]["image_backbone"]["embed_dim"] = json!(384);
+    v["transformer_decoder"]["image_backbone"]["num_heads"] = json!(6);
     let pb = &mut v["transformer_decoder"]["point_backbone"];
     pb["enc_depths"] = json!([1, 1, 1, 1]);
     pb["enc_channels"] = json!([16, 32, 32, 64]);
     pb["enc_num_head"] = json!([2, 2, 4, 4]);
     pb["enc_patch_size"] = json!([256, 256, 128, 64]);
     pb["dec_depths"] = json!([1, 1, 1]);
-    pb["dec_channels"] = json!([32, 32, 64]);
+    pb["dec_channels"] = json!([128, 32, 64]);
     pb["dec_num_head"] = json!([2, 2, 4]);
     pb["dec_patch_size"] = json!([256, 256, 128]);
-    v["gs_query_dim"] = json!(32);
+    v["gs_query_dim"] = json!(128);
     v["gs_mlp_network_config"]["n_neurons"] = json!(64);
     v["neural_renderer"]["enc_channels"] = json!(renderer_channels);
     v["neural_renderer"]["img_dim"] = json!(64);
@@ -141,7 +146,7 @@ fn small_hub_folder(dir: &Path, renderer_channels: usize) {
     )
     .unwrap();
     let hub = HubFolder::open(dir).unwrap();
-    assert_eq!(hub.config.gs_head.gs_query_dim, 32);
+    assert_eq!(hub.config.gs_head.gs_query_dim, 128);
     assert_eq!(hub.config.neural_renderer.in_channels, renderer_channels);
     init_checkpoint(&hub.config, 3, &weights).unwrap();
 }
@@ -150,7 +155,7 @@ fn small_hub_folder(dir: &Path, renderer_channels: usize) {
 fn auto_renders_a_latent_rgb_hub_checkpoint_through_its_neural_renderer() {
     let tmp = tempfile::tempdir().unwrap();
     let hub = tmp.path().join("LHMPP-small");
-    small_hub_folder(&hub, 32);
+    small_hub_folder(&hub, 128);
     let cfg = config(&hub.display().to_string(), RendererChoice::Auto);
     let (pipeline, captured) = replay(&cfg);
     assert!(pipeline.neural_frames(), "auto picks the neural renderer");
@@ -215,10 +220,10 @@ fn neural_with_a_renderer_of_another_width_fails_at_startup_naming_both() {
     let err = match Pipeline::new(&cfg, None) {
         Err(e @ PipelineError::Renderer(_)) => e.to_string(),
         Err(e) => panic!("unexpected error: {e}"),
-        Ok(_) => panic!("neural with 32 features and a 48-channel renderer must fail"),
+        Ok(_) => panic!("neural with 128 features and a 48-channel renderer must fail"),
     };
     assert!(
-        err.contains("outputs.renderer") && err.contains("32") && err.contains("48"),
+        err.contains("outputs.renderer") && err.contains("128") && err.contains("48"),
         "{err}"
     );
     // auto falls back to the Gaussians' RGB for the same network.

@@ -286,13 +286,23 @@ fn a_smaller_dinov2_is_named_as_a_difference_and_its_width_must_match_the_joint_
     v["encoder_feat_dim"] = serde_json::json!(768);
     write_config(dir.path(), &v);
     write_weights(&dir.path().join("model.safetensors"), &[]);
-    // transformer_dim stays 1024: the derived config is invalid, and says why.
+    // The frame blocks stay VGGTAggregator's default 1024 wide: refused, naming the field.
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(
+        err.contains("transformer_decoder.image_backbone.embed_dim = 1024"),
+        "{err}"
+    );
+    v["transformer_decoder"]["image_backbone"]["embed_dim"] = serde_json::json!(768);
+    v["transformer_decoder"]["image_backbone"]["num_heads"] = serde_json::json!(12);
+    // transformer_dim (and pcl_dim) stay 1024: the derived config is invalid, and says why.
+    write_config(dir.path(), &v);
     let err = HubFolder::open(dir.path()).unwrap_err().to_string();
     assert!(
         err.contains("transformer_dim 1024") && err.contains("768"),
         "{err}"
     );
     v["transformer_dim"] = serde_json::json!(768);
+    v["pcl_dim"] = serde_json::json!(768);
     v["transformer_heads"] = serde_json::json!(12);
     v["neural_renderer"]["img_dim"] = serde_json::json!(768);
     write_config(dir.path(), &v);
@@ -304,4 +314,124 @@ fn a_smaller_dinov2_is_named_as_a_difference_and_its_width_must_match_the_joint_
         "{:?}",
         hub.differences
     );
+}
+
+/// The released config.json at small widths, the way the official code is configured for them
+/// (../shared/reference/official-forward.md: ViT-S/14 reg, d 384, PTv3 channels
+/// [32, 64, 128, 256] with one block per stage): `pcl_dim` (= `transformer_dim` in the YAML)
+/// and the `image_backbone` dict's `embed_dim` / `num_heads` follow the encoder.
+fn small_official_config() -> serde_json::Value {
+    use serde_json::json;
+    let mut v = config_value();
+    v["encoder_model_name"] = json!("dinov2_vits14_reg");
+    v["encoder_feat_dim"] = json!(384);
+    v["pcl_dim"] = json!(384);
+    v["transformer_dim"] = json!(384);
+    v["transformer_heads"] = json!(6);
+    let ib = &mut v["transformer_decoder"]["image_backbone"];
+    ib["embed_dim"] = json!(384);
+    ib["num_heads"] = json!(6);
+    let pb = &mut v["transformer_decoder"]["point_backbone"];
+    pb["enc_depths"] = json!([1, 1, 1, 1]);
+    pb["enc_channels"] = json!([32, 64, 128, 256]);
+    pb["enc_num_head"] = json!([2, 4, 8, 8]);
+    pb["enc_patch_size"] = json!([1024, 1024, 512, 256]);
+    pb["dec_depths"] = json!([1, 1, 1]);
+    pb["dec_channels"] = json!([64, 128, 256]);
+    pb["dec_num_head"] = json!([4, 8, 8]);
+    pb["dec_patch_size"] = json!([1024, 1024, 512]);
+    v["gs_query_dim"] = json!(64);
+    v["gs_mlp_network_config"]["n_neurons"] = json!(128);
+    v["neural_renderer"]["enc_channels"] = json!(64);
+    v
+}
+
+#[test]
+fn an_official_config_at_small_widths_derives_the_official_shapes_and_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    write_config(dir.path(), &small_official_config());
+    let weights = dir.path().join("model.safetensors");
+    write_weights(&weights, &[]);
+    let hub = HubFolder::open(dir.path()).unwrap();
+    let cfg = &hub.config;
+    assert_eq!(cfg.encoder.embed_dim, 384);
+    assert_eq!(cfg.image_backbone.num_heads, 6);
+    assert_eq!(cfg.transformer.motion_embed_hidden, 96);
+    assert_eq!(cfg.gs_head.background_width(), 128);
+    let expected = lhmpp::model::checkpoint::expected_tensors(cfg).unwrap();
+    // The three widths the official modules derive on their own (modeling_humana4o_lrm.py:
+    // `mid_dim = pcl_dim // 4`; gsplat_renderer.py: `torch.zeros(3, 128)`; vggt_transformer.py:
+    // `VGGTAggregator(embed_dim, num_heads)` with qk LayerNorms over the head dim 384 / 6).
+    let official: [(&str, &[usize]); 9] = [
+        ("motion_embed_mlp.0.weight", &[96, 384]),
+        ("motion_embed_mlp.0.bias", &[96]),
+        ("motion_embed_mlp.2.weight", &[384, 96]),
+        ("motion_embed_mlp.2.bias", &[384]),
+        ("renderer.background_embedding", &[3, 128]),
+        (
+            "transformer.image_backbone.frame_blocks.0.attn.q_norm.weight",
+            &[64],
+        ),
+        (
+            "transformer.image_backbone.frame_blocks.2.attn.k_norm.bias",
+            &[64],
+        ),
+        (
+            "transformer.image_backbone.frame_blocks.1.attn.qkv.weight",
+            &[1152, 384],
+        ),
+        ("transformer.image_backbone.pose_token", &[1, 2, 1, 384]),
+    ];
+    for (name, dims) in official {
+        assert_eq!(expected.get(name).map(Vec::as_slice), Some(dims), "{name}");
+    }
+    // A random checkpoint with exactly those tensors loads without a mismatch.
+    lhmpp::model::checkpoint::init_checkpoint(cfg, 5, &weights).unwrap();
+    let loaded = hub::load_checkpoint(
+        dir.path(),
+        &LhmppConfig::lhmpp_700m(),
+        DType::F32,
+        &Device::Cpu,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(&loaded.config, cfg);
+    lhmpp::model::Lhmpp::new(&loaded.config, loaded.var_builder).unwrap();
+}
+
+#[test]
+fn the_frame_blocks_take_their_width_and_heads_from_the_image_backbone_dict() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = small_official_config();
+    let ib = v["transformer_decoder"]["image_backbone"]
+        .as_object_mut()
+        .unwrap();
+    ib.remove("num_heads");
+    write_config(dir.path(), &v);
+    write_weights(&dir.path().join("model.safetensors"), &[]);
+    // Absent num_heads is VGGTAggregator's default 16 (head dim 384 / 16 = 24).
+    let hub = HubFolder::open(dir.path()).unwrap();
+    assert_eq!(hub.config.image_backbone.num_heads, 16);
+    let expected = lhmpp::model::checkpoint::expected_tensors(&hub.config).unwrap();
+    assert_eq!(
+        expected["transformer.image_backbone.frame_blocks.0.attn.q_norm.weight"],
+        vec![24]
+    );
+    // Absent embed_dim is 1024, which a 384-wide encoder cannot feed: the file is refused,
+    // naming the field.
+    v["transformer_decoder"]["image_backbone"]
+        .as_object_mut()
+        .unwrap()
+        .remove("embed_dim");
+    write_config(dir.path(), &v);
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(
+        err.contains("transformer_decoder.image_backbone.embed_dim") && err.contains("1024"),
+        "{err}"
+    );
+    // pcl_dim must be the joint width.
+    let mut v = small_official_config();
+    v["pcl_dim"] = serde_json::json!(1024);
+    write_config(dir.path(), &v);
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(err.contains("pcl_dim = 1024"), "{err}");
 }

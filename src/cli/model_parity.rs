@@ -302,6 +302,7 @@ fn run_block(fx: &Fixture, dtype: DType, dev: &Device) -> anyhow::Result<Vec<(St
                 use_rgb: true,
                 clip_scaling: fx.f64("clip_scaling")?,
                 xyz_offset_max_step: fx.f64("max_step")?,
+                background_dim: None,
             };
             let head = GsHead::new(&cfg, vb)?;
             let g = head.forward(

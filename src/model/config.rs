@@ -71,7 +71,7 @@ pub struct TransformerConfig {
     pub transformer_heads: usize,
     /// ToMe merge ratio of image tokens (0.5).
     pub merge_ratio: f64,
-    /// Hidden width of `motion_embed_mlp` (256).
+    /// Hidden width of `motion_embed_mlp` (official: `pcl_dim // 4`, 256).
     pub motion_embed_hidden: usize,
 }
 
@@ -90,6 +90,21 @@ pub struct GsHeadConfig {
     pub clip_scaling: f64,
     /// Offset range: `(sigmoid − 0.5) · xyz_offset_max_step` (1.0).
     pub xyz_offset_max_step: f64,
+    /// Width of `renderer.background_embedding` (`[3, width]`). The official renderer builds it
+    /// 128 wide whatever `gs_query_dim` is (`gsplat_renderer.py`); `None` (this project's own
+    /// presets) means `gs_query_dim`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub background_dim: Option<usize>,
+}
+
+impl GsHeadConfig {
+    /// The official width of `renderer.background_embedding`, whatever `gs_query_dim` is.
+    pub const OFFICIAL_BACKGROUND_DIM: usize = 128;
+
+    /// Width of `renderer.background_embedding`.
+    pub fn background_width(&self) -> usize {
+        self.background_dim.unwrap_or(self.gs_query_dim)
+    }
 }
 
 /// The whole LHM++ network.
@@ -210,6 +225,7 @@ impl LhmppConfig {
                 use_rgb: true,
                 clip_scaling: 0.05,
                 xyz_offset_max_step: 1.0,
+                background_dim: Some(GsHeadConfig::OFFICIAL_BACKGROUND_DIM),
             },
             neural_renderer: DptConfig::lhmpp_700m(),
         }
@@ -284,6 +300,7 @@ impl LhmppConfig {
                 use_rgb: true,
                 clip_scaling: 0.05,
                 xyz_offset_max_step: 1.0,
+                background_dim: None,
             },
             point_backbone: pb,
             neural_renderer: DptConfig::tiny(),
@@ -465,7 +482,7 @@ impl LhmppConfig {
         let (q, n) = (g.gs_query_dim, g.n_neurons);
         let mlp = linear(q, n) + g.n_hidden_layers.saturating_sub(1) * linear(n, n) + linear(n, q);
         let color = if g.use_rgb { 3 } else { 48 };
-        mlp + linear(q, color + 3 + 3 + 1 + 4) + 3 * q
+        mlp + linear(q, color + 3 + 3 + 1 + 4) + 3 * g.background_width()
     }
 }
 

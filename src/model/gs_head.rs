@@ -130,7 +130,7 @@ impl GsHead {
             // The w = 1 bias is set by the checkpoint initialiser (no per-element Init exists).
             rotation: head(q, 4, out.pp("rotation"), zero)?,
             background_embedding: vb.get_with_hints(
-                (3, q),
+                (3, cfg.background_width()),
                 "background_embedding",
                 Init::Randn {
                     mean: 0.0,
@@ -140,7 +140,9 @@ impl GsHead {
         })
     }
 
-    /// Background feature for a grey level in {0 (black), 0.5 (grey), 1 (white)}: `[q]`.
+    /// Background feature for a grey level in {0 (black), 0.5 (grey), 1 (white)}:
+    /// `[background_width]` (the official 128, which equals `gs_query_dim` in every released
+    /// configuration).
     pub fn background_feature(&self, level: f32) -> Result<Tensor> {
         let idx = ((level / 0.5).round() as usize).min(2);
         self.background_embedding.get(idx)

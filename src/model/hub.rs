@@ -20,7 +20,7 @@ use serde::Deserialize;
 use super::checkpoint::{
     check_files, load_var_builder, load_var_builder_from_files, CheckpointError, CheckpointSummary,
 };
-use super::config::LhmppConfig;
+use super::config::{GsHeadConfig, LhmppConfig};
 use super::point::SerializationOrder;
 
 /// Config file of a hub folder.
@@ -127,6 +127,25 @@ pub struct OfficialImageBackbone {
     /// Attention order (`[frame]`).
     #[serde(default)]
     pub aa_order: Vec<String>,
+    /// Frame-block width (`VGGTAggregator(embed_dim=1024)` when absent, as in the released
+    /// config.json); must equal the encoder width, whose tokens the blocks read.
+    #[serde(default)]
+    pub embed_dim: Option<usize>,
+    /// Frame-block heads (`VGGTAggregator(num_heads=16)` when absent).
+    #[serde(default)]
+    pub num_heads: Option<usize>,
+    /// Frame-block MLP ratio (`VGGTAggregator(mlp_ratio=4.0)` when absent).
+    #[serde(default)]
+    pub mlp_ratio: Option<f64>,
+}
+
+impl OfficialImageBackbone {
+    /// `VGGTAggregator`'s default `embed_dim`.
+    pub const DEFAULT_EMBED_DIM: usize = 1024;
+    /// `VGGTAggregator`'s default `num_heads`.
+    pub const DEFAULT_NUM_HEADS: usize = 16;
+    /// `VGGTAggregator`'s default `mlp_ratio`.
+    pub const DEFAULT_MLP_RATIO: f64 = 4.0;
 }
 
 /// `transformer_decoder` of the official config.
@@ -212,6 +231,10 @@ pub struct OfficialModelConfig {
     pub transformer_heads: usize,
     /// Joint width.
     pub transformer_dim: usize,
+    /// Point-latent width (`transformer_dim: ${model.pcl_dim}` in the YAML): the output of
+    /// `motion_embed_mlp`, whose hidden width is `pcl_dim // 4`. Absent: `transformer_dim`.
+    #[serde(default)]
+    pub pcl_dim: Option<usize>,
     /// Skinning type (`smplx_diffused_voxel`).
     #[serde(default)]
     pub smplx_type: Option<String>,
@@ -582,6 +605,31 @@ pub fn derive_config(
         &mut cfg.image_backbone.depth,
         ib.depth,
     );
+    // The frame blocks are `VGGTAggregator(**image_backbone)`: width and heads come from that
+    // dict (defaults 1024 and 16), not from the encoder or the joint attention.
+    let frame_dim = ib
+        .embed_dim
+        .unwrap_or(OfficialImageBackbone::DEFAULT_EMBED_DIM);
+    require(
+        frame_dim == cfg.encoder.embed_dim,
+        "transformer_decoder.image_backbone.embed_dim",
+        &frame_dim,
+        "the width of encoder_model_name (the frame blocks read its tokens; absent = 1024)",
+    );
+    set(
+        &mut d,
+        "transformer_decoder.image_backbone.num_heads",
+        &mut cfg.image_backbone.num_heads,
+        ib.num_heads
+            .unwrap_or(OfficialImageBackbone::DEFAULT_NUM_HEADS),
+    );
+    set(
+        &mut d,
+        "transformer_decoder.image_backbone.mlp_ratio",
+        &mut cfg.image_backbone.mlp_ratio,
+        ib.mlp_ratio
+            .unwrap_or(OfficialImageBackbone::DEFAULT_MLP_RATIO),
+    );
     set(
         &mut d,
         "transformer_decoder.merge_ratio",
@@ -600,6 +648,21 @@ pub fn derive_config(
         &mut cfg.transformer.transformer_dim,
         o.transformer_dim,
     );
+    // `motion_embed_mlp = Linear(encoder_feat_dim, pcl_dim // 4), SiLU, Linear(pcl_dim // 4,
+    // pcl_dim)`; its output is the AdaLN conditioning of the joint blocks (width transformer_dim).
+    let pcl_dim = o.pcl_dim.unwrap_or(o.transformer_dim);
+    require(
+        pcl_dim == o.transformer_dim,
+        "pcl_dim",
+        &pcl_dim,
+        "transformer_dim (motion_embed_mlp's output conditions the joint blocks)",
+    );
+    set(
+        &mut d,
+        "pcl_dim // 4 (motion_embed_mlp hidden)",
+        &mut cfg.transformer.motion_embed_hidden,
+        pcl_dim / 4,
+    );
     set(
         &mut d,
         "gs_query_dim",
@@ -607,6 +670,8 @@ pub fn derive_config(
         o.gs_query_dim,
     );
     set(&mut d, "gs_use_rgb", &mut cfg.gs_head.use_rgb, o.gs_use_rgb);
+    // `renderer.background_embedding = nn.Parameter(torch.zeros(3, 128))`, whatever gs_query_dim.
+    cfg.gs_head.background_dim = Some(GsHeadConfig::OFFICIAL_BACKGROUND_DIM);
     let mlp = &o.gs_mlp_network_config;
     require(
         mlp.activation == "silu",
