@@ -11,6 +11,7 @@ fn demo_options() -> SynthOptions {
         views: 4,
         heldout: 2,
         size: 256,
+        publish_shape: true,
         ..SynthOptions::default()
     }
 }
