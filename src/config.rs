@@ -159,6 +159,9 @@ pub struct OutputConfig {
     /// official app does), `auto` picks `neural` when the checkpoint's RGB is not display-ready
     /// (the released LHMPP-700M / LHMPPS-700M) and its neural renderer fits, else `gaussians`.
     pub renderer: RendererChoice,
+    /// QoS of the rendered-frame topics: `reliable` (default; keep last 2, matched by reliable
+    /// and best-effort subscribers alike) or `best_effort` (only best-effort subscribers match).
+    pub frame_qos: FrameQos,
     /// Publish over ROS 2 DDS.
     pub ros: bool,
     /// Publish over iceoryx2 shared memory.
@@ -185,6 +188,27 @@ impl RendererChoice {
             Self::Auto => "auto",
             Self::Gaussians => "gaussians",
             Self::Neural => "neural",
+        }
+    }
+}
+
+/// `outputs.frame_qos`: reliability of the rendered-frame publishers (keep last 2 either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameQos {
+    /// Reliable: RViz2, rqt and best-effort subscribers all match.
+    #[default]
+    Reliable,
+    /// Best effort: a reliable subscriber does not match (incompatible RELIABILITY).
+    BestEffort,
+}
+
+impl FrameQos {
+    /// The value as written in a parameter file.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Reliable => "reliable",
+            Self::BestEffort => "best_effort",
         }
     }
 }
@@ -266,6 +290,7 @@ impl Default for OutputConfig {
             virtual_cameras: 1,
             render_device: "cpu".into(),
             renderer: RendererChoice::Auto,
+            frame_qos: FrameQos::Reliable,
             ros: true,
             shm: false,
         }
@@ -598,6 +623,34 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("outputs.renderer"), "{e}");
+    }
+
+    #[test]
+    fn frame_qos_is_reliable_by_default_and_a_bad_value_names_the_key() {
+        let yaml =
+            |q: &str| format!("lhmpp:\n  ros__parameters:\n    outputs:\n      frame_qos: {q}\n");
+        assert_eq!(
+            load("lhmpp:\n  ros__parameters: {}\n", &[])
+                .unwrap()
+                .outputs
+                .frame_qos,
+            FrameQos::Reliable
+        );
+        for (text, want) in [
+            ("reliable", FrameQos::Reliable),
+            ("best_effort", FrameQos::BestEffort),
+        ] {
+            assert_eq!(load(&yaml(text), &[]).unwrap().outputs.frame_qos, want);
+            assert_eq!(want.as_str(), text);
+        }
+        let e = load(&yaml("sensor_data"), &[]).unwrap_err().to_string();
+        assert!(
+            e.contains("outputs.frame_qos") && e.contains("sensor_data") && e.contains(FILE),
+            "{e}"
+        );
+        assert!(e.contains("reliable") && e.contains("best_effort"), "{e}");
+        let c = load(&yaml("reliable"), &["outputs.frame_qos=best_effort"]).unwrap();
+        assert_eq!(c.outputs.frame_qos, FrameQos::BestEffort);
     }
 
     #[test]

@@ -2,6 +2,14 @@
 
 mod cli;
 
-fn main() -> anyhow::Result<()> {
-    cli::main()
+fn main() -> std::process::ExitCode {
+    match cli::main() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            // One line: the error and its causes (`{:#}`), without the backtrace that
+            // returning the error from `main` prints under RUST_BACKTRACE=1.
+            eprintln!("Error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
 }

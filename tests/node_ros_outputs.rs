@@ -56,3 +56,168 @@ async fn publishing_before_any_reader_is_not_an_error() {
     assert!(stats.accepted.is_empty() && stats.rejected.is_empty());
     node.shutdown();
 }
+
+/// What one probe subscription received.
+struct Probe<M: 'static> {
+    what: String,
+    sub: ros2_client::dds::Subscription<M>,
+    received: usize,
+}
+
+fn probe<M>(
+    node: &mut ros2_client::dds::Node,
+    topic: &str,
+    type_name: (&str, &str),
+    reliable: bool,
+) -> Probe<M>
+where
+    M: serde::de::DeserializeOwned + 'static,
+{
+    use ros2_client::qos::{History, QosProfile, Reliability, WhenFull};
+    let qos = QosProfile::subscription_default()
+        .history(History::KeepLast { depth: 10 })
+        .reliability(if reliable {
+            Reliability::Reliable {
+                when_full: WhenFull::DEFAULT,
+            }
+        } else {
+            Reliability::BestEffort
+        });
+    let (ns, base) = topic.rsplit_once('/').unwrap();
+    let name = ros2_client::Name::new(if ns.is_empty() { "/" } else { ns }, base).unwrap();
+    let t = node
+        .create_topic(
+            &name,
+            ros2_client::MessageTypeName::new(type_name.0, type_name.1),
+            &qos,
+        )
+        .unwrap();
+    Probe {
+        what: format!(
+            "{topic} ({})",
+            if reliable { "reliable" } else { "best effort" }
+        ),
+        sub: node.create_subscription::<M>(&t, Some(qos)).unwrap(),
+        received: 0,
+    }
+}
+
+impl<M: serde::de::DeserializeOwned + 'static> Probe<M> {
+    fn poll(&mut self) {
+        while let Ok(Some(_)) = self.sub.take() {
+            self.received += 1;
+        }
+    }
+}
+
+/// Starts the node with `frame_qos`, subscribes to every output with a reliable and a
+/// best-effort probe (volatile: what `ros2 topic echo` and RViz2 ask for), publishes until every
+/// probe that should match has received something; returns (probe, received) pairs.
+fn receive_outputs(frame_qos: &str, namespace: &str, domain: i32) -> Vec<(String, usize)> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let _guard = runtime.enter();
+    let cfg = NodeConfig::from_yaml(
+        "lhmpp:\n  ros__parameters: {}\n",
+        "<test>".as_ref(),
+        &[
+            format!("domain_id={domain}"),
+            format!("namespace={namespace}"),
+            format!("outputs.frame_qos={frame_qos}"),
+        ],
+    )
+    .unwrap();
+    let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None)
+        .unwrap()
+        .loopback_only();
+    let (node, _rx) = RosNode::start(&opts).expect("node starts");
+    let topics = node.topics().clone();
+
+    let peer_ctx = lhmpp::node::ros::create_context(&opts.participant).unwrap();
+    let mut peer = peer_ctx
+        .new_node(
+            ros2_client::NodeName::new("/", "qos_probe").unwrap(),
+            ros2_client::NodeOptions::new().enable_rosout(false),
+        )
+        .unwrap();
+    let avatar_type = ("lhmpp_msgs", "GaussianAvatar");
+    let status_type = ("lhmpp_msgs", "ReconstructionStatus");
+    let image_type = ("sensor_msgs", "Image");
+    let mut avatars = vec![
+        probe::<GaussianAvatar>(&mut peer, &topics.avatar, avatar_type, true),
+        probe::<GaussianAvatar>(&mut peer, &topics.avatar, avatar_type, false),
+    ];
+    let mut statuses = vec![
+        probe::<ReconstructionStatus>(&mut peer, &topics.status, status_type, true),
+        probe::<ReconstructionStatus>(&mut peer, &topics.status, status_type, false),
+    ];
+    let mut frames = vec![
+        probe::<lhmpp::msgs::Image>(&mut peer, &topics.frames[0], image_type, true),
+        probe::<lhmpp::msgs::Image>(&mut peer, &topics.frames[0], image_type, false),
+    ];
+    let expect_reliable_frames = frame_qos == "reliable";
+    let frame = image::RgbImage::new(16, 16);
+    let start = std::time::Instant::now();
+    let mut revision = 0;
+    while start.elapsed() < std::time::Duration::from_secs(30) {
+        revision += 1;
+        let avatar = GaussianAvatar {
+            person_id: "p".into(),
+            revision,
+            ..GaussianAvatar::default()
+        };
+        node.publish_avatar(avatar).unwrap();
+        node.publish_status(ReconstructionStatus::default())
+            .unwrap();
+        node.publish_frame(0, rgb8_image(&frame, 0, "cam0"))
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        avatars.iter_mut().for_each(Probe::poll);
+        statuses.iter_mut().for_each(Probe::poll);
+        frames.iter_mut().for_each(Probe::poll);
+        let latched_done =
+            avatars.iter().all(|p| p.received > 0) && statuses.iter().all(|p| p.received > 0);
+        let frames_done =
+            frames[1].received > 0 && (!expect_reliable_frames || frames[0].received > 0);
+        // Keep going 1 s after the expected probes are served, so a wrongly matching
+        // reliable frame probe (best_effort case) would show up.
+        if latched_done && frames_done && start.elapsed() > std::time::Duration::from_secs(3) {
+            break;
+        }
+    }
+    let result = avatars
+        .iter()
+        .map(|p| (p.what.clone(), p.received))
+        .chain(statuses.iter().map(|p| (p.what.clone(), p.received)))
+        .chain(frames.iter().map(|p| (p.what.clone(), p.received)))
+        .collect();
+    drop((avatars, statuses, frames));
+    node.shutdown();
+    result
+}
+
+#[test]
+fn every_output_reaches_reliable_and_best_effort_subscribers() {
+    let domain = 150 + (std::process::id() % 40) as i32;
+    let got = receive_outputs("reliable", "/lhmpp_qos_reliable", domain);
+    eprintln!("frame_qos reliable: {got:?}");
+    for (what, received) in &got {
+        assert!(*received > 0, "{what} received nothing: {got:?}");
+    }
+}
+
+#[test]
+fn best_effort_frames_reach_only_best_effort_subscribers() {
+    let domain = 190 + (std::process::id() % 40) as i32;
+    let got = receive_outputs("best_effort", "/lhmpp_qos_best_effort", domain);
+    eprintln!("frame_qos best_effort: {got:?}");
+    let count = |what: &str| got.iter().find(|(w, _)| w.ends_with(what)).unwrap().1;
+    for (what, received) in &got[..4] {
+        assert!(*received > 0, "{what} received nothing: {got:?}");
+    }
+    assert!(count("image_raw (best effort)") > 0, "{got:?}");
+    assert_eq!(count("image_raw (reliable)"), 0, "{got:?}");
+}

@@ -23,9 +23,11 @@ mod synth_dataset;
 #[derive(Parser, Debug)]
 #[command(name = "lhmpp", version, about, long_about)]
 struct Cli {
-    /// Log filter (tracing-subscriber syntax, e.g. `info` or `lhmpp=debug`); RUST_LOG wins.
-    #[arg(long, global = true, default_value = "info")]
-    log: String,
+    /// Log filter (tracing-subscriber syntax, e.g. `info` or `lhmpp=debug,rustdds=warn`);
+    /// RUST_LOG wins. Default: lhmpp at info, its dependencies (RustDDS, ros2-client, ...)
+    /// at error only.
+    #[arg(long, global = true)]
+    log: Option<String>,
     #[command(subcommand)]
     command: Command,
 }
@@ -63,7 +65,7 @@ enum Command {
 /// Parses the command line, sets up logging and runs the subcommand.
 pub fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
-    init_logging(&cli.log);
+    init_logging(cli.log.as_deref().unwrap_or(DEFAULT_LOG_FILTER));
     match cli.command {
         Command::Run(args) => run::run(args),
         Command::Replay(args) => replay::run(args),
@@ -80,6 +82,18 @@ pub fn main() -> anyhow::Result<()> {
         Command::ShmEcho(args) => shm_echo::run(args),
     }
 }
+
+/// The log filter without `--log` or `RUST_LOG`: the node's own messages at info, everything
+/// else (RustDDS prints discovery chatter at info/warn, thousands of lines a minute with peers)
+/// at error.
+///
+/// `rustdds::network::udp_listener` is off: its only error (RustDDS 0.15.1) is
+/// "leave_multicast_group: AddrNotAvailable", logged when a multicast socket is dropped at
+/// shutdown. RustDDS joins the group on each allowed interface but leaves it on the
+/// unspecified one, which fails when DDS is restricted to interfaces other than the default
+/// route's (`dds_interfaces: [127.0.0.1]`). Harmless: closing the socket right after drops the
+/// membership. It cannot be fixed from outside RustDDS, so it is filtered here.
+pub const DEFAULT_LOG_FILTER: &str = "error,lhmpp=info,rustdds::network::udp_listener=off";
 
 fn init_logging(default: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()

@@ -161,7 +161,12 @@ pub fn plan(topics: &ResolvedTopics, image_qos: InputQos) -> Vec<RecordTopic> {
         latched_output_qos(),
     ));
     for t in &topics.frames {
-        out.push(topic(t, RecordType::Image, frame_output_qos()));
+        // A best-effort reader matches the frame writers whatever `outputs.frame_qos` is.
+        out.push(topic(
+            t,
+            RecordType::Image,
+            frame_output_qos(crate::config::FrameQos::BestEffort),
+        ));
     }
     out
 }

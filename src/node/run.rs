@@ -66,6 +66,21 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         remap,
         std::env::var("ROS_DOMAIN_ID").ok().as_deref(),
     )?;
+    // Everything that can fail on the config alone (network, checkpoint, prior, devices,
+    // output directory, bag) is set up before the DDS participant is created, so such a
+    // config fails with its own error and no DDS traffic or log.
+    let mut pipeline = Pipeline::new(config, None)?;
+    let live = config.replay.bag.is_empty();
+    let mut replay = if live {
+        None
+    } else {
+        let topics = ResolvedTopics::from_options(&options)?;
+        Some(BagReplay::open(
+            Path::new(&config.replay.bag),
+            topics,
+            config.inputs.max_image_side,
+        )?)
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()
@@ -80,7 +95,6 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
             stop.store(true, Ordering::SeqCst);
         });
     }
-    let live = config.replay.bag.is_empty();
     let ros = if config.outputs.ros || live {
         let _guard = runtime.enter();
         let (node, mut queue) = RosNode::start(&options)?;
@@ -109,32 +123,20 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         tracing::info!(services = ?shm.services(), "shared-memory outputs up");
         publishers.push(Box::new(shm));
     }
-    let publisher =
-        (!publishers.is_empty()).then(|| Box::new(Fanout(publishers)) as Box<dyn Publisher>);
-    let mut pipeline = Pipeline::new(config, publisher)?;
+    pipeline.set_publisher(
+        (!publishers.is_empty()).then(|| Box::new(Fanout(publishers)) as Box<dyn Publisher>),
+    );
     let mut animation_frames = 0;
-    if live {
-        run_live(&mut pipeline, &wake_rx, &stop, &clock);
-    } else {
-        let topics = ResolvedTopics::from_options(&options)?;
-        let mut replay = BagReplay::open(
-            Path::new(&config.replay.bag),
-            topics,
-            config.inputs.max_image_side,
-        )?;
+    if let Some(replay) = &mut replay {
         tracing::info!(bag = %config.replay.bag, messages = replay.len(), "replaying");
-        run_replay(
-            &mut pipeline,
-            &mut replay,
-            config.replay.rate,
-            &stop,
-            &clock,
-        );
+        run_replay(&mut pipeline, replay, config.replay.rate, &stop, &clock);
         if !stop.load(Ordering::SeqCst) && config.replay.exit_when_done {
             animation_frames = pipeline.write_animation(ANIMATION_FRAMES);
         } else if !config.replay.exit_when_done {
             run_live(&mut pipeline, &wake_rx, &stop, &clock);
         }
+    } else {
+        run_live(&mut pipeline, &wake_rx, &stop, &clock);
     }
     let summary = RunSummary {
         stats: pipeline.stats().clone(),

@@ -250,6 +250,12 @@ impl Pipeline {
         })
     }
 
+    /// Replaces the publisher (the node sets it once the ROS 2 endpoint is up: the pipeline
+    /// is built first, so a config that cannot run fails before DDS starts).
+    pub fn set_publisher(&mut self, publisher: Option<Box<dyn Publisher>>) {
+        self.publisher = publisher;
+    }
+
     /// Whether frames go through the network's neural renderer (`outputs.renderer` resolved
     /// to `neural`).
     pub fn neural_frames(&self) -> bool {

@@ -3,6 +3,7 @@
 //! socket buffer sizes, and the QoS profiles the node uses.
 
 use super::RosError;
+use crate::config::FrameQos;
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
 use ros2_client::qos::{Durability, History, QosProfile, Reliability, WhenFull};
 use ros2_client::Context;
@@ -114,11 +115,19 @@ pub fn latched_output_qos() -> QosProfile {
         })
 }
 
-/// QoS of rendered frames: best effort, keep last 2 (a video stream).
-pub fn frame_output_qos() -> QosProfile {
-    QosProfile::subscription_default()
-        .history(History::KeepLast { depth: 2 })
-        .reliability(Reliability::BestEffort)
+/// QoS of rendered frames (`outputs.frame_qos`), volatile keep last 2 (a video stream).
+/// `Reliable` (the default) is matched by reliable subscribers (RViz2's image display, rqt)
+/// and best-effort ones alike; a full send window fails after 5 ms (back-pressure, the frame
+/// is dropped), so a slow reader never stalls rendering. `BestEffort` matches best-effort
+/// subscribers only.
+pub fn frame_output_qos(choice: FrameQos) -> QosProfile {
+    let base = QosProfile::subscription_default().history(History::KeepLast { depth: 2 });
+    match choice {
+        FrameQos::Reliable => base.reliability(Reliability::Reliable {
+            when_full: WhenFull::Wait(Duration::from_millis(5)),
+        }),
+        FrameQos::BestEffort => base.reliability(Reliability::BestEffort),
+    }
 }
 
 #[cfg(test)]
@@ -141,6 +150,17 @@ mod tests {
         let e = resolve_domain_id(-1, Some("300")).unwrap_err().to_string();
         assert!(e.contains("300"), "{e}");
         assert!(resolve_domain_id(233, None).is_err());
+    }
+
+    #[test]
+    fn frames_are_reliable_keep_last_2_unless_best_effort_is_asked_for() {
+        let q = frame_output_qos(FrameQos::Reliable);
+        assert!(matches!(q.reliability, Reliability::Reliable { .. }));
+        assert_eq!(q.history, History::KeepLast { depth: 2 });
+        assert_eq!(q.durability, Durability::Volatile);
+        let q = frame_output_qos(FrameQos::BestEffort);
+        assert_eq!(q.reliability, Reliability::BestEffort);
+        assert_eq!(q.history, History::KeepLast { depth: 2 });
     }
 
     #[test]

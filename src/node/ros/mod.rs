@@ -23,7 +23,7 @@ pub use inputs::{CameraFrame, InputEvent, MaskFrame};
 pub use outputs::{rgb8_image, OutputTopics, PublishOutcome};
 pub use sink::InputStats;
 
-use crate::config::NodeConfig;
+use crate::config::{FrameQos, NodeConfig};
 use crate::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus,
     RosMessage,
@@ -101,6 +101,8 @@ pub struct RosNodeOptions {
     pub error_report_period: Duration,
     /// Output topics.
     pub outputs: OutputTopics,
+    /// Reliability of the rendered-frame publishers.
+    pub frame_qos: FrameQos,
     /// Also send input-error reports to `/rosout`.
     pub rosout: bool,
 }
@@ -139,6 +141,7 @@ impl RosNodeOptions {
             overflow: OverflowPolicy::DropOldest,
             error_report_period: Duration::from_secs(5),
             outputs: OutputTopics::for_virtual_cameras(cfg.outputs.virtual_cameras),
+            frame_qos: cfg.outputs.frame_qos,
             rosout: true,
         })
     }
@@ -215,6 +218,8 @@ impl ResolvedTopics {
 
 /// The running ROS 2 endpoint.
 pub struct RosNode {
+    /// Held so the DDS participant outlives the node's own endpoints (see `shutdown`).
+    context: ros2_client::Context,
     node: Node,
     topics: ResolvedTopics,
     sink: InputSink<InputEvent>,
@@ -222,6 +227,7 @@ pub struct RosNode {
     status: OutputPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
+    spinner: tokio::task::JoinHandle<()>,
     start: Instant,
     domain_id: u16,
 }
@@ -309,17 +315,17 @@ impl RosNode {
         let frames = topics
             .frames
             .iter()
-            .map(|t| advertise(&mut node, t, frame_output_qos()))
+            .map(|t| advertise(&mut node, t, frame_output_qos(opts.frame_qos)))
             .collect::<Result<Vec<_>, _>>()?;
 
         let spinner = node
             .spinner()
             .map_err(|e| RosError::Create(format!("spinner: {e:?}")))?;
-        tasks.push(tokio::spawn(async move {
+        let spinner = tokio::spawn(async move {
             if let Err(e) = spinner.spin().await {
                 tracing::error!("ROS 2 spinner stopped: {e:?}");
             }
-        }));
+        });
         tracing::info!(
             domain_id = opts.participant.domain_id,
             namespace = names.namespace(),
@@ -328,6 +334,7 @@ impl RosNode {
         );
         Ok((
             Self {
+                context,
                 node,
                 topics,
                 sink,
@@ -335,6 +342,7 @@ impl RosNode {
                 status,
                 frames,
                 tasks,
+                spinner,
                 start,
                 domain_id: opts.participant.domain_id,
             },
@@ -372,7 +380,7 @@ impl RosNode {
         self.status.publish(msg)
     }
 
-    /// Publishes a rendered frame on virtual camera `camera`'s topic (best effort).
+    /// Publishes a rendered frame on virtual camera `camera`'s topic (`outputs.frame_qos`).
     pub fn publish_frame(&self, camera: usize, msg: Image) -> Result<PublishOutcome, RosError> {
         let port = self.frames.get(camera).ok_or_else(|| RosError::Publish {
             topic: format!("render camera {camera}"),
@@ -400,12 +408,49 @@ impl RosNode {
             + self.frames.iter().map(|p| p.back_pressure()).sum::<u64>()
     }
 
-    /// Stops the spinner and the subscription tasks.
+    /// Stops the subscription tasks and the spinner, in the order that lets RustDDS remove
+    /// every reader and writer while its event loop still runs: subscriptions (awaited), then
+    /// publishers, then the node, whose `Drop` signals the spinner to stop, which is awaited.
+    ///
+    /// Calling `Node::stop_spinner` first, as this did before, logged "ERROR ros2_client::node:
+    /// Cannot notify spin task to stop: Full(..)": the stop channel holds one message, and
+    /// `Node::drop` sends a second before the spinner has taken the first. Dropping endpoints
+    /// after the participant logged "Cannot remove Reader/Writer ... Disconnected" (the node's
+    /// own rosout and parameter-event writers are dropped after its context field, so the
+    /// participant must be held here until the node is gone).
+    /// Call it outside async code, or from a multi-threaded runtime's task (it waits up to 2 s
+    /// with blocking sleeps for the runtime's other workers to finish the tasks).
     pub fn shutdown(self) {
-        self.node.stop_spinner();
-        for task in &self.tasks {
+        let Self {
+            context,
+            node,
+            sink,
+            avatar,
+            status,
+            frames,
+            tasks,
+            spinner,
+            ..
+        } = self;
+        let deadline = Instant::now() + Duration::from_secs(2);
+        let wait = |task: &tokio::task::JoinHandle<()>| {
+            while !task.is_finished() && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        };
+        for task in &tasks {
             task.abort();
         }
+        tasks.iter().for_each(wait);
+        drop((sink, avatar, status, frames));
+        drop(node);
+        wait(&spinner);
+        if !spinner.is_finished() {
+            tracing::warn!("ROS 2 spinner did not stop within 2 s");
+            spinner.abort();
+        }
+        // Last: the participant, once nothing of the node needs its event loop.
+        drop(context);
     }
 }
 
