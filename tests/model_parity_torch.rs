@@ -117,6 +117,14 @@ fn dpt_neural_renderer_matches_pytorch_patchify_and_dpt_head() {
     assert_matches_pytorch("dpt", &["rgb", "mask"]);
 }
 
+/// LHMPP-700M-PixelShuffle's `MLPPixelShuffleDPTHead` (reference.py's `PixelShuffleHead`, which
+/// `scripts/parity/check_official_pixelshuffle.py` checked against the official class itself:
+/// identical outputs).
+#[test]
+fn pixelshuffle_neural_renderer_matches_pytorch_mlp_pixelshuffle_head() {
+    assert_matches_pytorch("dpt_pixelshuffle", &["rgb", "mask"]);
+}
+
 #[test]
 fn ptv3_block_and_serialization_orders_match_pytorch_reference() {
     assert_matches_pytorch(

@@ -57,6 +57,8 @@ SIZES = {
                     height=28, width=21),
         "ptv3_block": dict(c=32, heads=2, patch=64, mlp_ratio=4.0, order_index=2, box=[10, 9, 8],
                            occupancy=0.4),
+        "dpt_pixelshuffle": dict(c=8, patch=7, embed=64, features=16, oc=[8, 16, 32, 32], batch=1,
+                                 height=28, width=21, pixel_shuffle=2),
     },
     "700m": {
         "dino_block": dict(dim=1024, heads=16, mlp_ratio=4.0, batch=1, tokens=1 + 4 + 60 * 36),
@@ -72,6 +74,8 @@ SIZES = {
                     height=140, width=84),
         "ptv3_block": dict(c=64, heads=4, patch=4096, mlp_ratio=4.0, order_index=3, box=[40, 40, 40],
                            occupancy=0.16),
+        "dpt_pixelshuffle": dict(c=128, patch=7, embed=1024, features=128, oc=[128, 256, 512, 512],
+                                 batch=1, height=140, width=84, pixel_shuffle=2),
     },
 }
 
@@ -86,6 +90,7 @@ PREFIX = {
     "ptv3_block": "transformer.point_backbone.enc.enc0.block0.",
     "gs_head": "renderer.",
     "dpt": "neural_renderer.",
+    "dpt_pixelshuffle": "neural_renderer.",
 }
 
 
@@ -176,8 +181,9 @@ def build(kind, c, gen):
         m = R.GsHead(c["q"], c["n"], c["hidden_layers"], c["clip_scaling"], c["max_step"])
         inputs = {"features": rn(c["points"], c["q"]), "anchors": rn(c["points"], 3)}
         fwd = lambda m, i: m(i["features"], i["anchors"])  # noqa: E731
-    elif kind == "dpt":
-        m = R.NeuralRenderer(c["c"], c["patch"], c["embed"], c["features"], c["oc"])
+    elif kind in ("dpt", "dpt_pixelshuffle"):
+        m = R.NeuralRenderer(c["c"], c["patch"], c["embed"], c["features"], c["oc"],
+                             c.get("pixel_shuffle"))
         inputs = {"features": rn(c["batch"], c["c"], c["height"], c["width"])}
 
         def fwd(m, i):

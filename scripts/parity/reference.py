@@ -596,15 +596,73 @@ class DptHead(nn.Module):
         return s.output_conv2(out)
 
 
+class PixelShuffleHead(nn.Module):
+    """MLPPixelShuffleDPTHead (LHMPP-700M-PixelShuffle): the DPTHead front and refinenet4..2,
+    then, instead of refinenet1 and the output convolutions,
+    out = refinenet2(..) + l1_residual_fuse(layer1_rn) -> refinenet1_ps_mlp (1x1 to 4*u*u)
+    -> pixel_shuffle(u) -> bilinear (align_corners) to (H, W). No position embedding after the
+    fusion. Logits out (the caller applies the sigmoid)."""
+
+    def __init__(self, dim_in, features, oc, u):
+        super().__init__()
+        self.u = u
+        self.norm = nn.LayerNorm(dim_in)
+        self.projects = nn.ModuleList(nn.Conv2d(dim_in, c, 1) for c in oc)
+        self.resize_layers = nn.ModuleList(
+            [
+                nn.ConvTranspose2d(oc[0], oc[0], 4, stride=4),
+                nn.ConvTranspose2d(oc[1], oc[1], 2, stride=2),
+                nn.Identity(),
+                nn.Conv2d(oc[3], oc[3], 3, stride=2, padding=1),
+            ]
+        )
+        s = nn.Module()
+        for i in range(4):
+            setattr(s, f"layer{i + 1}_rn", nn.Conv2d(oc[i], features, 3, padding=1, bias=False))
+        for i in (2, 3, 4):
+            setattr(s, f"refinenet{i}", FusionBlock(features, has_residual=i != 4))
+        self.scratch = s
+        self.l1_residual_fuse = nn.Conv2d(features, features, 1)
+        self.refinenet1_ps_mlp = nn.Conv2d(features, 4 * u * u, 1)
+
+    def forward(self, groups, hh, ww, H, W):
+        aspect = W / H
+        feats = []
+        for i, g in enumerate(groups):
+            x = self.norm(g)
+            x = x.permute(0, 2, 1).reshape(x.shape[0], x.shape[-1], hh, ww)
+            x = self.projects[i](x)
+            x = x + uv_pos_embed(x.shape[1], hh, ww, aspect, 0.1, x.device, x.dtype)
+            feats.append(self.resize_layers[i](x))
+        s = self.scratch
+        rn = [getattr(s, f"layer{i + 1}_rn")(f) for i, f in enumerate(feats)]
+        out = s.refinenet4(rn[3], size=rn[2].shape[2:])
+        out = s.refinenet3(out, rn[2], size=rn[1].shape[2:])
+        out = s.refinenet2(out, rn[1], size=rn[0].shape[2:])
+        out = out + self.l1_residual_fuse(rn[0])
+        out = self.refinenet1_ps_mlp(out)
+        # pixel shuffle written out: [B, C*u*u, h, w] -> [B, C, h*u, w*u],
+        # out[c, y*u + i, x*u + j] = in[c*u*u + i*u + j, y, x]
+        b, cu, h, w = out.shape
+        u = self.u
+        out = out.reshape(b, cu // (u * u), u, u, h, w).permute(0, 1, 4, 2, 5, 3)
+        out = out.reshape(b, cu // (u * u), h * u, w * u)
+        return F.interpolate(out, size=(H, W), mode="bilinear", align_corners=True)
+
+
 class NeuralRenderer(nn.Module):
     """PatchDPT4DecoderOnly: (hh 7)(ww 7) patches, token order (ph, pw, c), Linear without
-    bias, 4 channel groups -> DPTHead -> sigmoid -> RGB + mask."""
+    bias, 4 channel groups -> DPTHead -> sigmoid -> RGB + mask. With `pixel_shuffle` = u:
+    PatchMLPPixelShuffleDPT4DecoderOnly, the same patchify feeding PixelShuffleHead."""
 
-    def __init__(self, c, patch, embed, features, oc):
+    def __init__(self, c, patch, embed, features, oc, pixel_shuffle=None):
         super().__init__()
         self.patch = patch
         self.patchify = nn.Sequential(nn.Identity(), nn.Linear(patch * patch * c, embed, bias=False))
-        self.dense_predictor = DptHead(embed // 4, features, oc)
+        if pixel_shuffle is None:
+            self.dense_predictor = DptHead(embed // 4, features, oc)
+        else:
+            self.dense_predictor = PixelShuffleHead(embed // 4, features, oc, pixel_shuffle)
 
     def forward(self, feats):
         b, c, H, W = feats.shape

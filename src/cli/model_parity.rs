@@ -318,7 +318,7 @@ fn run_block(fx: &Fixture, dtype: DType, dev: &Device) -> anyhow::Result<Vec<(St
                 out("rotations", g.rotations),
             ]
         }
-        "dpt" => {
+        "dpt" | "dpt_pixelshuffle" => {
             let oc = fx.config["oc"]
                 .as_array()
                 .filter(|a| a.len() == 4)
@@ -336,6 +336,10 @@ fn run_block(fx: &Fixture, dtype: DType, dev: &Device) -> anyhow::Result<Vec<(St
                 embed_dim: fx.usize("embed")?,
                 features: fx.usize("features")?,
                 out_channels: [oc[0], oc[1], oc[2], oc[3]],
+                pixel_shuffle: match fx.block.as_str() {
+                    "dpt_pixelshuffle" => Some(fx.usize("pixel_shuffle")?),
+                    _ => None,
+                },
             };
             let r = NeuralRenderer::new(&cfg, vb)?;
             let (rgb, mask) = r.forward(&fx.input("features", dtype, dev)?)?;

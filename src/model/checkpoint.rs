@@ -32,9 +32,12 @@ use rand_chacha::ChaCha8Rng;
 use super::config::{ConfigError, LhmppConfig};
 
 /// Key prefixes present in official checkpoints but unused at inference; ignored on load.
-pub const IGNORED_PREFIXES: [&str; 2] = [
+/// `shape_head.*` is the betas head of the GS-supervised releases (LHMPP-700M-PixelShuffle,
+/// -SMPLX-FREE), which this network does not run: their betas come from the shape topic.
+pub const IGNORED_PREFIXES: [&str; 3] = [
     "renderer.smplx_model.",
     "neural_renderer.transformer_block.",
+    "shape_head.",
 ];
 
 /// Safetensors metadata key holding the preset name.

@@ -12,7 +12,9 @@ use super::point::PointBackboneConfig;
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     /// The preset name is not one of [`LhmppConfig::PRESETS`].
-    #[error("unknown model preset `{0}` (known: tiny, s, m, l, lhmpp-700m)")]
+    #[error(
+        "unknown model preset `{0}` (known: tiny, s, m, l, lhmpp-700m, lhmpp-700m-pixelshuffle)"
+    )]
     UnknownPreset(String),
     /// Two config fields disagree.
     #[error("invalid model config `{preset}`: {reason}")]
@@ -173,7 +175,15 @@ pub struct PitBlockSpec {
 
 impl LhmppConfig {
     /// Preset names accepted by [`LhmppConfig::preset`].
-    pub const PRESETS: [&'static str; 5] = ["tiny", "s", "m", "l", "lhmpp-700m"];
+    pub const PRESETS: [&'static str; 7] = [
+        "tiny",
+        "s",
+        "m",
+        "l",
+        "lhmpp-700m",
+        "lhmpp-700m-pixelshuffle",
+        "lhmpp-700m-smplx-free",
+    ];
 
     /// Looks a preset up by name.
     pub fn preset(name: &str) -> Result<Self, ConfigError> {
@@ -183,6 +193,10 @@ impl LhmppConfig {
             "m" => Ok(Self::m()),
             "l" => Ok(Self::l()),
             "lhmpp-700m" | "lhmpp_700m" | "700m" => Ok(Self::lhmpp_700m()),
+            "lhmpp-700m-pixelshuffle" | "lhmpp_700m_pixelshuffle" => {
+                Ok(Self::lhmpp_700m_pixelshuffle())
+            }
+            "lhmpp-700m-smplx-free" | "lhmpp_700m_smplx_free" => Ok(Self::lhmpp_700m_smplx_free()),
             other => Err(ConfigError::UnknownPreset(other.to_string())),
         }
     }
@@ -228,6 +242,31 @@ impl LhmppConfig {
                 background_dim: Some(GsHeadConfig::OFFICIAL_BACKGROUND_DIM),
             },
             neural_renderer: DptConfig::lhmpp_700m(),
+        }
+    }
+
+    /// The released GS-supervised LHMPP-700M-PixelShuffle (`configs/train/LHMPP-pixelshuffle.yaml`):
+    /// the LHMPP-700M network with ToMe off (merge_ratio 0.0) and the `mlp_pixelshuffle`
+    /// neural renderer (pixel_shuffle_factor 2). Its `shape_head.*` (SMPL-X betas from the
+    /// image tokens) is not part of this network: betas come from the shape topic.
+    pub fn lhmpp_700m_pixelshuffle() -> Self {
+        let mut cfg = Self {
+            preset: "lhmpp-700m-pixelshuffle".into(),
+            neural_renderer: DptConfig::lhmpp_700m_pixelshuffle(),
+            ..Self::lhmpp_700m()
+        };
+        cfg.transformer.merge_ratio = 0.0;
+        cfg
+    }
+
+    /// The released GS-supervised LHMPP-700M-SMPLX-FREE (`configs/train/LHMPP-anyview-SMPLX-FREE.yaml`,
+    /// fork KuroTaiga/LHM_pp): the LHMPP-700M network exactly (merge_ratio 0.5, the
+    /// `patch_4dptonly` DPT head), trained with its Gaussian RGB supervised and a `shape_head`
+    /// predicting the betas, which this network does not run (betas come from the shape topic).
+    pub fn lhmpp_700m_smplx_free() -> Self {
+        Self {
+            preset: "lhmpp-700m-smplx-free".into(),
+            ..Self::lhmpp_700m()
         }
     }
 
@@ -537,8 +576,18 @@ pub fn dpt_params(d: &DptConfig) -> usize {
     n += oc.iter().map(|&o| conv(dim_in, o, 1)).sum::<usize>();
     n += conv(oc[0], oc[0], 4) + conv(oc[1], oc[1], 2) + conv(oc[3], oc[3], 3);
     n += oc.iter().map(|&o| o * f * 9).sum::<usize>();
-    n += 3 * (conv(f, f, 1) + 4 * conv(f, f, 3)) + conv(f, f, 1) + 2 * conv(f, f, 3);
-    n += conv(f, f / 2, 3) + conv(f / 2, 32, 3) + conv(32, 4, 1);
+    // refinenet4 (one residual unit), refinenet3 and refinenet2
+    n += 2 * (conv(f, f, 1) + 4 * conv(f, f, 3)) + conv(f, f, 1) + 2 * conv(f, f, 3);
+    n += match d.pixel_shuffle {
+        None => {
+            conv(f, f, 1)
+                + 4 * conv(f, f, 3)
+                + conv(f, f / 2, 3)
+                + conv(f / 2, 32, 3)
+                + conv(32, 4, 1)
+        }
+        Some(u) => conv(f, f, 1) + conv(f, 4 * u * u, 1),
+    };
     n
 }
 
@@ -564,6 +613,22 @@ mod tests {
         assert_eq!(p.motion_embed, 525_568);
         assert_eq!(p.gs_head, 396_558);
         assert_eq!(p.neural_renderer, 13_516_004);
+    }
+
+    #[test]
+    fn pixelshuffle_renderer_counts_its_own_tail() {
+        // 700M DPT head minus refinenet1 (128·128 + 4·(9·128·128 + 128) + 128) and the output
+        // convolutions, plus l1_residual_fuse (128·128 + 128) and refinenet1_ps_mlp (16·128 + 16).
+        let dpt = LhmppConfig::lhmpp_700m().parameter_count().neural_renderer;
+        let ps = LhmppConfig::lhmpp_700m_pixelshuffle()
+            .parameter_count()
+            .neural_renderer;
+        let refine1 = 128 * 128 + 128 + 4 * (9 * 128 * 128 + 128);
+        let outputs = (9 * 128 * 64 + 64) + (9 * 64 * 32 + 32) + (32 * 4 + 4);
+        assert_eq!(
+            ps,
+            dpt - refine1 - outputs + (128 * 128 + 128) + (128 * 16 + 16)
+        );
     }
 
     #[test]

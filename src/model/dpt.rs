@@ -9,6 +9,13 @@
 //! to (H, W), position embedding, `output_conv2`, sigmoid. The unused
 //! `neural_renderer.transformer_block.*` weights of the checkpoint are not loaded.
 //!
+//! The GS-supervised LHMPP-700M-PixelShuffle (`neural_renderer.type: mlp_pixelshuffle`,
+//! `PatchMLPPixelShuffleDPT4DecoderOnly` with `MLPPixelShuffleDPTHead`) keeps the same front and
+//! `refinenet4..2`, then replaces `refinenet1` and the output convolutions with
+//! `refinenet2(..) + l1_residual_fuse(layer1_rn)` (1×1), `refinenet1_ps_mlp` (1×1 to 4·u²),
+//! `pixel_shuffle(u)` (u = `pixel_shuffle_factor`, 2), bilinear (`align_corners=True`) to (H, W)
+//! and sigmoid: no position embedding after the fusion ([`DptConfig::pixel_shuffle`]).
+//!
 //! With f32 weights and input on the CPU the head runs channels-last on the packed kernels of
 //! [`super::ops`] (the token rows already are NHWC): 3×3 convolutions by Winograd F(4×4, 3×3)
 //! or im2col + gemm with the bias, ReLUs and residual adds in their epilogues, the stride-sized
@@ -45,6 +52,11 @@ pub struct DptConfig {
     pub features: usize,
     /// Projection widths of the four DPT inputs ([128, 256, 512, 512]).
     pub out_channels: [usize; 4],
+    /// `Some(u)`: the `MLPPixelShuffleDPTHead` of `neural_renderer.type: mlp_pixelshuffle`
+    /// (`pixel_shuffle_factor` u, 2 in the release) instead of the DPT head's last fusion block
+    /// and output convolutions; `None`: the DPT head (`patch_4dptonly`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_shuffle: Option<usize>,
 }
 
 impl DptConfig {
@@ -56,6 +68,16 @@ impl DptConfig {
             embed_dim: 1024,
             features: 128,
             out_channels: [128, 256, 512, 512],
+            pixel_shuffle: None,
+        }
+    }
+
+    /// The neural renderer of the released LHMPP-700M-PixelShuffle (`mlp_pixelshuffle`,
+    /// `pixel_shuffle_factor: 2`).
+    pub fn lhmpp_700m_pixelshuffle() -> Self {
+        Self {
+            pixel_shuffle: Some(2),
+            ..Self::lhmpp_700m()
         }
     }
 
@@ -67,6 +89,7 @@ impl DptConfig {
             embed_dim: 64,
             features: 16,
             out_channels: [16, 32, 64, 64],
+            pixel_shuffle: None,
         }
     }
 
@@ -291,17 +314,78 @@ impl Resize {
     }
 }
 
-/// The VGGT-style `DPTHead` (`neural_renderer.dense_predictor`), output_dim 4.
+/// What follows the shared `refinenet4 → refinenet3 → refinenet2` trunk of the head.
+#[derive(Debug, Clone)]
+enum HeadTail {
+    /// `DPTHead`: `refinenet1` (×2 upsample), `output_conv1`, bilinear to (H, W), position
+    /// embedding, `output_conv2` (3×3, ReLU, 1×1 to 4).
+    Dpt {
+        refine1: Box<FusionBlock>,
+        output_conv1: Conv2d,
+        output_conv2a: Conv2d,
+        output_conv2b: Conv2d,
+    },
+    /// `MLPPixelShuffleDPTHead`: `+ l1_residual_fuse(layer1_rn)` (1×1), `refinenet1_ps_mlp`
+    /// (1×1 to 4·u²), `pixel_shuffle(u)`, bilinear to (H, W); no position embedding.
+    PixelShuffle {
+        l1_residual_fuse: Conv2d,
+        ps_mlp: Conv2d,
+        factor: usize,
+    },
+}
+
+/// `F.pixel_shuffle(x, u)`: `[B, C·u², H, W]` → `[B, C, H·u, W·u]`, with
+/// `out[c, y·u + i, x·u + j] = in[c·u² + i·u + j, y, x]`.
+pub fn pixel_shuffle(x: &Tensor, u: usize) -> Result<Tensor> {
+    let (b, cu, h, w) = x.dims4()?;
+    if u == 0 || cu % (u * u) != 0 {
+        candle_core::bail!("pixel_shuffle: {cu} channels are not a multiple of {u}²");
+    }
+    let c = cu / (u * u);
+    x.reshape((b, c, u, u, h, w))?
+        .permute((0, 1, 4, 2, 5, 3))?
+        .reshape((b, c, h * u, w * u))
+}
+
+/// [`pixel_shuffle`] on a channels-last map.
+fn pixel_shuffle_nhwc(x: &FeatureMap, u: usize) -> Result<FeatureMap> {
+    if u == 0 || x.channels % (u * u) != 0 {
+        candle_core::bail!(
+            "pixel_shuffle: {} channels are not a multiple of {u}²",
+            x.channels
+        );
+    }
+    let c = x.channels / (u * u);
+    let (h, w) = (x.height * u, x.width * u);
+    let mut out = FeatureMap::zeros(x.batch, h, w, c);
+    out.data
+        .par_chunks_mut(w * c)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            let (bi, oy) = (row / h, row % h);
+            let (y, i) = (oy / u, oy % u);
+            for ox in 0..w {
+                let (xx, j) = (ox / u, ox % u);
+                let src = &x.data[((bi * x.height + y) * x.width + xx) * x.channels..];
+                for (ci, v) in dst[ox * c..(ox + 1) * c].iter_mut().enumerate() {
+                    *v = src[ci * u * u + i * u + j];
+                }
+            }
+        });
+    Ok(out)
+}
+
+/// The VGGT-style `DPTHead` (`neural_renderer.dense_predictor`), output_dim 4, or its
+/// `MLPPixelShuffleDPTHead` variant (same front and first three fusion blocks).
 #[derive(Debug, Clone)]
 struct DptHead {
     norm: LayerNorm,
     projects: Vec<Conv2d>,
     resize: Vec<Resize>,
     layer_rn: Vec<Conv2d>,
-    refine: Vec<FusionBlock>,
-    output_conv1: Conv2d,
-    output_conv2a: Conv2d,
-    output_conv2b: Conv2d,
+    /// `refinenet4`, `refinenet3`, `refinenet2`, in the order they run.
+    trunk: Vec<FusionBlock>,
+    tail: HeadTail,
 }
 
 impl DptHead {
@@ -345,19 +429,33 @@ impl DptHead {
         let layer_rn = (0..4)
             .map(|i| conv2d_no_bias(oc[i], f, 3, pad1, scratch.pp(format!("layer{}_rn", i + 1))))
             .collect::<Result<Vec<_>>>()?;
-        let refine = (0..4)
-            .map(|i| FusionBlock::new(f, i != 3, scratch.pp(format!("refinenet{}", i + 1))))
+        let trunk = [4usize, 3, 2]
+            .into_iter()
+            .map(|i| FusionBlock::new(f, i != 4, scratch.pp(format!("refinenet{i}"))))
             .collect::<Result<Vec<_>>>()?;
-        let oc2 = scratch.pp("output_conv2");
+        let tail = match cfg.pixel_shuffle {
+            None => {
+                let oc2 = scratch.pp("output_conv2");
+                HeadTail::Dpt {
+                    refine1: Box::new(FusionBlock::new(f, true, scratch.pp("refinenet1"))?),
+                    output_conv1: conv3x3(f, f / 2, scratch.pp("output_conv1"))?,
+                    output_conv2a: conv3x3(f / 2, 32, oc2.pp("0"))?,
+                    output_conv2b: conv1x1(32, 4, oc2.pp("2"))?,
+                }
+            }
+            Some(u) => HeadTail::PixelShuffle {
+                l1_residual_fuse: conv1x1(f, f, vb.pp("l1_residual_fuse"))?,
+                ps_mlp: conv1x1(f, 4 * u * u, vb.pp("refinenet1_ps_mlp"))?,
+                factor: u,
+            },
+        };
         Ok(Self {
             norm: layer_norm(dim_in, 1e-5, vb.pp("norm"))?,
             projects,
             resize,
             layer_rn,
-            refine,
-            output_conv1: conv3x3(f, f / 2, scratch.pp("output_conv1"))?,
-            output_conv2a: conv3x3(f / 2, 32, oc2.pp("0"))?,
-            output_conv2b: conv1x1(32, 4, oc2.pp("2"))?,
+            trunk,
+            tail,
         })
     }
 
@@ -394,21 +492,40 @@ impl DptHead {
             let (_, _, h, w) = t.dims4()?;
             Ok((h, w))
         };
-        let out = self.refine[3].forward(&rn[3], None, Some(size(&rn[2])?), clock)?;
-        let out = self.refine[2].forward(&out, Some(&rn[2]), Some(size(&rn[1])?), clock)?;
-        let out = self.refine[1].forward(&out, Some(&rn[1]), Some(size(&rn[0])?), clock)?;
-        let out = self.refine[0].forward(&out, Some(&rn[0]), None, clock)?;
-        let out = self.output_conv1.forward(&out)?;
-        clock.lap("output_conv1");
-        let out = out.upsample_bilinear2d(h_img, w_img, true)?;
-        let pe = uv_position_embedding(out.dim(1)?, h_img, w_img, aspect, 0.1, device)?;
-        let out = out.broadcast_add(&pe.to_dtype(out.dtype())?)?;
-        clock.lap("full-size upsample + position");
-        let out = self
-            .output_conv2b
-            .forward(&self.output_conv2a.forward(&out)?.relu()?)?;
-        clock.lap("output_conv2");
-        Ok(out)
+        let out = self.trunk[0].forward(&rn[3], None, Some(size(&rn[2])?), clock)?;
+        let out = self.trunk[1].forward(&out, Some(&rn[2]), Some(size(&rn[1])?), clock)?;
+        let out = self.trunk[2].forward(&out, Some(&rn[1]), Some(size(&rn[0])?), clock)?;
+        match &self.tail {
+            HeadTail::Dpt {
+                refine1,
+                output_conv1,
+                output_conv2a,
+                output_conv2b,
+            } => {
+                let out = refine1.forward(&out, Some(&rn[0]), None, clock)?;
+                let out = output_conv1.forward(&out)?;
+                clock.lap("output_conv1");
+                let out = out.upsample_bilinear2d(h_img, w_img, true)?;
+                let pe = uv_position_embedding(out.dim(1)?, h_img, w_img, aspect, 0.1, device)?;
+                let out = out.broadcast_add(&pe.to_dtype(out.dtype())?)?;
+                clock.lap("full-size upsample + position");
+                let out = output_conv2b.forward(&output_conv2a.forward(&out)?.relu()?)?;
+                clock.lap("output_conv2");
+                Ok(out)
+            }
+            HeadTail::PixelShuffle {
+                l1_residual_fuse,
+                ps_mlp,
+                factor,
+            } => {
+                let out = (out + l1_residual_fuse.forward(&rn[0])?)?;
+                let out = pixel_shuffle(&ps_mlp.forward(&out)?, *factor)?;
+                clock.lap("pixel-shuffle tail");
+                let out = out.upsample_bilinear2d(h_img, w_img, true)?;
+                clock.lap("full-size upsample");
+                Ok(out)
+            }
+        }
     }
 }
 
@@ -508,6 +625,22 @@ enum CpuResize {
     Down(PackedConv2d),
 }
 
+/// [`HeadTail`] packed for the CPU kernels.
+#[derive(Debug, Clone)]
+enum CpuTail {
+    Dpt {
+        refine1: Box<CpuFusion>,
+        output_conv1: PackedConv2d,
+        output_conv2a: PackedConv2d,
+        output_conv2b: PackedConv2d,
+    },
+    PixelShuffle {
+        l1_residual_fuse: PackedConv2d,
+        ps_mlp: PackedConv2d,
+        factor: usize,
+    },
+}
+
 /// The DPT head packed once for the channels-last f32 CPU kernels (used when the head's
 /// input is f32 on the CPU).
 #[derive(Debug, Clone)]
@@ -515,10 +648,8 @@ struct CpuHead {
     projects: Vec<PackedConv2d>,
     resize: Vec<CpuResize>,
     layer_rn: Vec<PackedConv2d>,
-    refine: Vec<CpuFusion>,
-    output_conv1: PackedConv2d,
-    output_conv2a: PackedConv2d,
-    output_conv2b: PackedConv2d,
+    trunk: Vec<CpuFusion>,
+    tail: CpuTail,
 }
 
 impl CpuHead {
@@ -540,14 +671,33 @@ impl CpuHead {
                 })
                 .collect::<Result<Vec<_>>>()?,
             layer_rn: packed(&head.layer_rn)?,
-            refine: head
-                .refine
+            trunk: head
+                .trunk
                 .iter()
                 .map(CpuFusion::new)
                 .collect::<Result<Vec<_>>>()?,
-            output_conv1: PackedConv2d::from_candle(&head.output_conv1)?,
-            output_conv2a: PackedConv2d::from_candle(&head.output_conv2a)?,
-            output_conv2b: PackedConv2d::from_candle(&head.output_conv2b)?,
+            tail: match &head.tail {
+                HeadTail::Dpt {
+                    refine1,
+                    output_conv1,
+                    output_conv2a,
+                    output_conv2b,
+                } => CpuTail::Dpt {
+                    refine1: Box::new(CpuFusion::new(refine1)?),
+                    output_conv1: PackedConv2d::from_candle(output_conv1)?,
+                    output_conv2a: PackedConv2d::from_candle(output_conv2a)?,
+                    output_conv2b: PackedConv2d::from_candle(output_conv2b)?,
+                },
+                HeadTail::PixelShuffle {
+                    l1_residual_fuse,
+                    ps_mlp,
+                    factor,
+                } => CpuTail::PixelShuffle {
+                    l1_residual_fuse: PackedConv2d::from_candle(l1_residual_fuse)?,
+                    ps_mlp: PackedConv2d::from_candle(ps_mlp)?,
+                    factor: *factor,
+                },
+            },
         })
     }
 
@@ -588,25 +738,53 @@ impl CpuHead {
                 .take()
                 .ok_or_else(|| candle_core::Error::Msg(format!("dpt: layer {i} used twice")))
         };
-        let out = self.refine[3].forward(take(3)?, None, s2, clock)?;
-        let out = self.refine[2].forward(out, Some(take(2)?), s1, clock)?;
-        let out = self.refine[1].forward(out, Some(take(1)?), s0, clock)?;
-        let out = self.refine[0].forward(out, Some(take(0)?), None, clock)?;
-        let out = self.output_conv1.forward(&out, none)?;
-        clock.lap("output_conv1");
-        let mut out = upsample_bilinear(&out, h_img, w_img)?;
-        let (columns, rows) = uv_embedding_tables(out.channels, h_img, w_img, aspect, 0.1);
-        out.add_separable(&columns, &rows)?;
-        clock.lap("full-size upsample + position");
-        let hidden = self.output_conv2a.forward(
-            &out,
-            Epilogue {
-                residual: None,
-                relu: true,
-            },
-        )?;
-        let mut out = self.output_conv2b.forward(&hidden, none)?;
-        clock.lap("output_conv2");
+        let out = self.trunk[0].forward(take(3)?, None, s2, clock)?;
+        let out = self.trunk[1].forward(out, Some(take(2)?), s1, clock)?;
+        let out = self.trunk[2].forward(out, Some(take(1)?), s0, clock)?;
+        let mut out = match &self.tail {
+            CpuTail::Dpt {
+                refine1,
+                output_conv1,
+                output_conv2a,
+                output_conv2b,
+            } => {
+                let out = refine1.forward(out, Some(take(0)?), None, clock)?;
+                let out = output_conv1.forward(&out, none)?;
+                clock.lap("output_conv1");
+                let mut out = upsample_bilinear(&out, h_img, w_img)?;
+                let (columns, rows) = uv_embedding_tables(out.channels, h_img, w_img, aspect, 0.1);
+                out.add_separable(&columns, &rows)?;
+                clock.lap("full-size upsample + position");
+                let hidden = output_conv2a.forward(
+                    &out,
+                    Epilogue {
+                        residual: None,
+                        relu: true,
+                    },
+                )?;
+                let out = output_conv2b.forward(&hidden, none)?;
+                clock.lap("output_conv2");
+                out
+            }
+            CpuTail::PixelShuffle {
+                l1_residual_fuse,
+                ps_mlp,
+                factor,
+            } => {
+                let fused = l1_residual_fuse.forward(
+                    &take(0)?,
+                    Epilogue {
+                        residual: Some(&out),
+                        relu: false,
+                    },
+                )?;
+                let out = pixel_shuffle_nhwc(&ps_mlp.forward(&fused, none)?, *factor)?;
+                clock.lap("pixel-shuffle tail");
+                let out = upsample_bilinear(&out, h_img, w_img)?;
+                clock.lap("full-size upsample");
+                out
+            }
+        };
         out.sigmoid_in_place();
         let out = out.to_nchw(groups[0].device())?;
         let rgb_mask = (out.narrow(1, 0, 3)?, out.narrow(1, 3, 1)?);
@@ -689,7 +867,7 @@ impl NeuralRenderer {
     pub fn new(cfg: &DptConfig, vb: VarBuilder) -> Result<Self> {
         let p = cfg.patch_size;
         let head = DptHead::new(cfg, vb.pp("dense_predictor"))?;
-        let w = head.output_conv1.weight();
+        let w = head.layer_rn[0].weight();
         let cpu_head = if w.device().is_cpu() && w.dtype() == DType::F32 {
             Some(CpuHead::new(&head)?)
         } else {
@@ -907,6 +1085,51 @@ mod tests {
             assert!(d < 1e-4, "channels-last input {dims:?}: {d}");
             let names: Vec<_> = times.stages.iter().map(|(n, _)| *n).collect();
             assert!(names.contains(&"layer_rn") && names.contains(&"fusion residual units"));
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn pixel_shuffle_moves_channel_blocks_to_pixel_blocks() -> Result<()> {
+        // [1, 2·2², 2, 3]: value = channel·100 + y·10 + x
+        let (c, u, h, w) = (2usize, 2usize, 2usize, 3usize);
+        let data: Vec<f32> = (0..c * u * u * h * w)
+            .map(|i| {
+                let (ch, y, x) = (i / (h * w), (i / w) % h, i % w);
+                (ch * 100 + y * 10 + x) as f32
+            })
+            .collect();
+        let t = Tensor::from_vec(data.clone(), (1, c * u * u, h, w), &Device::Cpu)?;
+        let out = pixel_shuffle(&t, u)?;
+        assert_eq!(out.dims(), &[1, c, h * u, w * u]);
+        // out[c=1, y=1·2+1, x=2·2+0] = in[1·4 + 1·2 + 0, 1, 2]
+        let v = out.get(0)?.get(1)?.get(3)?.get(4)?.to_scalar::<f32>()?;
+        assert_eq!(v, (6 * 100 + 10 + 2) as f32);
+        // the channels-last version agrees everywhere
+        let nhwc = FeatureMap::from_nchw(&t)?;
+        let back = pixel_shuffle_nhwc(&nhwc, u)?.to_nchw(&Device::Cpu)?;
+        assert_eq!(max_abs_diff(&back, &out), 0.0);
+        Ok(())
+    }
+
+    #[test]
+    fn pixel_shuffle_head_cpu_kernels_match_the_candle_op_path() -> Result<()> {
+        let cfg = DptConfig {
+            pixel_shuffle: Some(2),
+            ..DptConfig::tiny()
+        };
+        let vb = crate::model::checkpoint::seeded_var_builder(4, DType::F32, &Device::Cpu);
+        let fast = NeuralRenderer::new(&cfg, vb.pp("neural_renderer"))?;
+        assert!(fast.cpu_head.is_some());
+        let slow = fast.clone().with_candle_ops();
+        for dims in [(1, 32, 35, 21), (2, 32, 14, 28)] {
+            let feats = Tensor::randn(0f32, 1.0, dims, &Device::Cpu)?;
+            let (rgb, mask) = fast.forward(&feats)?;
+            let (rgb_ref, mask_ref) = slow.forward(&feats)?;
+            assert_eq!(rgb.dims(), &[dims.0, 3, dims.2, dims.3]);
+            assert_eq!(mask.dims(), &[dims.0, 1, dims.2, dims.3]);
+            let d = max_abs_diff(&rgb, &rgb_ref).max(max_abs_diff(&mask, &mask_ref));
+            assert!(d < 1e-4, "{dims:?}: {d}");
         }
         Ok(())
     }

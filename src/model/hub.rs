@@ -22,6 +22,7 @@ use super::checkpoint::{
 };
 use super::config::{GsHeadConfig, LhmppConfig};
 use super::point::SerializationOrder;
+use super::rgb_kind::RgbKind;
 
 /// Config file of a hub folder.
 pub const CONFIG_FILE: &str = "config.json";
@@ -188,7 +189,18 @@ pub struct OfficialNeuralRenderer {
     /// Unused SD3 blocks built by the official class (their weights are ignored).
     #[serde(default)]
     pub depth: usize,
+    /// Pixel-shuffle factor of `mlp_pixelshuffle` (`PatchMLPPixelShuffleDPT4DecoderOnly`,
+    /// default 2).
+    #[serde(default)]
+    pub pixel_shuffle_factor: Option<usize>,
 }
+
+/// `neural_renderer.type` of the DPT head (LHMPP-700M, LHMPPS-700M, LHMPP-700M-SMPLX-FREE).
+pub const DPT_RENDERER_TYPE: &str = "patch_4dptonly";
+/// `neural_renderer.type` of the pixel-shuffle head (LHMPP-700M-PixelShuffle).
+pub const PIXEL_SHUFFLE_RENDERER_TYPE: &str = "mlp_pixelshuffle";
+/// `PatchMLPPixelShuffleDPT4DecoderOnly`'s default `pixel_shuffle_factor`.
+pub const DEFAULT_PIXEL_SHUFFLE_FACTOR: usize = 2;
 
 /// `gs_clip_scaling`: a constant, or the `[start, mid, end, steps]` schedule whose final
 /// value (index 2) is used at inference.
@@ -259,6 +271,25 @@ pub struct OfficialModelConfig {
     /// SMPL-X shape components (10).
     #[serde(default)]
     pub shape_param_dim: Option<usize>,
+    /// Betas predicted by `shape_head` (10 in LHMPP-700M-PixelShuffle / -SMPLX-FREE).
+    #[serde(default)]
+    pub predict_shape_dim: Option<usize>,
+    /// Whether the predicted betas shape the rendered body.
+    #[serde(default)]
+    pub use_pred_shape_for_render: Option<bool>,
+    /// The `ShapeHead` settings (`dim_in`, `trunk_depth`, `num_iterations`, `num_heads`,
+    /// `mlp_ratio`, `init_values`); present in the GS-supervised releases.
+    #[serde(default)]
+    pub shape_head: Option<serde_json::Value>,
+}
+
+impl OfficialModelConfig {
+    /// Whether the checkpoint carries a `shape_head` (betas predicted from the image tokens).
+    pub fn has_shape_head(&self) -> bool {
+        self.shape_head
+            .as_ref()
+            .is_some_and(|v| v.as_object().is_some_and(|o| !o.is_empty()))
+    }
 }
 
 /// An opened hub folder: parsed config, derived network config and the weight files.
@@ -335,6 +366,20 @@ pub struct LoadedCheckpoint {
     pub description: String,
     /// The official `neural_renderer.type` of a hub folder (`None` for a single file).
     pub neural_renderer_type: Option<String>,
+    /// Whether the hub folder's network carries the betas `shape_head` of the GS-supervised
+    /// releases (LHMPP-700M-PixelShuffle, -SMPLX-FREE); false for a single file.
+    pub shape_head: bool,
+}
+
+impl LoadedCheckpoint {
+    /// What the Gaussians' RGB of this checkpoint is: by `neural_renderer.type` and `shape_head`
+    /// for a hub folder ([`RgbKind::of_hub`]), by preset for a single file.
+    pub fn rgb_kind(&self) -> RgbKind {
+        match &self.neural_renderer_type {
+            Some(kind) => RgbKind::of_hub(kind, self.shape_head),
+            None => RgbKind::of_preset(&self.config.preset),
+        }
+    }
 }
 
 /// Loads `path` the way the node does: a hub folder (config from its `config.json`) or a
@@ -350,6 +395,14 @@ pub fn load_checkpoint(
     }
     if path.is_dir() {
         let hub = HubFolder::open(path)?;
+        if hub.official.has_shape_head() {
+            tracing::warn!(
+                "{}: the checkpoint's shape_head (SMPL-X betas predicted from the image tokens) \
+                 is not run by this network; its weights are ignored and the betas come from \
+                 inputs.shape_topic",
+                path.join(CONFIG_FILE).display()
+            );
+        }
         for d in &hub.differences {
             tracing::warn!(
                 "{}: differs from the lhmpp-700m preset: {d}",
@@ -372,6 +425,7 @@ pub fn load_checkpoint(
                 hub.weights.len()
             ),
             neural_renderer_type: Some(hub.official.neural_renderer.kind.clone()),
+            shape_head: hub.official.has_shape_head(),
             config: hub.config,
             var_builder,
         });
@@ -382,6 +436,7 @@ pub fn load_checkpoint(
         var_builder,
         description: path.display().to_string(),
         neural_renderer_type: None,
+        shape_head: false,
     })
 }
 
@@ -708,11 +763,23 @@ pub fn derive_config(
     }
     let nr = &o.neural_renderer;
     require(
-        nr.kind == "patch_4dptonly",
+        nr.kind == DPT_RENDERER_TYPE || nr.kind == PIXEL_SHUFFLE_RENDERER_TYPE,
         "neural_renderer.type",
         &nr.kind,
-        "patch_4dptonly",
+        "patch_4dptonly, mlp_pixelshuffle",
     );
+    if nr.kind == PIXEL_SHUFFLE_RENDERER_TYPE {
+        let u = nr
+            .pixel_shuffle_factor
+            .unwrap_or(DEFAULT_PIXEL_SHUFFLE_FACTOR);
+        require(u >= 1, "neural_renderer.pixel_shuffle_factor", &u, ">= 1");
+        set(
+            &mut d,
+            "neural_renderer.type mlp_pixelshuffle, pixel_shuffle_factor",
+            &mut cfg.neural_renderer.pixel_shuffle,
+            Some(u),
+        );
+    }
     set(
         &mut d,
         "neural_renderer.enc_channels",
@@ -745,7 +812,18 @@ pub fn derive_config(
             fields: unsupported,
         });
     }
-    if !d.is_empty() {
+    let pixelshuffle = LhmppConfig::lhmpp_700m_pixelshuffle();
+    let same_network = LhmppConfig {
+        preset: cfg.preset.clone(),
+        ..pixelshuffle.clone()
+    };
+    if cfg == same_network {
+        // The released LHMPP-700M-PixelShuffle network, exactly.
+        cfg.preset = pixelshuffle.preset;
+    } else if d.is_empty() && o.has_shape_head() {
+        // The LHMPP-700M network with the betas head: the GS-supervised LHMPP-700M-SMPLX-FREE.
+        cfg.preset = LhmppConfig::lhmpp_700m_smplx_free().preset;
+    } else if !d.is_empty() {
         let folder = dir
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())

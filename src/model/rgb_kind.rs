@@ -5,8 +5,11 @@
 //! Gaussians' RGB against images (aigc3d/LHM-plusplus#2: exported colours look "negative");
 //! the official app splats the 128 latent feature channels and decodes them with the DPT head
 //! (`neural_renderer.type: patch_4dptonly`, reference §1.3 (i)). The newer GS-supervised
-//! releases (`mlp_pixelshuffle` renderer) and this project's own presets, whose embedded
-//! default is trained on its Gaussian RGB, have display-ready colours.
+//! releases and this project's own presets, whose embedded default is trained on its Gaussian
+//! RGB, have display-ready colours. The GS-supervised releases are LHMPP-700M-PixelShuffle
+//! (`mlp_pixelshuffle` renderer) and LHMPP-700M-SMPLX-FREE (`patch_4dptonly` renderer like
+//! LHMPP-700M, but trained with the betas `shape_head`): upstream's
+//! `GS_RENDER_SUPPORTED_MODEL_NAMES` in `core/utils/model_card.py` lists exactly these two.
 
 /// The official `neural_renderer.type` of the checkpoints whose RGB is latent.
 pub const LATENT_RGB_RENDERER_TYPE: &str = "patch_4dptonly";
@@ -30,6 +33,7 @@ impl RgbKind {
     /// the embedded default): `lhmpp-700m` has the layout of the released, RGB-unsupervised
     /// checkpoint; our own presets are trained (or meant to be trained) on their RGB.
     pub fn of_preset(preset: &str) -> Self {
+        // `lhmpp-700m-pixelshuffle` and `lhmpp-700m-smplx-free` are GS-supervised.
         match preset {
             "lhmpp-700m" | "lhmpp_700m" | "700m" => Self::Latent,
             _ => Self::DisplayReady,
@@ -40,7 +44,15 @@ impl RgbKind {
     /// `patch_4dptonly` (LHMPP-700M, LHMPPS-700M) is latent, the GS-supervised variants'
     /// renderers (e.g. `mlp_pixelshuffle`) are display-ready.
     pub fn of_official_renderer(kind: &str) -> Self {
-        if kind == LATENT_RGB_RENDERER_TYPE {
+        Self::of_hub(kind, false)
+    }
+
+    /// The RGB of a hub-folder checkpoint with this `neural_renderer.type` that does
+    /// (`shape_head`: true) or does not carry the betas `shape_head` of the GS-supervised
+    /// releases: `patch_4dptonly` without it (LHMPP-700M, LHMPPS-700M) is latent; with it
+    /// (LHMPP-700M-SMPLX-FREE), and every other renderer (`mlp_pixelshuffle`), display-ready.
+    pub fn of_hub(kind: &str, shape_head: bool) -> Self {
+        if kind == LATENT_RGB_RENDERER_TYPE && !shape_head {
             Self::Latent
         } else {
             Self::DisplayReady
@@ -55,7 +67,14 @@ mod tests {
     #[test]
     fn released_layout_is_latent_and_ours_display_ready() {
         assert_eq!(RgbKind::of_preset("lhmpp-700m"), RgbKind::Latent);
-        for p in ["tiny", "s", "m", "l"] {
+        for p in [
+            "tiny",
+            "s",
+            "m",
+            "l",
+            "lhmpp-700m-pixelshuffle",
+            "lhmpp-700m-smplx-free",
+        ] {
             assert_eq!(RgbKind::of_preset(p), RgbKind::DisplayReady, "{p}");
         }
         assert_eq!(
@@ -67,5 +86,18 @@ mod tests {
             RgbKind::DisplayReady
         );
         assert!(!RgbKind::Latent.display_ready());
+        assert_eq!(
+            RgbKind::of_preset("lhmpp-700m-smplx-free"),
+            RgbKind::DisplayReady
+        );
+        assert_eq!(
+            RgbKind::of_hub("patch_4dptonly", true),
+            RgbKind::DisplayReady
+        );
+        assert_eq!(
+            RgbKind::of_hub("mlp_pixelshuffle", true),
+            RgbKind::DisplayReady
+        );
+        assert_eq!(RgbKind::of_hub("patch_4dptonly", false), RgbKind::Latent);
     }
 }

@@ -122,6 +122,7 @@ impl Reconstructor {
             ))
         })?;
         let mut renderer_type: Option<String> = None;
+        let mut shape_head = false;
         let (vb, weights) = match source {
             WeightsSource::Embedded if cfg.preset == DEFAULT_PRESET => {
                 let (default_cfg, vb) = default_var_builder(dtype, &device)
@@ -154,19 +155,25 @@ impl Reconstructor {
                     .map_err(|e| ReconstructError::Model(e.to_string()))?;
                 cfg = loaded.config;
                 renderer_type = loaded.neural_renderer_type;
+                shape_head = loaded.shape_head;
                 (loaded.var_builder, loaded.description)
             }
         };
         let (rgb_kind, checkpoint_kind) = match &renderer_type {
             Some(kind) => (
-                RgbKind::of_official_renderer(kind),
-                if kind == LATENT_RGB_RENDERER_TYPE {
-                    format!(
+                RgbKind::of_hub(kind, shape_head),
+                match RgbKind::of_hub(kind, shape_head) {
+                    RgbKind::Latent => format!(
                         "hub folder with neural_renderer.type `{kind}` (LHMPP-700M / \
                          LHMPPS-700M, Gaussian RGB never supervised against images)"
-                    )
-                } else {
-                    format!("hub folder with neural_renderer.type `{kind}`")
+                    ),
+                    RgbKind::DisplayReady if shape_head => format!(
+                        "hub folder with neural_renderer.type `{kind}` and a shape_head \
+                         (GS-supervised LHMPP-700M-PixelShuffle / -SMPLX-FREE)"
+                    ),
+                    RgbKind::DisplayReady => {
+                        format!("hub folder with neural_renderer.type `{kind}`")
+                    }
                 },
             ),
             None => {
