@@ -25,9 +25,12 @@ pub struct SynthDatasetArgs {
     /// Most input views per sample.
     #[arg(long, default_value_t = 8)]
     max_views: usize,
-    /// Encoder input side in pixels (the preset's image size).
+    /// Encoder input height in pixels (the network's image_height).
     #[arg(long, default_value_t = 112)]
-    input_size: u32,
+    input_height: u32,
+    /// Encoder input width in pixels (the network's image_width).
+    #[arg(long, default_value_t = 112)]
+    input_width: u32,
     /// Target view side in pixels.
     #[arg(long, default_value_t = 96)]
     target_size: u32,
@@ -49,7 +52,8 @@ pub fn run(args: SynthDatasetArgs) -> Result<()> {
     let options = DatasetOptions {
         points: args.points,
         max_views: args.max_views,
-        input_size: args.input_size,
+        input_height: args.input_height,
+        input_width: args.input_width,
         target_size: args.target_size,
         ..DatasetOptions::default()
     };

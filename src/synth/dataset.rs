@@ -30,8 +30,10 @@ pub struct DatasetOptions {
     pub points: usize,
     /// Anchor sampling seed (the node's `model.seed`).
     pub anchor_seed: u64,
-    /// Encoder input side (the preset's image size; square).
-    pub input_size: u32,
+    /// Encoder input height (the network's `image_height`).
+    pub input_height: u32,
+    /// Encoder input width (the network's `image_width`).
+    pub input_width: u32,
     /// Side of the target views.
     pub target_size: u32,
     /// Most input views of one sample (at least 1).
@@ -47,7 +49,8 @@ impl Default for DatasetOptions {
         Self {
             points: 4096,
             anchor_seed: 1,
-            input_size: 112,
+            input_height: 112,
+            input_width: 112,
             target_size: 96,
             max_views: 8,
             heldout_targets: 2,
@@ -63,8 +66,10 @@ pub struct TrainingSample {
     pub seed: u64,
     /// Input views `V`.
     pub views: usize,
-    /// Preprocessed input views `[V, 3, S, S]`, 8-bit (the node's f32 input is `v / 255`).
+    /// Preprocessed input views `[V, 3, H, W]`, 8-bit (the node's f32 input is `v / 255`).
     pub images: Vec<u8>,
+    /// `(H, W)` of the input views.
+    pub image_size: (usize, usize),
     /// Anchor positions `[N, 3]` on the shaped template (canonical frame).
     pub anchors: Vec<f32>,
     /// Anchor normals `[N, 3]`.
@@ -86,7 +91,7 @@ pub struct TrainingSample {
     /// Height scale and girth scale of the person (the BodyShape the node would receive).
     pub shape: [f32; 2],
     /// Where each anchor shows in each preprocessed input view, `[V, N, 2]` as (column, row)
-    /// pixel of the `S × S` encoder input, [`HIDDEN_ANCHOR`] for both where the anchor is
+    /// pixel of the `W × H` encoder input, [`HIDDEN_ANCHOR`] for both where the anchor is
     /// hidden (behind the body, outside the view): for trainer-only losses that need to know
     /// which image patch shows which anchor. The network never receives it.
     pub anchor_pixels: Vec<u16>,
@@ -110,10 +115,10 @@ struct RenderedInput {
 const VISIBLE_DEPTH_SLACK: f32 = 0.04;
 
 impl RenderedInput {
-    /// The (column, row) pixel of world point `p` in the preprocessed `size × size` input, or
+    /// The (column, row) pixel of world point `p` in the preprocessed `width × height` input, or
     /// `None` when the view does not show it (outside the frame, on the background, or behind
     /// the rendered surface).
-    fn locate(&self, p: Vec3, size: u32) -> Option<[u16; 2]> {
+    fn locate(&self, p: Vec3, width: u32, height: u32) -> Option<[u16; 2]> {
         let q = self.camera.camera_from_world().transform_point3(p);
         if q.z <= 1e-3 {
             return None;
@@ -128,10 +133,11 @@ impl RenderedInput {
             return None;
         }
         let r = self.region;
-        let u = (uv.x - r.x0 as f32 + 0.5) * size as f32 / r.width() as f32 - 0.5;
-        let v = (uv.y - r.y0 as f32 + 0.5) * size as f32 / r.height() as f32 - 0.5;
+        let u = (uv.x - r.x0 as f32 + 0.5) * width as f32 / r.width() as f32 - 0.5;
+        let v = (uv.y - r.y0 as f32 + 0.5) * height as f32 / r.height() as f32 - 0.5;
         let (u, v) = (u.round(), v.round());
-        (u >= 0.0 && v >= 0.0 && u < size as f32 && v < size as f32).then_some([u as u16, v as u16])
+        (u >= 0.0 && v >= 0.0 && u < width as f32 && v < height as f32)
+            .then_some([u as u16, v as u16])
     }
 }
 
@@ -240,12 +246,13 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
 
     // Input views: rendered over a random background, preprocessed like the node.
     let pre = PreprocessConfig {
-        out_height: options.input_size,
-        out_width: options.input_size,
+        out_height: options.input_height,
+        out_width: options.input_width,
         ..PreprocessConfig::default()
     };
     let black = RenderOptions::default();
-    let mut images = Vec::with_capacity(views * 3 * (options.input_size as usize).pow(2));
+    let input_pixels = (options.input_height * options.input_width) as usize;
+    let mut images = Vec::with_capacity(views * 3 * input_pixels);
     let mut rendered_inputs = Vec::with_capacity(views);
     for rig_camera in &rig.inputs {
         let camera = rolled(&rig_camera.camera, rng.gen_range(-0.12..0.12));
@@ -314,7 +321,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
         .iter()
         .flat_map(|view| {
             posed_frame.positions.iter().flat_map(|p| {
-                view.locate(*p, options.input_size)
+                view.locate(*p, options.input_width, options.input_height)
                     .unwrap_or([HIDDEN_ANCHOR; 2])
             })
         })
@@ -358,6 +365,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
         seed,
         views,
         images,
+        image_size: (options.input_height as usize, options.input_width as usize),
         anchors: flat(&anchors.positions),
         normals: flat(&anchors.normals),
         colors,
@@ -376,7 +384,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
     })
 }
 
-/// Writes `samples` to one safetensors shard: tensors `{k}.images` (u8 `[V,3,S,S]`),
+/// Writes `samples` to one safetensors shard: tensors `{k}.images` (u8 `[V,3,H,W]`),
 /// `{k}.anchors`, `{k}.normals`, `{k}.colors`, `{k}.posed_anchors` (f32 `[N,3]`),
 /// `{k}.posed_rotations` (f32 `[N,4]`), `{k}.target_rgb` (u8 `[T,3,R,R]`), `{k}.target_alpha`
 /// (u8 `[T,R,R]`), `{k}.target_intrinsics` (f32 `[T,4]`), `{k}.target_camera_from_world`
@@ -390,12 +398,12 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
         let n = s.anchors.len() / 3;
         let t = s.target_intrinsics.len() / 4;
         let side = |len: usize, per: usize| ((len / per) as f64).sqrt().round() as usize;
-        let si = side(s.images.len(), s.views * 3);
+        let (ih, iw) = s.image_size;
         let r = side(s.target_alpha.len(), t);
         let (u8s, f32s) = (Dtype::U8, Dtype::F32);
         let u16le = |v: &[u16]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
         let entries: [(&str, Dtype, Vec<usize>, Vec<u8>); 12] = [
-            ("images", u8s, vec![s.views, 3, si, si], s.images.clone()),
+            ("images", u8s, vec![s.views, 3, ih, iw], s.images.clone()),
             ("anchors", f32s, vec![n, 3], le(&s.anchors)),
             ("normals", f32s, vec![n, 3], le(&s.normals)),
             ("colors", f32s, vec![n, 3], le(&s.colors)),
@@ -489,12 +497,15 @@ mod tests {
             points: 1024,
             person_points: 8000,
             max_views: 4,
+            input_height: 224,
+            input_width: 140,
             ..DatasetOptions::default()
         };
         let s = make_sample(TRAIN_SEED_START + 11, &o).unwrap();
-        let (n, size) = (1024, 112usize);
+        let (n, h, w) = (1024, 224usize, 140usize);
+        assert_eq!(s.images.len(), s.views * 3 * h * w);
         let pixel = |view: usize, x: usize, y: usize| -> [f32; 3] {
-            let at = |c: usize| s.images[((view * 3 + c) * size + y) * size + x] as f32 / 255.0;
+            let at = |c: usize| s.images[((view * 3 + c) * h + y) * w + x] as f32 / 255.0;
             [at(0), at(1), at(2)]
         };
         // Mean colour error over the seen anchor-views, reading each anchor's pixel moved by
@@ -507,8 +518,8 @@ mod tests {
                     if px[0] == HIDDEN_ANCHOR {
                         continue;
                     }
-                    let x = (px[0] as i32 + dx).clamp(0, size as i32 - 1) as usize;
-                    let y = (px[1] as i32 + dy).clamp(0, size as i32 - 1) as usize;
+                    let x = (px[0] as i32 + dx).clamp(0, w as i32 - 1) as usize;
+                    let y = (px[1] as i32 + dy).clamp(0, h as i32 - 1) as usize;
                     let got = pixel(view, x, y);
                     let j = if other { (i * 7 + 313) % n } else { i };
                     seen += 1;
@@ -523,7 +534,7 @@ mod tests {
         let (seen, err) = score(0, 0, false);
         let (_, shuffled) = score(0, 0, true);
         // Every view shows a good part of the body; the pixel an anchor lands on has that
-        // anchor's colour (up to the 112-px resampling) far more than another anchor's, and
+        // anchor's colour (up to the resampling) far more than another anchor's, and
         // better than the pixels 2 px beside it.
         assert!(
             seen > s.views * n / 5,
