@@ -125,6 +125,14 @@ fn pixelshuffle_neural_renderer_matches_pytorch_mlp_pixelshuffle_head() {
     assert_matches_pytorch("dpt_pixelshuffle", &["rgb", "mask"]);
 }
 
+/// The betas head of the GS-supervised releases (reference.py's `ShapeHead`, which
+/// `scripts/parity/check_official_shape_head.py` checked against the official class itself:
+/// identical outputs): the pose tokens of 3 views averaged, 4 refinement steps.
+#[test]
+fn shape_head_matches_pytorch_iterative_betas_head() {
+    assert_matches_pytorch("shape_head", &["betas", "steps"]);
+}
+
 #[test]
 fn ptv3_block_and_serialization_orders_match_pytorch_reference() {
     assert_matches_pytorch(

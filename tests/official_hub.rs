@@ -94,7 +94,7 @@ fn fields_differing_from_the_preset_are_named_and_applied() {
 fn unsupported_variants_name_every_field_and_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let mut v = config_value();
-    v["neural_renderer"]["type"] = serde_json::json!("mlp_pixelshuffle");
+    v["neural_renderer"]["type"] = serde_json::json!("patch_convonly");
     v["transformer_decoder"]["image_backbone"]["aa_order"] = serde_json::json!(["frame", "global"]);
     write_config(dir.path(), &v);
     write_weights(&dir.path().join("model.safetensors"), &[]);
@@ -103,7 +103,7 @@ fn unsupported_variants_name_every_field_and_the_file() {
     assert!(matches!(err, HubError::Unsupported { .. }), "{msg}");
     assert!(msg.contains("config.json"), "{msg}");
     assert!(msg.contains("neural_renderer.type"), "{msg}");
-    assert!(msg.contains("mlp_pixelshuffle"), "{msg}");
+    assert!(msg.contains("patch_convonly"), "{msg}");
     assert!(
         msg.contains("transformer_decoder.image_backbone.aa_order"),
         "{msg}"

@@ -1,8 +1,8 @@
 //! The GS-supervised releases LHMPP-700M-PixelShuffle and LHMPP-700M-SMPLX-FREE: their key
 //! lists, made by instantiating the official modules (`scripts/parity/official_keys.py`: the
 //! official `MLPPixelShuffleDPTHead` and `ShapeHead` swapped into the instantiated LHMPP-700M
-//! list), equal our networks' (the betas `shape_head.*` is ignored on load); their config.json
-//! derive the presets; a small random PixelShuffle hub folder loads, renders through its
+//! list), equal our networks' (with the betas `shape_head.*`); their config.json derive the
+//! presets; a small random PixelShuffle hub folder loads, predicts betas, renders through its
 //! pixel-shuffle head and is display-ready.
 
 use std::collections::BTreeMap;
@@ -35,16 +35,19 @@ fn parse(tsv: &str) -> BTreeMap<String, Vec<usize>> {
         .collect()
 }
 
-/// Asserts that `cfg`'s tensors are exactly the official ones outside the ignored prefixes;
-/// returns the official tensors per ignored prefix.
+/// Asserts that `cfg`'s tensors are exactly the official ones, but for those under an ignored
+/// prefix that the network does not build (as the loader does); returns how many official
+/// tensors each ignored prefix skipped.
 fn assert_key_list(cfg: &LhmppConfig, official: &BTreeMap<String, Vec<usize>>) -> Vec<usize> {
     let expected = expected_tensors(cfg).unwrap();
     let mut ignored = vec![0; IGNORED_PREFIXES.len()];
     let mut problems = Vec::new();
     for (k, dims) in official {
         if let Some(i) = IGNORED_PREFIXES.iter().position(|p| k.starts_with(p)) {
-            ignored[i] += 1;
-            continue;
+            if !expected.contains_key(k) {
+                ignored[i] += 1;
+                continue;
+            }
         }
         match expected.get(k) {
             None => problems.push(format!("missing {k}")),
@@ -67,9 +70,9 @@ fn pixelshuffle_keys_and_shapes_equal_the_official_modules() {
     assert_eq!(official.len(), 1486);
     let cfg = LhmppConfig::lhmpp_700m_pixelshuffle();
     let ignored = assert_key_list(&cfg, &official);
-    // neural_renderer.transformer_block.* (4 unused SD3 blocks: 170 tensors) and the 41
-    // shape_head tensors
-    assert_eq!(ignored, vec![0, 170, 41]);
+    // neural_renderer.transformer_block.* (4 unused SD3 blocks: 170 tensors); the 41
+    // shape_head tensors are ours
+    assert_eq!(ignored, vec![0, 170, 0]);
     let expected = expected_tensors(&cfg).unwrap();
     let dp = "neural_renderer.dense_predictor.";
     assert_eq!(
@@ -86,11 +89,12 @@ fn pixelshuffle_keys_and_shapes_equal_the_official_modules() {
 fn smplx_free_keys_and_shapes_equal_the_official_modules() {
     let official = parse(SMPLX_FREE_KEYS);
     let cfg = LhmppConfig::lhmpp_700m_smplx_free();
-    assert_eq!(assert_key_list(&cfg, &official), vec![0, 170, 41]);
-    // The same network as LHMPP-700M; only the RGB differs (GS-supervised).
+    assert_eq!(assert_key_list(&cfg, &official), vec![0, 170, 0]);
+    // The LHMPP-700M network plus the shape head; the RGB is GS-supervised.
     assert_eq!(
         LhmppConfig {
             preset: "lhmpp-700m".into(),
+            shape_head: None,
             ..cfg
         },
         LhmppConfig::lhmpp_700m()
@@ -209,23 +213,15 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
         "{}",
         hub.config.preset
     );
-    // Two shards: our tensors (seeded), and the official extras we ignore (shape_head.*, an
-    // unused SD3 block tensor).
+    // Two shards: our tensors (seeded, the shape head's included), and an official extra we
+    // ignore (an unused SD3 block tensor).
     std::fs::remove_file(dir.path().join("model.safetensors")).unwrap();
     let ours = dir.path().join("model-00001-of-00002.safetensors");
     init_checkpoint(&hub.config, 7, &ours).unwrap();
-    let extras: Vec<(String, Vec<usize>)> = vec![
-        ("shape_head.embed_shape.weight".into(), vec![384, 10]),
-        ("shape_head.empty_shape_tokens".into(), vec![1, 1, 10]),
-        (
-            "shape_head.trunk_blocks.0.attn.qkv.weight".into(),
-            vec![1152, 384],
-        ),
-        (
-            "neural_renderer.transformer_block.0.norm1.linear.weight".into(),
-            vec![6144, 1024],
-        ),
-    ];
+    let extras: Vec<(String, Vec<usize>)> = vec![(
+        "neural_renderer.transformer_block.0.norm1.linear.weight".into(),
+        vec![6144, 1024],
+    )];
     let data: Vec<(String, Vec<u8>, Vec<usize>)> = extras
         .iter()
         .enumerate()
@@ -274,13 +270,27 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
     );
     assert_eq!(loaded.rgb_kind(), RgbKind::DisplayReady);
     let summary = HubFolder::open(dir.path()).unwrap().check().unwrap();
-    let shape = summary
+    let unused = summary
         .ignored
         .iter()
-        .find(|(p, _, _)| p == "shape_head.")
+        .find(|(p, _, _)| p == "neural_renderer.transformer_block.")
         .unwrap();
-    assert_eq!(shape.1, 3, "{summary:?}");
+    assert_eq!(unused.1, 1, "{summary:?}");
     let model = Lhmpp::new(&loaded.config, loaded.var_builder).unwrap();
+    // The shape head reads the pose tokens of the views: 10 finite betas.
+    let head = model.shape_head().expect("a shape head");
+    assert_eq!(head.config().trunk_depth, 2);
+    assert_eq!(head.config().dim_in, 384);
+    let tokens = Tensor::randn(0f32, 1.0, (2, 5 + 12, 384), &Device::Cpu).unwrap();
+    let betas = head.predict(&tokens).unwrap();
+    assert_eq!(betas.dims(), &[1, 10]);
+    assert!(betas
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap()
+        .iter()
+        .all(|b| b.is_finite()));
     let renderer = model.neural_renderer();
     let feats = Tensor::randn(0f32, 1.0, (1, 128, 35, 21), &Device::Cpu).unwrap();
     let (rgb, mask) = renderer.forward(&feats).unwrap();

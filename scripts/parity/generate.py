@@ -59,6 +59,8 @@ SIZES = {
                            occupancy=0.4),
         "dpt_pixelshuffle": dict(c=8, patch=7, embed=64, features=16, oc=[8, 16, 32, 32], batch=1,
                                  height=28, width=21, pixel_shuffle=2),
+        "shape_head": dict(dim=64, target=10, trunk_depth=2, heads=2, mlp_ratio=4.0, iterations=4,
+                           views=3, tokens=9),
     },
     "700m": {
         "dino_block": dict(dim=1024, heads=16, mlp_ratio=4.0, batch=1, tokens=1 + 4 + 60 * 36),
@@ -76,6 +78,8 @@ SIZES = {
                            occupancy=0.16),
         "dpt_pixelshuffle": dict(c=128, patch=7, embed=1024, features=128, oc=[128, 256, 512, 512],
                                  batch=1, height=140, width=84, pixel_shuffle=2),
+        "shape_head": dict(dim=1024, target=10, trunk_depth=2, heads=16, mlp_ratio=4.0, iterations=4,
+                           views=2, tokens=5 + 60 * 36),
     },
 }
 
@@ -91,6 +95,7 @@ PREFIX = {
     "gs_head": "renderer.",
     "dpt": "neural_renderer.",
     "dpt_pixelshuffle": "neural_renderer.",
+    "shape_head": "shape_head.",
 }
 
 
@@ -189,6 +194,14 @@ def build(kind, c, gen):
         def fwd(m, i):
             rgb, mask = m(i["features"])
             return {"rgb": rgb, "mask": mask}
+    elif kind == "shape_head":
+        m = R.ShapeHead(c["dim"], c["target"], c["trunk_depth"], c["heads"], c["mlp_ratio"],
+                        c["iterations"])
+        inputs = {"tokens": rn(c["views"], c["tokens"], c["dim"])}
+
+        def fwd(m, i):
+            steps = m(i["tokens"])
+            return {"betas": steps[-1:], "steps": steps}
     else:
         raise ValueError(kind)
     randomize(m, gen)

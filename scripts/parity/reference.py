@@ -675,6 +675,49 @@ class NeuralRenderer(nn.Module):
         return out[:, :3], out[:, 3:]
 
 
+# --------------------------------------------------------------------------------------------
+# Betas head of the GS-supervised releases (shape_head.*)
+
+
+class ShapeHead(nn.Module):
+    """ShapeHead (LHMPP-700M-PixelShuffle / -SMPLX-FREE): token_norm; num_iterations times:
+    cond = embed_shape(empty_shape_tokens) the first time, embed_shape(pred) after;
+    shift, scale, gate = shapeLN_modulation(cond) (SiLU then Linear C -> 3C);
+    h = gate * (LN_noaffine_1e-6(x) * (1 + scale) + shift) + x; trunk of pre-norm ViT blocks with
+    LayerScale (LayerNorm eps 1e-5, no qk norm, no RoPE); pred += shape_branch(trunk_norm(h))
+    (Linear C -> C/2, exact GELU, Linear -> T). The input is the pose token (index 0) of every
+    view after the PIT, averaged over the views."""
+
+    def __init__(self, dim, target, trunk_depth, heads, mlp_ratio, iterations):
+        super().__init__()
+        self.iterations = iterations
+        self.trunk_blocks = nn.ModuleList(
+            DinoBlock(dim, heads, mlp_ratio, eps=1e-5) for _ in range(trunk_depth))
+        self.token_norm = nn.LayerNorm(dim)
+        self.trunk_norm = nn.LayerNorm(dim)
+        self.empty_shape_tokens = nn.Parameter(torch.zeros(1, 1, target))
+        self.embed_shape = nn.Linear(target, dim)
+        self.shapeLN_modulation = nn.Sequential(nn.SiLU(), nn.Linear(dim, 3 * dim))
+        self.shape_branch = Mlp(dim, dim // 2)
+        self.shape_branch.fc2 = nn.Linear(dim // 2, target)
+
+    def forward(self, tokens):
+        """tokens [V, P, C] -> every step's prediction [iterations, T] (the last: the betas)."""
+        x = self.token_norm(tokens[:, 0].mean(dim=0)[None, None])  # [1, 1, C]
+        normed = F.layer_norm(x, x.shape[-1:], eps=1e-6)
+        pred, steps = None, []
+        for _ in range(self.iterations):
+            cond = self.embed_shape(self.empty_shape_tokens if pred is None else pred)
+            shift, scale, gate = self.shapeLN_modulation(cond).chunk(3, dim=-1)
+            h = gate * (normed * (1 + scale) + shift) + x
+            for block in self.trunk_blocks:
+                h = block(h)
+            delta = self.shape_branch(self.trunk_norm(h))
+            pred = delta if pred is None else pred + delta
+            steps.append(pred[0, 0])
+        return torch.stack(steps)
+
+
 def gaussian_fan_in_std(shape):
     fan_in = math.prod(shape[1:]) if len(shape) > 1 else shape[0]
     return 1.0 / math.sqrt(max(fan_in, 1))

@@ -26,6 +26,7 @@ use lhmpp::model::joint_block::JointBlock;
 use lhmpp::model::point::block::PtBlock;
 use lhmpp::model::point::serialization::{serialize_all, SerializationOrder};
 use lhmpp::model::point::sparse_conv::{NeighbourMap, SubMConv3d};
+use lhmpp::model::shape_head::{ShapeHead, ShapeHeadConfig};
 
 /// A bf16 output passes below `max(--max-rel-bf16, BF16_TORCH_FACTOR × PyTorch's own bf16 error)`.
 const BF16_TORCH_FACTOR: f64 = 2.0;
@@ -344,6 +345,23 @@ fn run_block(fx: &Fixture, dtype: DType, dev: &Device) -> anyhow::Result<Vec<(St
             let r = NeuralRenderer::new(&cfg, vb)?;
             let (rgb, mask) = r.forward(&fx.input("features", dtype, dev)?)?;
             vec![out("rgb", rgb), out("mask", mask)]
+        }
+        "shape_head" => {
+            let cfg = ShapeHeadConfig {
+                dim_in: fx.usize("dim")?,
+                target_dim: fx.usize("target")?,
+                trunk_depth: fx.usize("trunk_depth")?,
+                num_heads: fx.usize("heads")?,
+                mlp_ratio: fx.f64("mlp_ratio")?,
+                init_values: 0.01,
+                num_iterations: fx.usize("iterations")?,
+                shape_token_idx: 0,
+            };
+            let head = ShapeHead::new(&cfg, vb)?;
+            let tokens = fx.input("tokens", dtype, dev)?;
+            let slot = tokens.narrow(1, 0, 1)?.squeeze(1)?.mean_keepdim(0)?;
+            let steps = Tensor::cat(&head.forward(&slot)?, 0)?;
+            vec![out("betas", head.predict(&tokens)?), out("steps", steps)]
         }
         other => bail!("{}: unknown block kind `{other}`", fx.path.display()),
     })

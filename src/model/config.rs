@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::dpt::DptConfig;
 use super::point::PointBackboneConfig;
+use super::shape_head::ShapeHeadConfig;
 
 /// Errors from choosing or validating a configuration.
 #[derive(Debug, thiserror::Error)]
@@ -130,6 +131,10 @@ pub struct LhmppConfig {
     pub gs_head: GsHeadConfig,
     /// DPT neural renderer.
     pub neural_renderer: DptConfig,
+    /// The betas head of the GS-supervised releases (`shape_head.*`); `None`: none (betas come
+    /// from the shape topic only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape_head: Option<ShapeHeadConfig>,
 }
 
 /// Parameter counts per part of the network.
@@ -149,6 +154,8 @@ pub struct ParameterCounts {
     pub gs_head: usize,
     /// `neural_renderer.*`.
     pub neural_renderer: usize,
+    /// `shape_head.*`.
+    pub shape_head: usize,
 }
 
 impl ParameterCounts {
@@ -161,6 +168,7 @@ impl ParameterCounts {
             + self.motion_embed
             + self.gs_head
             + self.neural_renderer
+            + self.shape_head
     }
 }
 
@@ -242,17 +250,19 @@ impl LhmppConfig {
                 background_dim: Some(GsHeadConfig::OFFICIAL_BACKGROUND_DIM),
             },
             neural_renderer: DptConfig::lhmpp_700m(),
+            shape_head: None,
         }
     }
 
     /// The released GS-supervised LHMPP-700M-PixelShuffle (`configs/train/LHMPP-pixelshuffle.yaml`):
     /// the LHMPP-700M network with ToMe off (merge_ratio 0.0) and the `mlp_pixelshuffle`
-    /// neural renderer (pixel_shuffle_factor 2). Its `shape_head.*` (SMPL-X betas from the
-    /// image tokens) is not part of this network: betas come from the shape topic.
+    /// neural renderer (pixel_shuffle_factor 2), with the `shape_head` predicting the SMPL-X
+    /// betas from the image tokens.
     pub fn lhmpp_700m_pixelshuffle() -> Self {
         let mut cfg = Self {
             preset: "lhmpp-700m-pixelshuffle".into(),
             neural_renderer: DptConfig::lhmpp_700m_pixelshuffle(),
+            shape_head: Some(ShapeHeadConfig::lhmpp_700m()),
             ..Self::lhmpp_700m()
         };
         cfg.transformer.merge_ratio = 0.0;
@@ -261,11 +271,12 @@ impl LhmppConfig {
 
     /// The released GS-supervised LHMPP-700M-SMPLX-FREE (`configs/train/LHMPP-anyview-SMPLX-FREE.yaml`,
     /// fork KuroTaiga/LHM_pp): the LHMPP-700M network exactly (merge_ratio 0.5, the
-    /// `patch_4dptonly` DPT head), trained with its Gaussian RGB supervised and a `shape_head`
-    /// predicting the betas, which this network does not run (betas come from the shape topic).
+    /// `patch_4dptonly` DPT head) plus the `shape_head` predicting the betas, trained with its
+    /// Gaussian RGB supervised.
     pub fn lhmpp_700m_smplx_free() -> Self {
         Self {
             preset: "lhmpp-700m-smplx-free".into(),
+            shape_head: Some(ShapeHeadConfig::lhmpp_700m()),
             ..Self::lhmpp_700m()
         }
     }
@@ -343,6 +354,7 @@ impl LhmppConfig {
             },
             point_backbone: pb,
             neural_renderer: DptConfig::tiny(),
+            shape_head: None,
         }
     }
 
@@ -394,6 +406,15 @@ impl LhmppConfig {
             || self.transformer.transformer_dim % self.transformer.transformer_heads != 0
         {
             return Err(bad("head counts must divide the widths".into()));
+        }
+        if let Some(sh) = &self.shape_head {
+            if sh.dim_in != e.embed_dim || sh.num_heads == 0 || sh.dim_in % sh.num_heads != 0 {
+                return Err(bad(format!(
+                    "shape_head dim_in {} must equal the image tokens' width {} and be divisible \
+                     by its {} heads",
+                    sh.dim_in, e.embed_dim, sh.num_heads
+                )));
+            }
         }
         if !(0.0..1.0).contains(&self.transformer.merge_ratio) {
             return Err(bad(format!(
@@ -449,6 +470,10 @@ impl LhmppConfig {
                 ),
             gs_head: self.gs_head_params(),
             neural_renderer: dpt_params(&self.neural_renderer),
+            shape_head: self
+                .shape_head
+                .as_ref()
+                .map_or(0, ShapeHeadConfig::parameter_count),
         }
     }
 

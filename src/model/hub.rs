@@ -23,6 +23,7 @@ use super::checkpoint::{
 use super::config::{GsHeadConfig, LhmppConfig};
 use super::point::SerializationOrder;
 use super::rgb_kind::RgbKind;
+use super::shape_head::ShapeHeadConfig;
 
 /// Config file of a hub folder.
 pub const CONFIG_FILE: &str = "config.json";
@@ -396,10 +397,8 @@ pub fn load_checkpoint(
     if path.is_dir() {
         let hub = HubFolder::open(path)?;
         if hub.official.has_shape_head() {
-            tracing::warn!(
-                "{}: the checkpoint's shape_head (SMPL-X betas predicted from the image tokens) \
-                 is not run by this network; its weights are ignored and the betas come from \
-                 inputs.shape_topic",
+            tracing::info!(
+                "{}: the checkpoint's shape_head predicts the SMPL-X betas from the image tokens",
                 path.join(CONFIG_FILE).display()
             );
         }
@@ -806,32 +805,84 @@ pub fn derive_config(
             "smplx_diffused_voxel",
         );
     }
+    if o.has_shape_head() {
+        match shape_head_config(o, cfg.encoder.embed_dim) {
+            Ok(sh) => cfg.shape_head = Some(sh),
+            Err(reason) => unsupported.push(reason),
+        }
+    }
     if !unsupported.is_empty() {
         return Err(HubError::Unsupported {
             path: config_path.to_path_buf(),
             fields: unsupported,
         });
     }
-    let pixelshuffle = LhmppConfig::lhmpp_700m_pixelshuffle();
-    let same_network = LhmppConfig {
-        preset: cfg.preset.clone(),
-        ..pixelshuffle.clone()
+    // A released network exactly (LHMPP-700M, -PixelShuffle, -SMPLX-FREE) keeps its preset
+    // name; anything else is named after the folder.
+    let released = [
+        LhmppConfig::lhmpp_700m(),
+        LhmppConfig::lhmpp_700m_pixelshuffle(),
+        LhmppConfig::lhmpp_700m_smplx_free(),
+    ]
+    .into_iter()
+    .find(|p| {
+        *p == LhmppConfig {
+            preset: p.preset.clone(),
+            ..cfg.clone()
+        }
+    });
+    cfg.preset = match released {
+        Some(p) => p.preset,
+        None => {
+            let folder = dir
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_else(|| dir.display().to_string());
+            format!("hub:{folder}")
+        }
     };
-    if cfg == same_network {
-        // The released LHMPP-700M-PixelShuffle network, exactly.
-        cfg.preset = pixelshuffle.preset;
-    } else if d.is_empty() && o.has_shape_head() {
-        // The LHMPP-700M network with the betas head: the GS-supervised LHMPP-700M-SMPLX-FREE.
-        cfg.preset = LhmppConfig::lhmpp_700m_smplx_free().preset;
-    } else if !d.is_empty() {
-        let folder = dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| dir.display().to_string());
-        cfg.preset = format!("hub:{folder}");
-    }
     cfg.validate().map_err(CheckpointError::from)?;
     Ok((cfg, d))
+}
+
+/// The `ShapeHead` of a config with a `shape_head` block, as `ModelHumanA4OLRM.__init__` builds
+/// it: `dim_in` (else the image tokens' width), `target_dim = predict_shape_dim` (else
+/// `shape_param_dim`, else 100), `trunk_depth` (4), `num_heads` (16), `mlp_ratio` (4.0),
+/// `init_values` (0.01), `num_iterations` (4); the pose token (index 0) is read.
+fn shape_head_config(o: &OfficialModelConfig, width: usize) -> Result<ShapeHeadConfig, String> {
+    let empty = serde_json::Map::new();
+    let sh = o
+        .shape_head
+        .as_ref()
+        .and_then(|v| v.as_object())
+        .unwrap_or(&empty);
+    let int = |key: &str, default: usize| -> Result<usize, String> {
+        match sh.get(key) {
+            None | Some(serde_json::Value::Null) => Ok(default),
+            Some(v) => v
+                .as_u64()
+                .map(|n| n as usize)
+                .ok_or_else(|| format!("shape_head.{key} = {v} (supported: a whole number)")),
+        }
+    };
+    let float = |key: &str, default: f64| -> Result<f64, String> {
+        match sh.get(key) {
+            None | Some(serde_json::Value::Null) => Ok(default),
+            Some(v) => v
+                .as_f64()
+                .ok_or_else(|| format!("shape_head.{key} = {v} (supported: a number)")),
+        }
+    };
+    Ok(ShapeHeadConfig {
+        dim_in: int("dim_in", width)?,
+        target_dim: o.predict_shape_dim.or(o.shape_param_dim).unwrap_or(100),
+        trunk_depth: int("trunk_depth", 4)?,
+        num_heads: int("num_heads", 16)?,
+        mlp_ratio: float("mlp_ratio", 4.0)?,
+        init_values: float("init_values", 0.01)?,
+        num_iterations: int("num_iterations", 4)?,
+        shape_token_idx: 0,
+    })
 }
 
 /// The weight files of `dir`: `model.safetensors`, or the shards named by the index.

@@ -3,7 +3,8 @@
 //!
 //! Checkpoint layout: `encoder.model.*`, `transformer.image_backbone.*`,
 //! `transformer.pi_transformer_{enc,dec}.*`, `transformer.outnorm`, `motion_embed_mlp.*`,
-//! `renderer.*`, `transformer.point_backbone.*`, `neural_renderer.*`.
+//! `renderer.*`, `transformer.point_backbone.*`, `neural_renderer.*`, and `shape_head.*` for
+//! the GS-supervised releases.
 
 use candle_core::{Module, Result, Tensor};
 use candle_nn::VarBuilder;
@@ -17,6 +18,7 @@ use super::frame_block::{ImageBackbone, SPECIAL_TOKENS};
 use super::gs_head::{GaussianOutput, GsHead};
 use super::joint_block::{JointBlock, MotionEmbed};
 use super::point::{PointBackbone, PointState};
+use super::shape_head::ShapeHead;
 use super::token_merge::TokenMerge;
 
 /// DINOv2 output of one view (cacheable per frame).
@@ -43,6 +45,7 @@ pub struct Lhmpp {
     gs_head: GsHead,
     point_backbone: PointBackbone,
     neural_renderer: NeuralRenderer,
+    shape_head: Option<ShapeHead>,
 }
 
 impl Lhmpp {
@@ -86,6 +89,11 @@ impl Lhmpp {
             gs_head: GsHead::new(&cfg.gs_head, vb.pp("renderer"))?,
             point_backbone: PointBackbone::new(&cfg.point_backbone, t.pp("point_backbone"))?,
             neural_renderer: NeuralRenderer::new(&cfg.neural_renderer, vb.pp("neural_renderer"))?,
+            shape_head: cfg
+                .shape_head
+                .as_ref()
+                .map(|c| ShapeHead::new(c, vb.pp("shape_head")))
+                .transpose()?,
         })
     }
 
@@ -171,6 +179,38 @@ impl Lhmpp {
     /// features `[N, q]` for the input points (after `outnorm`, gathered back through the
     /// 1 cm GridSample inverse).
     pub fn fuse(&self, anchors: &Tensor, normals: &Tensor, views: &[ViewTokens]) -> Result<Tensor> {
+        Ok(self.fuse_with_tokens(anchors, normals, views)?.0)
+    }
+
+    /// The betas head, when the network has one (`shape_head.*`).
+    pub fn shape_head(&self) -> Option<&ShapeHead> {
+        self.shape_head.as_ref()
+    }
+
+    /// [`Self::fuse`] and the SMPL-X betas `[1, target_dim]` the shape head predicts from the
+    /// image tokens after the PIT (`None` without a shape head).
+    pub fn fuse_with_betas(
+        &self,
+        anchors: &Tensor,
+        normals: &Tensor,
+        views: &[ViewTokens],
+    ) -> Result<(Tensor, Option<Tensor>)> {
+        let (feat, tokens) = self.fuse_with_tokens(anchors, normals, views)?;
+        let betas = self
+            .shape_head
+            .as_ref()
+            .map(|h| h.predict(&tokens))
+            .transpose()?;
+        Ok((feat, betas))
+    }
+
+    /// [`Self::fuse`] and the image tokens `[V, 5+h·w, C]` after the last joint block.
+    pub fn fuse_with_tokens(
+        &self,
+        anchors: &Tensor,
+        normals: &Tensor,
+        views: &[ViewTokens],
+    ) -> Result<(Tensor, Tensor)> {
         let grid = views.first().map(|v| v.grid).ok_or_else(|| {
             candle_core::Error::Msg("reconstruction needs at least one view".into())
         })?;
@@ -201,7 +241,7 @@ impl Lhmpp {
             tokens = t;
         }
         let feat = self.outnorm.forward(state.feat())?;
-        state.to_input_points(&feat)
+        Ok((state.to_input_points(&feat)?, tokens))
     }
 
     /// Puts the points in Hilbert order, runs [`multi_modal_step`], and restores their order

@@ -20,6 +20,7 @@ pub mod lhmpp;
 pub mod ops;
 pub mod point;
 pub mod rgb_kind;
+pub mod shape_head;
 pub mod token_merge;
 
 #[cfg(test)]
