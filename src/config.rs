@@ -162,6 +162,13 @@ pub struct OutputConfig {
     /// QoS of the rendered-frame topics: `reliable` (default; keep last 2, matched by reliable
     /// and best-effort subscribers alike) or `best_effort` (only best-effort subscribers match).
     pub frame_qos: FrameQos,
+    /// Rate of the avatar preview (`avatar/points`, sensor_msgs/PointCloud2 with packed
+    /// `rgb`, posed at the latest BodyPose) and its `/tf` transform, Hz; 0 disables both.
+    pub preview_rate_hz: f64,
+    /// TF frame of the preview cloud.
+    pub preview_frame: String,
+    /// Parent frame of `preview_frame` on `/tf` (the BodyPose's world frame).
+    pub world_frame: String,
     /// Publish over ROS 2 DDS.
     pub ros: bool,
     /// Publish over iceoryx2 shared memory.
@@ -291,6 +298,9 @@ impl Default for OutputConfig {
             render_device: "cpu".into(),
             renderer: RendererChoice::Auto,
             frame_qos: FrameQos::Reliable,
+            preview_rate_hz: 1.0,
+            preview_frame: "lhmpp_avatar".into(),
+            world_frame: "world".into(),
             ros: true,
             shm: false,
         }
@@ -452,6 +462,29 @@ impl NodeConfig {
             return Err(bad(
                 "outputs.render_size",
                 format!("{} is not in 16..=4096", self.outputs.render_size),
+            ));
+        }
+        if !(self.outputs.preview_rate_hz.is_finite() && self.outputs.preview_rate_hz >= 0.0) {
+            return Err(bad(
+                "outputs.preview_rate_hz",
+                format!("{} must be finite and >= 0", self.outputs.preview_rate_hz),
+            ));
+        }
+        for (key, frame) in [
+            ("outputs.preview_frame", &self.outputs.preview_frame),
+            ("outputs.world_frame", &self.outputs.world_frame),
+        ] {
+            if frame.trim().is_empty() || frame.contains(char::is_whitespace) {
+                return Err(bad(key, format!("`{frame}` is not a TF frame name")));
+            }
+        }
+        if self.outputs.preview_frame == self.outputs.world_frame {
+            return Err(bad(
+                "outputs.preview_frame",
+                format!(
+                    "`{}` is also outputs.world_frame; the preview needs a frame of its own",
+                    self.outputs.preview_frame
+                ),
             ));
         }
         match self.outputs.render_device.as_str() {
@@ -651,6 +684,31 @@ mod tests {
         assert!(e.contains("reliable") && e.contains("best_effort"), "{e}");
         let c = load(&yaml("reliable"), &["outputs.frame_qos=best_effort"]).unwrap();
         assert_eq!(c.outputs.frame_qos, FrameQos::BestEffort);
+    }
+
+    #[test]
+    fn preview_rate_and_frames_are_validated_naming_the_key() {
+        let base = "lhmpp:\n  ros__parameters: {}\n";
+        let c = load(base, &[]).unwrap();
+        assert_eq!(c.outputs.preview_rate_hz, 1.0);
+        assert_eq!(c.outputs.preview_frame, "lhmpp_avatar");
+        assert_eq!(c.outputs.world_frame, "world");
+        for (set, key) in [
+            ("outputs.preview_rate_hz=-1", "outputs.preview_rate_hz"),
+            ("outputs.preview_frame=''", "outputs.preview_frame"),
+            ("outputs.world_frame=a b", "outputs.world_frame"),
+            ("outputs.preview_frame=world", "outputs.preview_frame"),
+        ] {
+            let e = load(base, &[set]).unwrap_err().to_string();
+            assert!(e.contains(key), "{set}: {e}");
+        }
+        assert_eq!(
+            load(base, &["outputs.preview_rate_hz=0"])
+                .unwrap()
+                .outputs
+                .preview_rate_hz,
+            0.0
+        );
     }
 
     #[test]

@@ -86,6 +86,7 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
         "outputs.render_size=64".into(),
         "outputs.render_rate_hz=10".into(),
         "outputs.dir=''".into(),
+        "outputs.preview_rate_hz=4".into(),
     ];
     let mut node = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
     node.arg("run");
@@ -112,6 +113,7 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
         .args(["--avatar-topic", "/rclpy_test/avatar"])
         .args(["--status-topic", "/rclpy_test/status"])
         .args(["--render-topic", "/rclpy_test/render/cam0/image_raw"])
+        .args(["--preview-topic", "/rclpy_test/avatar/points"])
         .args(["--width", "64", "--height", "96", "--render-side", "64"])
         .args(["--gaussians", "1024", "--person", "person_0"])
         .args(["--min-revisions", "2", "--timeout", "120"])

@@ -12,6 +12,7 @@ pub mod input_queue;
 pub mod names;
 pub mod pipeline;
 pub mod preprocess;
+pub mod preview;
 pub mod publishers;
 pub mod record;
 pub mod replay;

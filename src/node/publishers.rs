@@ -6,7 +6,7 @@ use super::pipeline::outputs::{avatar_message, frame_message};
 use super::pipeline::{AvatarUpdate, Publisher, RenderedFrame};
 use super::ros::RosNode;
 use crate::msgs::ReconstructionStatus;
-use crate::splat::sh_dc_to_rgb;
+use crate::splat::{sh_dc_to_rgb, Gaussians};
 use crate::transport::{
     AvatarView, FrameShape, PayloadBody, ShmError, ShmNode, ShmOptions, ShmPublisher, Stamp,
 };
@@ -38,6 +38,11 @@ impl Publisher for RosPublisher {
             &format!("lhmpp_virtual_cam{camera}"),
         );
         if let Err(e) = self.0.publish_frame(camera, msg) {
+            tracing::warn!("{e}");
+        }
+    }
+    fn preview(&self, posed: &Gaussians, stamp_ns: i64) {
+        if let Err(e) = self.0.publish_preview(posed, stamp_ns) {
             tracing::warn!("{e}");
         }
     }

@@ -475,6 +475,8 @@ mod tests {
             avatar: "/avatar".into(),
             status: "/status".into(),
             frames: vec!["/render/cam0/image_raw".into()],
+            preview: "/avatar/points".into(),
+            tf: "/tf".into(),
         }
     }
 

@@ -31,7 +31,7 @@ import rclpy
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 from lhmpp_msgs.msg import BodyPose, GaussianAvatar, ReconstructionStatus
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 
 
 def png_rgb8(width, height, rgb):
@@ -88,6 +88,27 @@ def check_avatar(avatar, person, gaussians):
     return None
 
 
+def check_preview(msg, gaussians, frame):
+    """The preview cloud as RViz2's RGB8 transformer reads it: x y z float32 + packed rgb."""
+    if msg.header.frame_id != frame:
+        return f"preview frame_id {msg.header.frame_id!r}, expected {frame!r}"
+    fields = {f.name: (f.offset, f.datatype, f.count) for f in msg.fields}
+    for name in ("x", "y", "z", "rgb"):
+        if name not in fields or fields[name][1] != 7 or fields[name][2] != 1:
+            return f"preview field {name}: {fields.get(name)}"
+    if msg.width * msg.height != gaussians or len(msg.data) != msg.row_step * msg.height:
+        return f"preview {msg.width}x{msg.height} points, {len(msg.data)} bytes"
+    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(-1, msg.point_step)
+    col = lambda n: raw[:, fields[n][0]:fields[n][0] + 4].copy().view("<f4").reshape(-1)
+    xyz = np.stack([col("x"), col("y"), col("z")])
+    if not np.all(np.isfinite(xyz)):
+        return "preview points not finite"
+    packed = raw[:, fields["rgb"][0]:fields["rgb"][0] + 4].copy().view("<u4").reshape(-1)
+    if np.any(packed >> 24) or not np.any(packed):
+        return "preview rgb is not packed 0x00RRGGBB"
+    return None
+
+
 def frame_array(msg, side):
     if msg.encoding != "rgb8" or msg.width != side or msg.height != side or msg.step != 3 * side:
         return None, f"frame {msg.width}x{msg.height} {msg.encoding} step {msg.step}"
@@ -105,6 +126,8 @@ def main():
     ap.add_argument("--avatar-topic", required=True)
     ap.add_argument("--status-topic", required=True)
     ap.add_argument("--render-topic", required=True)
+    ap.add_argument("--preview-topic", required=True)
+    ap.add_argument("--preview-frame", default="lhmpp_avatar")
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--height", type=int, default=96)
     ap.add_argument("--render-side", type=int, default=64)
@@ -158,10 +181,22 @@ def main():
     def on_status(msg):
         state["status"] = msg
 
+    state["previews"] = []
+
+    def on_preview(msg):
+        err = check_preview(msg, args.gaussians, args.preview_frame)
+        if err is not None:
+            state["bad"] = state["bad"] or err
+            return
+        raw = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(-1, msg.point_step)
+        state["previews"].append((state["pose"], raw[:, :12].copy().view("<f4").reshape(-1, 3)))
+
     node.create_subscription(Image, args.render_topic, on_frame("reliable"), reliable)
     node.create_subscription(Image, args.render_topic, on_frame("best_effort"), best_effort)
     node.create_subscription(GaussianAvatar, args.avatar_topic, on_avatar, latched)
     node.create_subscription(ReconstructionStatus, args.status_topic, on_status, latched)
+    # RViz2's PointCloud2 display default: reliable, volatile.
+    node.create_subscription(PointCloud2, args.preview_topic, on_preview, reliable)
 
     def pose_msg(which):
         msg = BodyPose()
@@ -246,6 +281,13 @@ def main():
         return fail(f"frames under one pose differ: mean |diff| {within_a:.3f}")
     if a_vs_b < 1.0:
         return fail(f"frames do not change with the pose: mean |diff| {a_vs_b:.3f}")
+    pre_a = [p for (w, p) in state["previews"] if w == "A"]
+    pre_b = [p for (w, p) in state["previews"] if w == "B"]
+    if not pre_a or not pre_b:
+        return fail(f"preview clouds under pose A {len(pre_a)}, pose B {len(pre_b)}")
+    preview_shift = float(np.abs(pre_a[-1].mean(axis=0) - pre_b[-1].mean(axis=0)).max())
+    if preview_shift < 0.05:
+        return fail(f"preview does not follow the pose: centroid moved {preview_shift:.3f} m")
     status = state["status"]
     if status.person_id != args.person or status.revision < 1:
         return fail(f"status person {status.person_id!r} revision {status.revision}")
@@ -256,6 +298,7 @@ def main():
           f"avatar gaussians={args.gaussians} finite; status revision={status.revision} "
           f"state={status.state} last_render_ms={status.last_render_ms:.1f}; "
           f"frame |diff| pose A/A={within_a:.3f} A/B={a_vs_b:.2f}; "
+          f"preview clouds={len(state['previews'])} centroid shift A/B={preview_shift:.2f} m; "
           f"fed in {feed_s:.1f} s, total {time.monotonic() - start:.1f} s", flush=True)
     node.destroy_node()
     rclpy.shutdown()

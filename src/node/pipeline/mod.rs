@@ -16,6 +16,7 @@ use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, V
 use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::node::ros::{CameraFrame, InputEvent};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
+use crate::splat::Gaussians;
 use image::GrayImage;
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
 use outputs::{status_message, FileOutputs};
@@ -68,6 +69,8 @@ pub trait Publisher {
     fn status(&self, msg: ReconstructionStatus);
     /// Publishes a rendered frame of virtual camera `camera`.
     fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64);
+    /// Publishes the avatar preview: the Gaussians posed at the latest BodyPose.
+    fn preview(&self, _posed: &Gaussians, _stamp_ns: i64) {}
 }
 
 /// Several publishers behind one (ROS 2 and shared memory at once).
@@ -82,6 +85,9 @@ impl Publisher for Fanout {
     }
     fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
         self.0.iter().for_each(|p| p.frame(camera, frame, stamp_ns));
+    }
+    fn preview(&self, posed: &Gaussians, stamp_ns: i64) {
+        self.0.iter().for_each(|p| p.preview(posed, stamp_ns));
     }
 }
 
@@ -140,6 +146,8 @@ pub struct Pipeline {
     render_period: Option<Duration>,
     render_rate_hz: f64,
     next_render: Duration,
+    preview_period: Option<Duration>,
+    next_preview: Duration,
     /// Fractional render periods skipped, not yet counted in `frames_dropped`.
     drop_debt: f64,
     /// Whether the "renders slower than the rate" warning was logged.
@@ -243,6 +251,9 @@ impl Pipeline {
             render_period,
             render_rate_hz: config.outputs.render_rate_hz,
             next_render: Duration::ZERO,
+            preview_period: (config.outputs.preview_rate_hz > 0.0)
+                .then(|| Duration::from_secs_f64(1.0 / config.outputs.preview_rate_hz)),
+            next_preview: Duration::ZERO,
             drop_debt: 0.0,
             slow_render_noted: false,
             neural_renderer_id,
@@ -445,6 +456,23 @@ impl Pipeline {
                 self.note_render_time(took, period);
             }
         }
+        if let (Some(period), Some(_)) = (self.preview_period, &self.publisher) {
+            if self.current.is_some() && now >= self.next_preview {
+                self.publish_preview(now);
+                self.next_preview = now + period;
+            }
+        }
+    }
+
+    /// Poses the avatar at the pose the frames use and hands it to the publishers' preview.
+    fn publish_preview(&self, now: Duration) {
+        let (Some(current), Some(p)) = (&self.current, &self.publisher) else {
+            return;
+        };
+        let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
+        let matrices = self.recon.template().skeleton.skinning_matrices(&pose);
+        let posed = current.avatar.animate(&matrices);
+        p.preview(&posed, unix_now_ns());
     }
 
     /// Counts the render periods a batch that took `took` skipped (the next batch starts when
@@ -645,6 +673,12 @@ impl Pipeline {
         self.stats.rendered_frames += written as u64;
         written
     }
+}
+
+fn unix_now_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i64)
 }
 
 fn push_bounded(q: &mut VecDeque<f64>, v: f64) {

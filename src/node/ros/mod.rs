@@ -25,11 +25,12 @@ pub use sink::InputStats;
 
 use crate::config::{FrameQos, NodeConfig};
 use crate::msgs::{
-    BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus,
-    RosMessage,
+    BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, PointCloud2,
+    ReconstructionStatus, RosMessage, TFMessage,
 };
 use crate::node::input_queue::{bounded, OverflowPolicy, QueueReceiver};
 use crate::node::names::{split_fully_qualified, NameError, NameResolver};
+use crate::splat::Gaussians;
 use outputs::OutputPort;
 use ros2_client::dds::Node;
 use ros2_client::qos::QosProfile;
@@ -103,6 +104,8 @@ pub struct RosNodeOptions {
     pub outputs: OutputTopics,
     /// Reliability of the rendered-frame publishers.
     pub frame_qos: FrameQos,
+    /// TF frame of the preview cloud and its parent on `/tf`; `None` disables both.
+    pub preview_frames: Option<(String, String)>,
     /// Also send input-error reports to `/rosout`.
     pub rosout: bool,
 }
@@ -142,6 +145,12 @@ impl RosNodeOptions {
             error_report_period: Duration::from_secs(5),
             outputs: OutputTopics::for_virtual_cameras(cfg.outputs.virtual_cameras),
             frame_qos: cfg.outputs.frame_qos,
+            preview_frames: (cfg.outputs.preview_rate_hz > 0.0).then(|| {
+                (
+                    cfg.outputs.preview_frame.clone(),
+                    cfg.outputs.world_frame.clone(),
+                )
+            }),
             rosout: true,
         })
     }
@@ -174,6 +183,10 @@ pub struct ResolvedTopics {
     pub status: String,
     /// Rendered-frame topics, one per virtual camera.
     pub frames: Vec<String>,
+    /// PointCloud2 preview topic.
+    pub preview: String,
+    /// TF topic.
+    pub tf: String,
 }
 
 impl ResolvedTopics {
@@ -212,6 +225,8 @@ impl ResolvedTopics {
             avatar: names.resolve(&opts.outputs.avatar)?,
             status: names.resolve(&opts.outputs.status)?,
             frames: all(&opts.outputs.frames)?,
+            preview: names.resolve(&opts.outputs.preview)?,
+            tf: names.resolve(&opts.outputs.tf)?,
         })
     }
 }
@@ -226,10 +241,19 @@ pub struct RosNode {
     avatar: OutputPort<GaussianAvatar>,
     status: OutputPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
+    preview: Option<Preview>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
     spinner: tokio::task::JoinHandle<()>,
     start: Instant,
     domain_id: u16,
+}
+
+/// The preview cloud's publisher and its `/tf` publisher.
+struct Preview {
+    cloud: OutputPort<PointCloud2>,
+    tf: OutputPort<TFMessage>,
+    frame: String,
+    world: String,
 }
 
 /// `pkg/msg/Type` → ros2-client's (package, type) name.
@@ -317,6 +341,17 @@ impl RosNode {
             .iter()
             .map(|t| advertise(&mut node, t, frame_output_qos(opts.frame_qos)))
             .collect::<Result<Vec<_>, _>>()?;
+        let preview = match &opts.preview_frames {
+            Some((frame, world)) => Some(Preview {
+                // Transient local: RViz2 / Foxglove opened later get the last cloud at once;
+                // a reliable + transient-local writer matches every kind of subscriber.
+                cloud: advertise(&mut node, &topics.preview, latched_output_qos())?,
+                tf: advertise(&mut node, &topics.tf, frame_output_qos(FrameQos::Reliable))?,
+                frame: frame.clone(),
+                world: world.clone(),
+            }),
+            None => None,
+        };
 
         let spinner = node
             .spinner()
@@ -341,6 +376,7 @@ impl RosNode {
                 avatar,
                 status,
                 frames,
+                preview,
                 tasks,
                 spinner,
                 start,
@@ -389,6 +425,21 @@ impl RosNode {
         port.publish(msg)
     }
 
+    /// Publishes the avatar preview cloud of `posed` Gaussians and its `/tf` transform
+    /// (nothing when the preview is disabled).
+    pub fn publish_preview(&self, posed: &Gaussians, stamp_ns: i64) -> Result<(), RosError> {
+        let Some(p) = &self.preview else {
+            return Ok(());
+        };
+        p.tf.publish(crate::node::preview::preview_transform(
+            stamp_ns, &p.world, &p.frame,
+        ))?;
+        p.cloud.publish(crate::node::preview::preview_cloud(
+            posed, stamp_ns, &p.frame,
+        ))?;
+        Ok(())
+    }
+
     /// Matched readers of the avatar topic.
     pub fn avatar_subscribers(&self) -> usize {
         self.avatar.publisher.get_subscription_count(&self.node)
@@ -428,6 +479,7 @@ impl RosNode {
             avatar,
             status,
             frames,
+            preview,
             tasks,
             spinner,
             ..
@@ -442,7 +494,7 @@ impl RosNode {
             task.abort();
         }
         tasks.iter().for_each(wait);
-        drop((sink, avatar, status, frames));
+        drop((sink, avatar, status, frames, preview));
         drop(node);
         wait(&spinner);
         if !spinner.is_finished() {

@@ -20,10 +20,15 @@ pub struct OutputTopics {
     pub status: String,
     /// sensor_msgs/Image rgb8, one per virtual camera.
     pub frames: Vec<String>,
+    /// sensor_msgs/PointCloud2 preview of the posed avatar (x y z + packed rgb).
+    pub preview: String,
+    /// tf2_msgs/TFMessage carrying the preview frame.
+    pub tf: String,
 }
 
 impl OutputTopics {
-    /// `avatar`, `status` and `render/cam<i>/image_raw` for each virtual camera.
+    /// `avatar`, `status`, `render/cam<i>/image_raw` for each virtual camera, `avatar/points`
+    /// and `/tf`.
     pub fn for_virtual_cameras(count: u32) -> Self {
         Self {
             avatar: "avatar".into(),
@@ -31,6 +36,8 @@ impl OutputTopics {
             frames: (0..count)
                 .map(|i| format!("render/cam{i}/image_raw"))
                 .collect(),
+            preview: "avatar/points".into(),
+            tf: "/tf".into(),
         }
     }
 }
