@@ -5,13 +5,19 @@
 //! presets; a small random PixelShuffle hub folder loads, predicts betas, renders through its
 //! pixel-shuffle head and is display-ready.
 
+mod official_support;
+
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use candle_core::{DType, Device, Tensor};
+use lhmpp::config::ModelConfig;
 use lhmpp::model::checkpoint::{expected_tensors, init_checkpoint, IGNORED_PREFIXES};
 use lhmpp::model::hub::{self, HubFolder};
 use lhmpp::model::{Lhmpp, LhmppConfig, RgbKind};
+use lhmpp::node::pipeline::reconstructor::Reconstructor;
+use lhmpp::node::pipeline::shape::AcceptedShape;
+use lhmpp::node::preprocess::{BBox, Preprocessed};
 use serde_json::json;
 
 const PIXELSHUFFLE_KEYS: &str =
@@ -182,10 +188,9 @@ fn extra_bytes(n: usize, seed: u64) -> Vec<u8> {
         .collect()
 }
 
-#[test]
-fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames() {
-    let dir = tempfile::tempdir().unwrap();
-    // Small widths (ViT-S, d 384, a slim point backbone), the released renderer widths.
+/// A small random LHMPP-700M-PixelShuffle hub folder in `dir`: small widths (ViT-S, d 384, a
+/// slim point backbone), the released renderer widths, two shards.
+fn write_small_pixelshuffle_hub(dir: &Path) -> HubFolder {
     let mut v = pixelshuffle_config();
     v["encoder_model_name"] = json!("dinov2_vits14_reg");
     v["encoder_feat_dim"] = json!(384);
@@ -206,7 +211,7 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
     v["gs_mlp_network_config"]["n_neurons"] = json!(64);
     v["shape_head"]["dim_in"] = json!(384);
     v["shape_head"]["num_heads"] = json!(6);
-    let hub = open(dir.path(), &v);
+    let hub = open(dir, &v);
     assert_eq!(hub.config.neural_renderer.pixel_shuffle, Some(2));
     assert!(
         hub.config.preset.starts_with("hub:"),
@@ -215,8 +220,8 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
     );
     // Two shards: our tensors (seeded, the shape head's included), and an official extra we
     // ignore (an unused SD3 block tensor).
-    std::fs::remove_file(dir.path().join("model.safetensors")).unwrap();
-    let ours = dir.path().join("model-00001-of-00002.safetensors");
+    std::fs::remove_file(dir.join("model.safetensors")).unwrap();
+    let ours = dir.join("model-00001-of-00002.safetensors");
     init_checkpoint(&hub.config, 7, &ours).unwrap();
     let extras: Vec<(String, Vec<usize>)> = vec![(
         "neural_renderer.transformer_block.0.norm1.linear.weight".into(),
@@ -241,7 +246,7 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
             (n.clone(), v)
         })
         .collect();
-    let second = dir.path().join("model-00002-of-00002.safetensors");
+    let second = dir.join("model-00002-of-00002.safetensors");
     safetensors::serialize_to_file(views, None, &second).unwrap();
     let mut map = serde_json::Map::new();
     for k in expected_tensors(&hub.config).unwrap().keys() {
@@ -251,11 +256,19 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
         map.insert(k.clone(), json!("model-00002-of-00002.safetensors"));
     }
     std::fs::write(
-        dir.path().join("model.safetensors.index.json"),
+        dir.join("model.safetensors.index.json"),
         json!({ "metadata": {}, "weight_map": map }).to_string(),
     )
     .unwrap();
 
+    HubFolder::open(dir).unwrap()
+}
+
+#[test]
+fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let hub = write_small_pixelshuffle_hub(dir.path());
+    assert_eq!(hub.config.neural_renderer.pixel_shuffle, Some(2));
     let loaded = hub::load_checkpoint(
         dir.path(),
         &LhmppConfig::lhmpp_700m(),
@@ -311,4 +324,73 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
         .to_scalar::<f32>()
         .unwrap();
     assert!(d < 1e-4, "{d}");
+}
+
+/// A small view: white with a coloured block (RGB in [0, 1], channel-major).
+fn view(size: u32, shift: usize) -> Preprocessed {
+    let s = size as usize;
+    let mut chw = vec![1.0f32; 3 * s * s];
+    for c in 0..3 {
+        for y in s / 4..3 * s / 4 {
+            for x in (s / 3 + shift)..(2 * s / 3 + shift).min(s) {
+                chw[c * s * s + y * s + x] = 0.2 + 0.3 * c as f32;
+            }
+        }
+    }
+    Preprocessed {
+        height: size,
+        width: size,
+        chw,
+        region: BBox {
+            x0: 0,
+            y0: 0,
+            x1: i64::from(size),
+            y1: i64::from(size),
+        },
+    }
+}
+
+#[test]
+fn the_node_reconstructor_carries_the_predicted_betas_and_takes_the_gaussian_rgb() {
+    let tmp = tempfile::tempdir().unwrap();
+    let hub = tmp.path().join("LHMPP-700M-PixelShuffle-small");
+    std::fs::create_dir_all(&hub).unwrap();
+    write_small_pixelshuffle_hub(&hub);
+    let prior_dir = tmp.path().join("LHMPP-Prior");
+    official_support::write_prior(&prior_dir, 2000);
+    let config = ModelConfig {
+        preset: "lhmpp-700m".into(),
+        checkpoint: hub.display().to_string(),
+        prior_dir: prior_dir.display().to_string(),
+        num_points: 600,
+        ..ModelConfig::default()
+    };
+    let mut recon = Reconstructor::new(&config, 4).unwrap();
+    assert_eq!(recon.rgb_kind(), RgbKind::DisplayReady);
+    assert_eq!(recon.neural_renderer_id(), "");
+    assert!(
+        recon.checkpoint_kind().contains("shape_head"),
+        "{}",
+        recon.checkpoint_kind()
+    );
+    assert!(recon.shape().is_none());
+    let (a, b) = (view(56, 0), view(56, 9));
+    recon.reconstruct(&[(1, &a), (2, &b)]).unwrap();
+    let betas = recon.predicted_betas().expect("predicted betas").to_vec();
+    assert_eq!(betas.len(), 10);
+    assert!(betas.iter().all(|v| v.is_finite()));
+    assert_eq!(
+        recon.shape(),
+        Some(&AcceptedShape::SmplxBetas(betas.clone()))
+    );
+    // A shape from the shape topic wins over the prediction.
+    let topic = AcceptedShape::SmplxBetas(vec![0.5; 10]);
+    recon.set_shape(topic.clone()).unwrap();
+    recon.reconstruct(&[(1, &a)]).unwrap();
+    assert_eq!(recon.shape(), Some(&topic));
+    assert_ne!(
+        recon.predicted_betas().unwrap(),
+        &betas[..],
+        "a new prediction for one view"
+    );
 }

@@ -99,6 +99,9 @@ pub struct Reconstructor {
     checkpoint: String,
     shape: Option<AcceptedShape>,
     betas_noted: bool,
+    /// The betas the network's shape head predicted at the last reconstruction, as a SMPL-X
+    /// shape (only with the SMPL-X prior body).
+    predicted_shape: Option<AcceptedShape>,
     rgb_kind: RgbKind,
     checkpoint_kind: String,
 }
@@ -229,6 +232,7 @@ impl Reconstructor {
             },
             shape: None,
             betas_noted: false,
+            predicted_shape: None,
             rgb_kind,
             checkpoint_kind,
         })
@@ -288,9 +292,21 @@ impl Reconstructor {
         }
     }
 
-    /// The shape in use (`None`: the template as shipped).
+    /// The shape in use: the shape topic's; else, for a network with a shape head (the
+    /// GS-supervised LHMPP-700M-PixelShuffle / -SMPLX-FREE) on the SMPL-X prior, the betas it
+    /// predicted at the last reconstruction (the official `use_pred_shape_for_render`); `None`:
+    /// the template as shipped.
     pub fn shape(&self) -> Option<&AcceptedShape> {
-        self.shape.as_ref()
+        self.shape.as_ref().or(self.predicted_shape.as_ref())
+    }
+
+    /// The betas the network's shape head predicted at the last reconstruction (SMPL-X prior
+    /// only; carried like the shape topic's betas, not applied to the prior body).
+    pub fn predicted_betas(&self) -> Option<&[f32]> {
+        match &self.predicted_shape {
+            Some(AcceptedShape::SmplxBetas(b)) => Some(b),
+            _ => None,
+        }
     }
 
     /// Uses `shape` from the next reconstruction on: a MakeHuman shape rescales the template
@@ -412,9 +428,24 @@ impl Reconstructor {
             let t = self.image_tensor(image)?;
             tokens.push(self.cache.get_or_encode(&self.model, *id, &t)?);
         }
+        let (feat, betas) =
+            self.model
+                .fuse_with_betas(&self.anchor_positions, &self.anchor_normals, &tokens)?;
+        if let (Some(betas), Some(_)) = (betas, &self.prior) {
+            let betas = betas.flatten_all()?.to_vec1::<f32>()?;
+            if self.predicted_shape.is_none() {
+                tracing::info!(
+                    "the network's shape head predicts the SMPL-X betas ({} values); they are \
+                     carried in the avatar message unless inputs.shape_topic gives a shape",
+                    betas.len()
+                );
+            }
+            self.predicted_shape = Some(AcceptedShape::SmplxBetas(betas));
+        }
         let out = self
             .model
-            .reconstruct(&self.anchor_positions, &self.anchor_normals, &tokens)?;
+            .gs_head()
+            .forward(&feat, &self.anchor_positions)?;
         let a = out.to_cpu_arrays()?;
         let n = a.opacities.len();
         let v3 = |v: &[f32], i: usize| Vec3::new(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
