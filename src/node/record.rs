@@ -328,11 +328,11 @@ pub async fn record(
     let spinner = node
         .spinner()
         .map_err(|e| RosError::Create(format!("recorder spinner: {e:?}")))?;
-    tasks.push(tokio::spawn(async move {
+    let spinner = tokio::spawn(async move {
         if let Err(e) = spinner.spin().await {
             tracing::error!("recorder spinner stopped: {e:?}");
         }
-    }));
+    });
     tracing::info!(
         "recording {} topics into {}: {}",
         topics.len(),
@@ -385,10 +385,24 @@ pub async fn record(
             }
         }
     };
-    node.stop_spinner();
+    // Shutdown in the order RosNode::shutdown explains: the readers first (aborted and
+    // awaited), then the node (its Drop stops the spinner; calling stop_spinner as well
+    // overfilled the one-slot stop channel: "Cannot notify spin task to stop: Full"), then the
+    // participant.
     for task in &tasks {
         task.abort();
     }
+    for task in tasks {
+        let _ = task.await;
+    }
+    drop(node);
+    if tokio::time::timeout(Duration::from_secs(2), spinner)
+        .await
+        .is_err()
+    {
+        tracing::warn!("recorder spinner did not stop within 2 s");
+    }
+    drop(context);
     result?;
     // Messages already received when the stop came are kept.
     while let Ok(m) = rx.try_recv() {
