@@ -289,6 +289,19 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
         .find(|(p, _, _)| p == "neural_renderer.transformer_block.")
         .unwrap();
     assert_eq!(unused.1, 1, "{summary:?}");
+    // `lhmpp model info FOLDER` names the renderer and the shape head.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+        .args(["model", "info"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("renderer mlp_pixelshuffle"), "{text}");
+    assert!(
+        text.contains("shape_head: 10 betas from the views' pose tokens (2 trunk blocks, 4 steps)"),
+        "{text}"
+    );
     let model = Lhmpp::new(&loaded.config, loaded.var_builder).unwrap();
     // The shape head reads the pose tokens of the views: 10 finite betas.
     let head = model.shape_head().expect("a shape head");

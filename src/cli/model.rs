@@ -135,8 +135,14 @@ fn hub_info(dir: &std::path::Path) -> anyhow::Result<()> {
         o.smplx_type.as_deref().unwrap_or("?"),
         o.neural_renderer.kind
     );
+    if let Some(sh) = &hub.config.shape_head {
+        println!(
+            "  shape_head: {} betas from the views' pose tokens ({} trunk blocks, {} steps)",
+            sh.target_dim, sh.trunk_depth, sh.num_iterations
+        );
+    }
     if hub.differences.is_empty() {
-        println!("  config: equals preset lhmpp-700m");
+        println!("  config: equals preset {}", hub.config.preset);
     } else {
         println!(
             "  config `{}` differs from preset lhmpp-700m:",
@@ -172,16 +178,25 @@ fn millions(n: usize) -> String {
 
 fn print_table(rows: &[(String, ParameterCounts)]) {
     println!(
-        "| {:<10} | {:>9} | {:>9} | {:>9} | {:>9} | {:>8} | {:>8} | {:>9} | {:>9} |",
-        "preset", "encoder", "frame", "points", "PIT", "motion", "GS head", "renderer", "total"
+        "| {:<23} | {:>9} | {:>9} | {:>9} | {:>9} | {:>8} | {:>8} | {:>9} | {:>8} | {:>9} |",
+        "preset",
+        "encoder",
+        "frame",
+        "points",
+        "PIT",
+        "motion",
+        "GS head",
+        "renderer",
+        "shape",
+        "total"
     );
     println!(
-        "|{:-<12}|{:->11}|{:->11}|{:->11}|{:->11}|{:->10}|{:->10}|{:->11}|{:->11}|",
-        "", "", "", "", "", "", "", "", ""
+        "|{:-<25}|{:->11}|{:->11}|{:->11}|{:->11}|{:->10}|{:->10}|{:->11}|{:->10}|{:->11}|",
+        "", "", "", "", "", "", "", "", "", ""
     );
     for (name, p) in rows {
         println!(
-            "| {:<10} | {:>9} | {:>9} | {:>9} | {:>9} | {:>8} | {:>8} | {:>9} | {:>9} |",
+            "| {:<23} | {:>9} | {:>9} | {:>9} | {:>9} | {:>8} | {:>8} | {:>9} | {:>8} | {:>9} |",
             name,
             millions(p.encoder),
             millions(p.image_backbone),
@@ -190,6 +205,7 @@ fn print_table(rows: &[(String, ParameterCounts)]) {
             millions(p.motion_embed),
             millions(p.gs_head),
             millions(p.neural_renderer),
+            millions(p.shape_head),
             millions(p.total())
         );
     }
