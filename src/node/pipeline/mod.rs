@@ -200,6 +200,7 @@ impl Pipeline {
             config.outputs.renderer,
             rgb,
             recon.feature_channels(),
+            recon.background_channels(),
             recon.neural_renderer_config().in_channels,
         )?;
         let neural = match decision.source {

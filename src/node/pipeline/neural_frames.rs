@@ -41,6 +41,20 @@ pub enum RendererSetupError {
         /// Channels the neural renderer reads.
         renderer: usize,
     },
+    /// `outputs.renderer: neural` with a background feature of another width than the
+    /// renderer reads (the official `background_embedding` is 128 wide whatever
+    /// `gs_query_dim` is).
+    #[error(
+        "outputs.renderer: neural: the network's background feature has {background} channels \
+         (renderer.background_embedding) but its neural renderer reads {renderer} \
+         (neural_renderer.in_channels); use outputs.renderer: gaussians"
+    )]
+    BackgroundMismatch {
+        /// Channels of the background feature.
+        background: usize,
+        /// Channels the neural renderer reads.
+        renderer: usize,
+    },
     /// A tensor of the neural renderer could not be prepared.
     #[error("outputs.renderer: neural: {0}")]
     Candle(#[from] candle_core::Error),
@@ -65,16 +79,17 @@ pub struct RendererDecision {
 }
 
 /// Resolves `outputs.renderer` for a network whose Gaussians' RGB is `rgb`, with `features`
-/// feature channels per Gaussian and a neural renderer reading `renderer_in` channels.
-/// `neural` with mismatched widths is an error naming both; `auto` then falls back to
-/// `gaussians`.
+/// feature channels per Gaussian, a `background`-wide background feature and a neural
+/// renderer reading `renderer_in` channels. `neural` with mismatched widths is an error naming
+/// both; `auto` then falls back to `gaussians`.
 pub fn choose_renderer(
     choice: RendererChoice,
     rgb: RgbKind,
     features: usize,
+    background: usize,
     renderer_in: usize,
 ) -> Result<RendererDecision, RendererSetupError> {
-    let fits = features == renderer_in && features > 0;
+    let fits = features == renderer_in && background == renderer_in && features > 0;
     let decision = |source, reason: String| Ok(RendererDecision { source, reason });
     match (choice, rgb) {
         (RendererChoice::Gaussians, RgbKind::DisplayReady) => {
@@ -86,6 +101,12 @@ pub fn choose_renderer(
              display-ready: frames show a latent intermediate, not colours"
                 .into(),
         ),
+        (RendererChoice::Neural, _) if !fits && features == renderer_in && features > 0 => {
+            Err(RendererSetupError::BackgroundMismatch {
+                background,
+                renderer: renderer_in,
+            })
+        }
         (RendererChoice::Neural, _) if !fits => Err(RendererSetupError::WidthMismatch {
             features,
             renderer: renderer_in,
@@ -105,6 +126,16 @@ pub fn choose_renderer(
                  its neural renderer reads the Gaussians' {features} feature channels"
             ),
         ),
+        (RendererChoice::Auto, RgbKind::Latent) if features == renderer_in && features > 0 => {
+            decision(
+                FrameSource::Gaussians,
+                format!(
+                    "outputs.renderer: auto: the checkpoint's Gaussian RGB is not display-ready, \
+                     but its background feature is {background} wide and its neural renderer \
+                     reads {renderer_in} channels: frames show the latent RGB"
+                ),
+            )
+        }
         (RendererChoice::Auto, RgbKind::Latent) => decision(
             FrameSource::Gaussians,
             format!(
@@ -304,7 +335,7 @@ mod tests {
     #[test]
     fn choice_follows_the_rgb_and_rejects_mismatched_widths() {
         use RendererChoice::*;
-        let pick = |c, rgb, f, r| choose_renderer(c, rgb, f, r).unwrap().source;
+        let pick = |c, rgb, f, r| choose_renderer(c, rgb, f, f, r).unwrap().source;
         assert_eq!(
             pick(Auto, RgbKind::DisplayReady, 32, 32),
             FrameSource::Gaussians
@@ -319,11 +350,27 @@ mod tests {
             pick(Neural, RgbKind::DisplayReady, 32, 32),
             FrameSource::Neural
         );
-        let e = choose_renderer(Neural, RgbKind::Latent, 64, 128)
+        let e = choose_renderer(Neural, RgbKind::Latent, 64, 64, 128)
             .unwrap_err()
             .to_string();
         assert!(
             e.contains("outputs.renderer") && e.contains("64") && e.contains("128"),
+            "{e}"
+        );
+        // The official background embedding is 128 wide: features and renderer at 64 cannot
+        // splat it; auto falls back, neural says so.
+        let d = choose_renderer(Auto, RgbKind::Latent, 64, 128, 64).unwrap();
+        assert_eq!(d.source, FrameSource::Gaussians);
+        assert!(
+            d.reason.contains("background feature is 128"),
+            "{}",
+            d.reason
+        );
+        let e = choose_renderer(Neural, RgbKind::Latent, 64, 128, 64)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("background_embedding") && e.contains("128"),
             "{e}"
         );
     }

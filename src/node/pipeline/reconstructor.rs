@@ -256,6 +256,12 @@ impl Reconstructor {
         self.cfg.gs_head.gs_query_dim
     }
 
+    /// Channels of the background feature splatted behind the avatar
+    /// (`renderer.background_embedding`: 128 for the official layout).
+    pub fn background_channels(&self) -> usize {
+        self.cfg.gs_head.background_width()
+    }
+
     /// The neural renderer's config (`neural_renderer.*`).
     pub fn neural_renderer_config(&self) -> &DptConfig {
         &self.cfg.neural_renderer
