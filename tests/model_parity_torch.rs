@@ -133,6 +133,13 @@ fn shape_head_matches_pytorch_iterative_betas_head() {
     assert_matches_pytorch("shape_head", &["betas", "steps"]);
 }
 
+/// LHMPPS-700M's `PatchDPTDecoderOnly` (depth 1): the whole tokens feed the four DPT inputs
+/// (checked against the official `DPTHead` too: identical outputs).
+#[test]
+fn shared_token_dpt_renderer_matches_pytorch_lhmpps_head() {
+    assert_matches_pytorch("dpt_shared", &["rgb", "mask"]);
+}
+
 #[test]
 fn ptv3_block_and_serialization_orders_match_pytorch_reference() {
     assert_matches_pytorch(

@@ -23,6 +23,7 @@ use serde_json::json;
 const PIXELSHUFFLE_KEYS: &str =
     include_str!("fixtures/lhmpp_700m_pixelshuffle_state_dict_keys.tsv");
 const SMPLX_FREE_KEYS: &str = include_str!("fixtures/lhmpp_700m_smplx_free_state_dict_keys.tsv");
+const LHMPPS_KEYS: &str = include_str!("fixtures/lhmpps_700m_state_dict_keys.tsv");
 /// The `model:` section of the official `configs/train/LHMPP-any-view.yaml` as config.json.
 const OFFICIAL_CONFIG: &str = include_str!("fixtures/official/config.json");
 
@@ -109,6 +110,34 @@ fn smplx_free_keys_and_shapes_equal_the_official_modules() {
         RgbKind::of_preset("lhmpp-700m-smplx-free"),
         RgbKind::DisplayReady
     );
+}
+
+#[test]
+fn lhmpps_hub_config_derives_the_one_group_dpt_head_and_its_official_keys() {
+    // configs/train/LHMPP-any-view-DPTS.yaml: LHMPP-700M with `patch_dptonly`, depth 1.
+    let dir = tempfile::tempdir().unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(OFFICIAL_CONFIG).unwrap();
+    v["neural_renderer"]["type"] = json!("patch_dptonly");
+    v["neural_renderer"]["depth"] = json!(1);
+    let hub = open(dir.path(), &v);
+    assert!(hub.config.neural_renderer.shared_tokens);
+    assert_eq!(hub.config.neural_renderer.head_dim(), 1024);
+    assert!(
+        hub.config.preset.starts_with("hub:"),
+        "{}",
+        hub.config.preset
+    );
+    // The official list (DPTHead instantiated, its unused SD3 block not listed) is ours.
+    assert_eq!(
+        assert_key_list(&hub.config, &parse(LHMPPS_KEYS)),
+        vec![0, 0, 0]
+    );
+    assert_eq!(RgbKind::of_hub("patch_dptonly", false), RgbKind::Latent);
+    // Any other depth cannot run in the official class: refused, naming the field.
+    v["neural_renderer"]["depth"] = json!(4);
+    std::fs::write(dir.path().join("config.json"), v.to_string()).unwrap();
+    let err = HubFolder::open(dir.path()).unwrap_err().to_string();
+    assert!(err.contains("neural_renderer.depth = 4"), "{err}");
 }
 
 /// The shape-head fields both GS-supervised configs add (`configs/train/LHMPP-pixelshuffle.yaml`,

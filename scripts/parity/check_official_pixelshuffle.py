@@ -1,4 +1,5 @@
-"""Checks the PixelShuffle parity fixture against the official MLPPixelShuffleDPTHead itself.
+"""Checks the PixelShuffle (or LHMPPS `dpt_shared`) parity fixture against the official
+MLPPixelShuffleDPTHead (or DPTHead) itself.
 
     python check_official_pixelshuffle.py --official DIR FIXTURE
 
@@ -26,15 +27,21 @@ def main():
     ap.add_argument("fixture")
     args = ap.parse_args()
     sys.path.insert(0, os.path.abspath(args.official))
+    from core.models.heads.dpt_head import DPTHead
     from core.models.heads.mlp_head import MLPPixelShuffleDPTHead
 
     t = load_file(args.fixture)
     with safe_open(args.fixture, "pt") as f:
         cfg = json.loads(f.metadata()["config"])
     p, embed = cfg["patch"], cfg["embed"]
-    head = MLPPixelShuffleDPTHead(dim_in=embed // 4, patch_size=p, features=cfg["features"],
-                                  out_channels=cfg["oc"], intermediate_layer_idx=[0, 1, 2, 3],
-                                  pixel_shuffle_factor=cfg["pixel_shuffle"])
+    shared = cfg.get("shared", False)
+    if shared:  # PatchDPTDecoderOnly.build_decoder at depth 1
+        head = DPTHead(dim_in=embed, patch_size=p, features=cfg["features"],
+                       out_channels=cfg["oc"], intermediate_layer_idx=[0, 0, 0, 0])
+    else:
+        head = MLPPixelShuffleDPTHead(dim_in=embed // 4, patch_size=p, features=cfg["features"],
+                                      out_channels=cfg["oc"], intermediate_layer_idx=[0, 1, 2, 3],
+                                      pixel_shuffle_factor=cfg["pixel_shuffle"])
     prefix = "neural_renderer.dense_predictor."
     head.load_state_dict({k[len(prefix):]: v for k, v in t.items() if k.startswith(prefix)})
     head.eval()
@@ -42,7 +49,7 @@ def main():
     b, c, H, W = x.shape
     tok = x.reshape(b, c, H // p, p, W // p, p).permute(0, 2, 4, 3, 5, 1).reshape(b, -1, p * p * c)
     tok = tok @ t["neural_renderer.patchify.1.weight"].T
-    groups = [g.unsqueeze(0) for g in torch.chunk(tok, 4, dim=-1)]
+    groups = [tok.unsqueeze(0)] if shared else [g.unsqueeze(0) for g in torch.chunk(tok, 4, dim=-1)]
     with torch.no_grad():
         rgb, mask = head(groups, H, W)  # [1, B, H, W, 3], [1, B, H, W, 1]
     rgb = rgb[0].permute(0, 3, 1, 2)
@@ -51,7 +58,7 @@ def main():
         ref = t[f"parity.output.{name}"]
         d = (ours.double() - ref.double()).abs().max().item()
         rel = d / ref.double().abs().max().item()
-        print(f"official MLPPixelShuffleDPTHead vs reference.py, {name}: max abs {d:.3e}, max rel {rel:.3e}")
+        print(f"official {type(head).__name__} vs reference.py, {name}: max abs {d:.3e}, max rel {rel:.3e}")
 
 
 if __name__ == "__main__":

@@ -61,6 +61,8 @@ SIZES = {
                                  height=28, width=21, pixel_shuffle=2),
         "shape_head": dict(dim=64, target=10, trunk_depth=2, heads=2, mlp_ratio=4.0, iterations=4,
                            views=3, tokens=9),
+        "dpt_shared": dict(c=8, patch=7, embed=32, features=16, oc=[8, 16, 32, 32], batch=1,
+                           height=28, width=21, shared=True),
     },
     "700m": {
         "dino_block": dict(dim=1024, heads=16, mlp_ratio=4.0, batch=1, tokens=1 + 4 + 60 * 36),
@@ -80,6 +82,8 @@ SIZES = {
                                  batch=1, height=140, width=84, pixel_shuffle=2),
         "shape_head": dict(dim=1024, target=10, trunk_depth=2, heads=16, mlp_ratio=4.0, iterations=4,
                            views=2, tokens=5 + 60 * 36),
+        "dpt_shared": dict(c=128, patch=7, embed=1024, features=128, oc=[128, 256, 512, 512], batch=1,
+                           height=140, width=84, shared=True),
     },
 }
 
@@ -96,6 +100,7 @@ PREFIX = {
     "dpt": "neural_renderer.",
     "dpt_pixelshuffle": "neural_renderer.",
     "shape_head": "shape_head.",
+    "dpt_shared": "neural_renderer.",
 }
 
 
@@ -186,9 +191,9 @@ def build(kind, c, gen):
         m = R.GsHead(c["q"], c["n"], c["hidden_layers"], c["clip_scaling"], c["max_step"])
         inputs = {"features": rn(c["points"], c["q"]), "anchors": rn(c["points"], 3)}
         fwd = lambda m, i: m(i["features"], i["anchors"])  # noqa: E731
-    elif kind in ("dpt", "dpt_pixelshuffle"):
+    elif kind in ("dpt", "dpt_pixelshuffle", "dpt_shared"):
         m = R.NeuralRenderer(c["c"], c["patch"], c["embed"], c["features"], c["oc"],
-                             c.get("pixel_shuffle"))
+                             c.get("pixel_shuffle"), c.get("shared", False))
         inputs = {"features": rn(c["batch"], c["c"], c["height"], c["width"])}
 
         def fwd(m, i):

@@ -653,13 +653,18 @@ class PixelShuffleHead(nn.Module):
 class NeuralRenderer(nn.Module):
     """PatchDPT4DecoderOnly: (hh 7)(ww 7) patches, token order (ph, pw, c), Linear without
     bias, 4 channel groups -> DPTHead -> sigmoid -> RGB + mask. With `pixel_shuffle` = u:
-    PatchMLPPixelShuffleDPT4DecoderOnly, the same patchify feeding PixelShuffleHead."""
+    PatchMLPPixelShuffleDPT4DecoderOnly, the same patchify feeding PixelShuffleHead. With
+    `shared`: PatchDPTDecoderOnly at depth 1 (LHMPPS-700M), the whole tokens feed all four
+    DPT inputs (dim_in = embed)."""
 
-    def __init__(self, c, patch, embed, features, oc, pixel_shuffle=None):
+    def __init__(self, c, patch, embed, features, oc, pixel_shuffle=None, shared=False):
         super().__init__()
         self.patch = patch
+        self.shared = shared
         self.patchify = nn.Sequential(nn.Identity(), nn.Linear(patch * patch * c, embed, bias=False))
-        if pixel_shuffle is None:
+        if shared:
+            self.dense_predictor = DptHead(embed, features, oc)
+        elif pixel_shuffle is None:
             self.dense_predictor = DptHead(embed // 4, features, oc)
         else:
             self.dense_predictor = PixelShuffleHead(embed // 4, features, oc, pixel_shuffle)
@@ -670,7 +675,7 @@ class NeuralRenderer(nn.Module):
         hh, ww = H // p, W // p
         tok = feats.reshape(b, c, hh, p, ww, p).permute(0, 2, 4, 3, 5, 1).reshape(b, hh * ww, p * p * c)
         tok = self.patchify(tok)
-        groups = tok.chunk(4, dim=-1)
+        groups = [tok] * 4 if self.shared else tok.chunk(4, dim=-1)
         out = torch.sigmoid(self.dense_predictor(groups, hh, ww, H, W))
         return out[:, :3], out[:, 3:]
 

@@ -319,7 +319,7 @@ fn run_block(fx: &Fixture, dtype: DType, dev: &Device) -> anyhow::Result<Vec<(St
                 out("rotations", g.rotations),
             ]
         }
-        "dpt" | "dpt_pixelshuffle" => {
+        "dpt" | "dpt_pixelshuffle" | "dpt_shared" => {
             let oc = fx.config["oc"]
                 .as_array()
                 .filter(|a| a.len() == 4)
@@ -341,6 +341,7 @@ fn run_block(fx: &Fixture, dtype: DType, dev: &Device) -> anyhow::Result<Vec<(St
                     "dpt_pixelshuffle" => Some(fx.usize("pixel_shuffle")?),
                     _ => None,
                 },
+                shared_tokens: fx.block == "dpt_shared",
             };
             let r = NeuralRenderer::new(&cfg, vb)?;
             let (rgb, mask) = r.forward(&fx.input("features", dtype, dev)?)?;

@@ -592,7 +592,7 @@ pub fn point_backbone_params(pb: &PointBackboneConfig) -> usize {
 
 /// Parameters of the DPT neural renderer used at inference (patchify + DPT head).
 pub fn dpt_params(d: &DptConfig) -> usize {
-    let dim_in = d.embed_dim / 4;
+    let dim_in = d.head_dim();
     let f = d.features;
     let oc = d.out_channels;
     let conv = |i: usize, o: usize, k: usize| i * o * k * k + o;

@@ -57,6 +57,12 @@ pub struct DptConfig {
     /// and output convolutions; `None`: the DPT head (`patch_4dptonly`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pixel_shuffle: Option<usize>,
+    /// `true`: the four DPT inputs are the whole `embed_dim`-wide tokens, four times
+    /// (`PatchDPTDecoderOnly` of LHMPPS-700M, `neural_renderer.type: patch_dptonly`, depth 1:
+    /// `DPTHead(dim_in=1024, intermediate_layer_idx=[0, 0, 0, 0])`); `false`: four
+    /// `embed_dim / 4` channel groups (`PatchDPT4DecoderOnly`).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub shared_tokens: bool,
 }
 
 impl DptConfig {
@@ -69,6 +75,7 @@ impl DptConfig {
             features: 128,
             out_channels: [128, 256, 512, 512],
             pixel_shuffle: None,
+            shared_tokens: false,
         }
     }
 
@@ -90,12 +97,28 @@ impl DptConfig {
             features: 16,
             out_channels: [16, 32, 64, 64],
             pixel_shuffle: None,
+            shared_tokens: false,
         }
     }
 
     /// Size of each of the four token groups the head reads.
     pub fn head_dim(&self) -> usize {
-        self.embed_dim / 4
+        if self.shared_tokens {
+            self.embed_dim
+        } else {
+            self.embed_dim / 4
+        }
+    }
+
+    /// The four inputs of the head from the patchified tokens `[B, N, embed_dim]`.
+    fn token_groups(&self, tokens: &Tensor) -> Result<Vec<Tensor>> {
+        let d = self.head_dim();
+        (0..4)
+            .map(|i| match self.shared_tokens {
+                true => Ok(tokens.clone()),
+                false => tokens.narrow(D::Minus1, i * d, d)?.contiguous(),
+            })
+            .collect()
     }
 }
 
@@ -963,7 +986,6 @@ impl NeuralRenderer {
         }
         let (h, w) = (dims[2], dims[3]);
         let (hh, ww) = (h / p, w / p);
-        let d = self.cfg.head_dim();
         let cpu = features.device().is_cpu() && features.dtype() == DType::F32;
         if let (Some(head), Some(patchify), true) = (&self.cpu_head, &self.cpu_patchify, cpu) {
             // A channels-last map viewed as [B, C, H, W] (the rasteriser's features permuted)
@@ -997,18 +1019,14 @@ impl NeuralRenderer {
                 patchify
             };
             let tokens = linear.forward(&rows)?;
-            let groups = (0..4)
-                .map(|i| tokens.narrow(D::Minus1, i * d, d)?.contiguous())
-                .collect::<Result<Vec<_>>>()?;
+            let groups = self.cfg.token_groups(&tokens)?;
             clock.lap("patchify linear");
             return head.forward(&self.head.norm, &groups, hh, ww, (h, w), &mut clock);
         }
         let patches = self.patch_tokens(features)?;
         clock.lap("patch tokens");
         let tokens = self.patchify.forward(&patches)?;
-        let groups = (0..4)
-            .map(|i| tokens.narrow(D::Minus1, i * d, d)?.contiguous())
-            .collect::<Result<Vec<_>>>()?;
+        let groups = self.cfg.token_groups(&tokens)?;
         clock.lap("patchify linear");
         let logits = self.head.forward(&groups, hh, ww, (h, w), &mut clock)?;
         let out = candle_nn::ops::sigmoid(&logits.to_dtype(DType::F32)?)?;

@@ -198,6 +198,8 @@ pub struct OfficialNeuralRenderer {
 
 /// `neural_renderer.type` of the DPT head (LHMPP-700M, LHMPPS-700M, LHMPP-700M-SMPLX-FREE).
 pub const DPT_RENDERER_TYPE: &str = "patch_4dptonly";
+/// `neural_renderer.type` of the one-group DPT head (LHMPPS-700M, depth 1).
+pub const SHARED_DPT_RENDERER_TYPE: &str = "patch_dptonly";
 /// `neural_renderer.type` of the pixel-shuffle head (LHMPP-700M-PixelShuffle).
 pub const PIXEL_SHUFFLE_RENDERER_TYPE: &str = "mlp_pixelshuffle";
 /// `PatchMLPPixelShuffleDPT4DecoderOnly`'s default `pixel_shuffle_factor`.
@@ -762,11 +764,32 @@ pub fn derive_config(
     }
     let nr = &o.neural_renderer;
     require(
-        nr.kind == DPT_RENDERER_TYPE || nr.kind == PIXEL_SHUFFLE_RENDERER_TYPE,
+        [
+            DPT_RENDERER_TYPE,
+            SHARED_DPT_RENDERER_TYPE,
+            PIXEL_SHUFFLE_RENDERER_TYPE,
+        ]
+        .contains(&nr.kind.as_str()),
         "neural_renderer.type",
         &nr.kind,
-        "patch_4dptonly, mlp_pixelshuffle",
+        "patch_4dptonly, patch_dptonly, mlp_pixelshuffle",
     );
+    if nr.kind == SHARED_DPT_RENDERER_TYPE {
+        // `PatchDPTDecoderOnly` hands the head one token list and indexes it with
+        // `intermediate_mapping[depth]`: only depth 1 ([0, 0, 0, 0]) runs.
+        require(
+            nr.depth == 1,
+            "neural_renderer.depth",
+            &nr.depth,
+            "1 with patch_dptonly",
+        );
+        set(
+            &mut d,
+            "neural_renderer.type patch_dptonly (the whole tokens feed the four DPT inputs)",
+            &mut cfg.neural_renderer.shared_tokens,
+            true,
+        );
+    }
     if nr.kind == PIXEL_SHUFFLE_RENDERER_TYPE {
         let u = nr
             .pixel_shuffle_factor

@@ -11,8 +11,10 @@
 //! LHMPP-700M, but trained with the betas `shape_head`): upstream's
 //! `GS_RENDER_SUPPORTED_MODEL_NAMES` in `core/utils/model_card.py` lists exactly these two.
 
-/// The official `neural_renderer.type` of the checkpoints whose RGB is latent.
+/// The official `neural_renderer.type` of the checkpoints whose RGB is latent (LHMPP-700M).
 pub const LATENT_RGB_RENDERER_TYPE: &str = "patch_4dptonly";
+/// The official `neural_renderer.type` of LHMPPS-700M, whose RGB is latent too.
+pub const LATENT_RGB_SHARED_RENDERER_TYPE: &str = "patch_dptonly";
 
 /// What the `r g b` of the predicted Gaussians mean.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -49,10 +51,13 @@ impl RgbKind {
 
     /// The RGB of a hub-folder checkpoint with this `neural_renderer.type` that does
     /// (`shape_head`: true) or does not carry the betas `shape_head` of the GS-supervised
-    /// releases: `patch_4dptonly` without it (LHMPP-700M, LHMPPS-700M) is latent; with it
+    /// releases: `patch_4dptonly` / `patch_dptonly` without it (LHMPP-700M, LHMPPS-700M) is
+    /// latent; with it
     /// (LHMPP-700M-SMPLX-FREE), and every other renderer (`mlp_pixelshuffle`), display-ready.
     pub fn of_hub(kind: &str, shape_head: bool) -> Self {
-        if kind == LATENT_RGB_RENDERER_TYPE && !shape_head {
+        if (kind == LATENT_RGB_RENDERER_TYPE || kind == LATENT_RGB_SHARED_RENDERER_TYPE)
+            && !shape_head
+        {
             Self::Latent
         } else {
             Self::DisplayReady
@@ -99,5 +104,6 @@ mod tests {
             RgbKind::DisplayReady
         );
         assert_eq!(RgbKind::of_hub("patch_4dptonly", false), RgbKind::Latent);
+        assert_eq!(RgbKind::of_hub("patch_dptonly", false), RgbKind::Latent);
     }
 }

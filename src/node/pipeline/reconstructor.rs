@@ -102,6 +102,8 @@ pub struct Reconstructor {
     /// The betas the network's shape head predicted at the last reconstruction, as a SMPL-X
     /// shape (only with the SMPL-X prior body).
     predicted_shape: Option<AcceptedShape>,
+    /// The official `neural_renderer.type` of the network (`patch_4dptonly` for presets).
+    renderer_kind: String,
     rgb_kind: RgbKind,
     checkpoint_kind: String,
 }
@@ -233,6 +235,9 @@ impl Reconstructor {
             shape: None,
             betas_noted: false,
             predicted_shape: None,
+            renderer_kind: renderer_type
+                .clone()
+                .unwrap_or_else(|| LATENT_RGB_RENDERER_TYPE.to_string()),
             rgb_kind,
             checkpoint_kind,
         })
@@ -286,7 +291,7 @@ impl Reconstructor {
     pub fn neural_renderer_id(&self) -> String {
         match self.rgb_kind {
             RgbKind::DisplayReady => String::new(),
-            RgbKind::Latent => format!("{LATENT_RGB_RENDERER_TYPE}@{}", self.checkpoint),
+            RgbKind::Latent => format!("{}@{}", self.renderer_kind, self.checkpoint),
         }
     }
 
