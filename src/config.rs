@@ -412,12 +412,13 @@ impl NodeConfig {
                 format!("{} is not in 0..=1", self.frame_store.duplicate_similarity),
             ));
         }
-        if !["tiny", "s", "m", "l", "lhmpp-700m"].contains(&self.model.preset.as_str()) {
+        if crate::model::LhmppConfig::preset(&self.model.preset).is_err() {
             return Err(bad(
                 "model.preset",
                 format!(
-                    "`{}` is not one of tiny, s, m, l, lhmpp-700m",
-                    self.model.preset
+                    "`{}` is not one of {}",
+                    self.model.preset,
+                    crate::model::LhmppConfig::PRESETS.join(", ")
                 ),
             ));
         }
@@ -625,6 +626,18 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    #[test]
+    fn every_network_preset_is_accepted_and_another_name_is_refused_naming_them() {
+        let yaml =
+            |p: &str| format!("lhmpp:\n  ros__parameters:\n    model:\n      preset: {p}\n");
+        for name in crate::model::LhmppConfig::PRESETS {
+            assert_eq!(load(&yaml(name), &[]).unwrap().model.preset, name);
+        }
+        let e = load(&yaml("lhmpp-9000m"), &[]).unwrap_err().to_string();
+        assert!(e.contains("model.preset") && e.contains("lhmpp-9000m"), "{e}");
+        assert!(e.contains("lhmpp-700m-pixelshuffle"), "{e}");
     }
 
     #[test]
