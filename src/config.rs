@@ -630,13 +630,15 @@ mod tests {
 
     #[test]
     fn every_network_preset_is_accepted_and_another_name_is_refused_naming_them() {
-        let yaml =
-            |p: &str| format!("lhmpp:\n  ros__parameters:\n    model:\n      preset: {p}\n");
+        let yaml = |p: &str| format!("lhmpp:\n  ros__parameters:\n    model:\n      preset: {p}\n");
         for name in crate::model::LhmppConfig::PRESETS {
             assert_eq!(load(&yaml(name), &[]).unwrap().model.preset, name);
         }
         let e = load(&yaml("lhmpp-9000m"), &[]).unwrap_err().to_string();
-        assert!(e.contains("model.preset") && e.contains("lhmpp-9000m"), "{e}");
+        assert!(
+            e.contains("model.preset") && e.contains("lhmpp-9000m"),
+            "{e}"
+        );
         assert!(e.contains("lhmpp-700m-pixelshuffle"), "{e}");
     }
 
