@@ -5,6 +5,8 @@
 //! default (trained on its RGB) publishes Gaussian frames; `neural` with a renderer that reads
 //! another width than the Gaussians carry fails at startup naming both.
 
+mod official_support;
+
 use lhmpp::config::{NodeConfig, RendererChoice};
 use lhmpp::model::checkpoint::init_checkpoint;
 use lhmpp::model::hub::HubFolder;
@@ -115,22 +117,8 @@ fn small_hub_folder(dir: &Path, renderer_channels: usize) {
     use serde_json::json;
     std::fs::create_dir_all(dir).unwrap();
     let mut v: serde_json::Value = serde_json::from_str(OFFICIAL_CONFIG).unwrap();
-    v["encoder_model_name"] = json!("dinov2_vits14_reg");
-    v["encoder_feat_dim"] = json!(384);
-    v["transformer_dim"] = json!(384);
-    v["transformer_heads"] = json!(6);
-    v["pcl_dim"] = json!(384);
-    v["transformer_decoder"]["image_backbone"]["embed_dim"] = json!(384);
-    v["transformer_decoder"]["image_backbone"]["num_heads"] = json!(6);
-    let pb = &mut v["transformer_decoder"]["point_backbone"];
-    pb["enc_depths"] = json!([1, 1, 1, 1]);
-    pb["enc_channels"] = json!([16, 32, 32, 64]);
-    pb["enc_num_head"] = json!([2, 2, 4, 4]);
-    pb["enc_patch_size"] = json!([256, 256, 128, 64]);
-    pb["dec_depths"] = json!([1, 1, 1]);
-    pb["dec_channels"] = json!([128, 32, 64]);
-    pb["dec_num_head"] = json!([2, 2, 4]);
-    pb["dec_patch_size"] = json!([256, 256, 128]);
+    official_support::vit_s_widths(&mut v);
+    official_support::slim_point_backbone(&mut v);
     v["gs_query_dim"] = json!(128);
     v["gs_mlp_network_config"]["n_neurons"] = json!(64);
     v["neural_renderer"]["enc_channels"] = json!(renderer_channels);

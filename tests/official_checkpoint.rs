@@ -13,7 +13,6 @@ use lhmpp::config::ModelConfig;
 use lhmpp::model::dpt::NeuralRenderer;
 use lhmpp::model::hub;
 use lhmpp::node::pipeline::reconstructor::Reconstructor;
-use lhmpp::node::preprocess::{BBox, Preprocessed};
 
 /// Official LHMPP-700M state-dict keys and shapes (converted from the reference enumeration).
 const OFFICIAL_KEYS: &str = include_str!("fixtures/lhmpp_700m_state_dict_keys.tsv");
@@ -96,30 +95,6 @@ fn write_hub_folder(dir: &Path) -> (usize, usize) {
     (keys.len(), params)
 }
 
-/// A small view: white background with a coloured block (RGB in [0, 1], channel-major).
-fn view(size: u32, shift: u32) -> Preprocessed {
-    let s = size as usize;
-    let mut chw = vec![1.0f32; 3 * s * s];
-    for c in 0..3 {
-        for y in s / 4..3 * s / 4 {
-            for x in (s / 3 + shift as usize)..(2 * s / 3 + shift as usize).min(s) {
-                chw[c * s * s + y * s + x] = 0.2 + 0.3 * c as f32;
-            }
-        }
-    }
-    Preprocessed {
-        height: size,
-        width: size,
-        chw,
-        region: BBox {
-            x0: 0,
-            y0: 0,
-            x1: i64::from(size),
-            y1: i64::from(size),
-        },
-    }
-}
-
 #[test]
 fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
     let tmp = tempfile::tempdir().unwrap();
@@ -161,7 +136,10 @@ fn official_hub_folder_and_prior_run_through_the_node_reconstructor() {
 
     // Two small views (8×8 patches of 14 px) instead of 840×504 to keep the CPU test fast;
     // the encoder interpolates its position embedding to any patch grid.
-    let (a, b) = (view(112, 0), view(112, 10));
+    let (a, b) = (
+        official_support::view(112, 0),
+        official_support::view(112, 10),
+    );
     let t2 = Instant::now();
     let avatar = recon.reconstruct(&[(1, &a), (2, &b)]).unwrap();
     let t_forward = t2.elapsed();

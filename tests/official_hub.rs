@@ -1,6 +1,8 @@
 //! Hub folders of the released checkpoints: config.json parsing, derivation of our config,
 //! weight discovery (single file or shards) and the errors a user sees.
 
+mod official_support;
+
 use std::path::Path;
 
 use candle_core::{DType, Device};
@@ -27,15 +29,7 @@ fn write_weights(path: &Path, tensors: &[(&str, Vec<usize>)]) {
             (n.to_string(), vec![0u8; 4 * count], dims.clone())
         })
         .collect();
-    let views: Vec<(String, safetensors::tensor::TensorView)> = data
-        .iter()
-        .map(|(n, b, d)| {
-            let v = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, d.clone(), b)
-                .unwrap();
-            (n.clone(), v)
-        })
-        .collect();
-    safetensors::serialize_to_file(views, None, path).unwrap();
+    official_support::write_f32_tensors(path, &data);
 }
 
 #[test]
@@ -323,14 +317,7 @@ fn a_smaller_dinov2_is_named_as_a_difference_and_its_width_must_match_the_joint_
 fn small_official_config() -> serde_json::Value {
     use serde_json::json;
     let mut v = config_value();
-    v["encoder_model_name"] = json!("dinov2_vits14_reg");
-    v["encoder_feat_dim"] = json!(384);
-    v["pcl_dim"] = json!(384);
-    v["transformer_dim"] = json!(384);
-    v["transformer_heads"] = json!(6);
-    let ib = &mut v["transformer_decoder"]["image_backbone"];
-    ib["embed_dim"] = json!(384);
-    ib["num_heads"] = json!(6);
+    official_support::vit_s_widths(&mut v);
     let pb = &mut v["transformer_decoder"]["point_backbone"];
     pb["enc_depths"] = json!([1, 1, 1, 1]);
     pb["enc_channels"] = json!([32, 64, 128, 256]);

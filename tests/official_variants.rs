@@ -17,7 +17,7 @@ use lhmpp::model::hub::{self, HubFolder};
 use lhmpp::model::{Lhmpp, LhmppConfig, RgbKind};
 use lhmpp::node::pipeline::reconstructor::Reconstructor;
 use lhmpp::node::pipeline::shape::AcceptedShape;
-use lhmpp::node::preprocess::{BBox, Preprocessed};
+
 use serde_json::json;
 
 const PIXELSHUFFLE_KEYS: &str =
@@ -221,22 +221,8 @@ fn extra_bytes(n: usize, seed: u64) -> Vec<u8> {
 /// slim point backbone), the released renderer widths, two shards.
 fn write_small_pixelshuffle_hub(dir: &Path) -> HubFolder {
     let mut v = pixelshuffle_config();
-    v["encoder_model_name"] = json!("dinov2_vits14_reg");
-    v["encoder_feat_dim"] = json!(384);
-    v["pcl_dim"] = json!(384);
-    v["transformer_dim"] = json!(384);
-    v["transformer_heads"] = json!(6);
-    v["transformer_decoder"]["image_backbone"]["embed_dim"] = json!(384);
-    v["transformer_decoder"]["image_backbone"]["num_heads"] = json!(6);
-    let pb = &mut v["transformer_decoder"]["point_backbone"];
-    pb["enc_depths"] = json!([1, 1, 1, 1]);
-    pb["enc_channels"] = json!([16, 32, 32, 64]);
-    pb["enc_num_head"] = json!([2, 2, 4, 4]);
-    pb["enc_patch_size"] = json!([256, 256, 128, 64]);
-    pb["dec_depths"] = json!([1, 1, 1]);
-    pb["dec_channels"] = json!([128, 32, 64]);
-    pb["dec_num_head"] = json!([2, 2, 4]);
-    pb["dec_patch_size"] = json!([256, 256, 128]);
+    official_support::vit_s_widths(&mut v);
+    official_support::slim_point_backbone(&mut v);
     v["gs_mlp_network_config"]["n_neurons"] = json!(64);
     v["shape_head"]["dim_in"] = json!(384);
     v["shape_head"]["num_heads"] = json!(6);
@@ -267,16 +253,7 @@ fn write_small_pixelshuffle_hub(dir: &Path) -> HubFolder {
             )
         })
         .collect();
-    let views: Vec<(String, safetensors::tensor::TensorView)> = data
-        .iter()
-        .map(|(n, b, d)| {
-            let v = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, d.clone(), b)
-                .unwrap();
-            (n.clone(), v)
-        })
-        .collect();
-    let second = dir.join("model-00002-of-00002.safetensors");
-    safetensors::serialize_to_file(views, None, &second).unwrap();
+    official_support::write_f32_tensors(&dir.join("model-00002-of-00002.safetensors"), &data);
     let mut map = serde_json::Map::new();
     for k in expected_tensors(&hub.config).unwrap().keys() {
         map.insert(k.clone(), json!("model-00001-of-00002.safetensors"));
@@ -368,30 +345,6 @@ fn a_small_random_pixelshuffle_hub_folder_loads_and_renders_display_ready_frames
     assert!(d < 1e-4, "{d}");
 }
 
-/// A small view: white with a coloured block (RGB in [0, 1], channel-major).
-fn view(size: u32, shift: usize) -> Preprocessed {
-    let s = size as usize;
-    let mut chw = vec![1.0f32; 3 * s * s];
-    for c in 0..3 {
-        for y in s / 4..3 * s / 4 {
-            for x in (s / 3 + shift)..(2 * s / 3 + shift).min(s) {
-                chw[c * s * s + y * s + x] = 0.2 + 0.3 * c as f32;
-            }
-        }
-    }
-    Preprocessed {
-        height: size,
-        width: size,
-        chw,
-        region: BBox {
-            x0: 0,
-            y0: 0,
-            x1: i64::from(size),
-            y1: i64::from(size),
-        },
-    }
-}
-
 #[test]
 fn the_node_reconstructor_carries_the_predicted_betas_and_takes_the_gaussian_rgb() {
     let tmp = tempfile::tempdir().unwrap();
@@ -416,7 +369,7 @@ fn the_node_reconstructor_carries_the_predicted_betas_and_takes_the_gaussian_rgb
         recon.checkpoint_kind()
     );
     assert!(recon.shape().is_none());
-    let (a, b) = (view(56, 0), view(56, 9));
+    let (a, b) = (official_support::view(56, 0), official_support::view(56, 9));
     recon.reconstruct(&[(1, &a), (2, &b)]).unwrap();
     let betas = recon.predicted_betas().expect("predicted betas").to_vec();
     assert_eq!(betas.len(), 10);

@@ -214,3 +214,70 @@ pub fn write_prior(dir: &Path, n: usize) -> PriorPaths {
     write_point_ply(&paths.points, &pts, &vec![[200, 200, 200]; n]).unwrap();
     paths
 }
+
+/// Sets an official `config.json` value to ViT-S widths (d 384, 6 heads): the encoder, the
+/// joint width (`pcl_dim`, `transformer_dim`) and the `image_backbone` frame blocks.
+pub fn vit_s_widths(v: &mut serde_json::Value) {
+    use serde_json::json;
+    v["encoder_model_name"] = json!("dinov2_vits14_reg");
+    v["encoder_feat_dim"] = json!(384);
+    v["pcl_dim"] = json!(384);
+    v["transformer_dim"] = json!(384);
+    v["transformer_heads"] = json!(6);
+    let ib = &mut v["transformer_decoder"]["image_backbone"];
+    ib["embed_dim"] = json!(384);
+    ib["num_heads"] = json!(6);
+}
+
+/// Sets an official `config.json` value's point backbone to one block per stage at small
+/// widths, ending in 128 channels (the official `gs_query_dim`).
+pub fn slim_point_backbone(v: &mut serde_json::Value) {
+    use serde_json::json;
+    let pb = &mut v["transformer_decoder"]["point_backbone"];
+    pb["enc_depths"] = json!([1, 1, 1, 1]);
+    pb["enc_channels"] = json!([16, 32, 32, 64]);
+    pb["enc_num_head"] = json!([2, 2, 4, 4]);
+    pb["enc_patch_size"] = json!([256, 256, 128, 64]);
+    pb["dec_depths"] = json!([1, 1, 1]);
+    pb["dec_channels"] = json!([128, 32, 64]);
+    pb["dec_num_head"] = json!([2, 2, 4]);
+    pb["dec_patch_size"] = json!([256, 256, 128]);
+}
+
+/// Writes f32 tensors `(name, little-endian bytes, shape)` as one safetensors file.
+pub fn write_f32_tensors(path: &Path, tensors: &[(String, Vec<u8>, Vec<usize>)]) {
+    let views: Vec<(String, safetensors::tensor::TensorView)> = tensors
+        .iter()
+        .map(|(n, b, d)| {
+            let v = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, d.clone(), b)
+                .unwrap();
+            (n.clone(), v)
+        })
+        .collect();
+    safetensors::serialize_to_file(views, None, path).unwrap();
+}
+
+/// A small encoder input: white with a coloured block moved right by `shift` pixels (RGB in
+/// [0, 1], channel-major).
+pub fn view(size: u32, shift: usize) -> lhmpp::node::preprocess::Preprocessed {
+    let s = size as usize;
+    let mut chw = vec![1.0f32; 3 * s * s];
+    for c in 0..3 {
+        for y in s / 4..3 * s / 4 {
+            for x in (s / 3 + shift)..(2 * s / 3 + shift).min(s) {
+                chw[c * s * s + y * s + x] = 0.2 + 0.3 * c as f32;
+            }
+        }
+    }
+    lhmpp::node::preprocess::Preprocessed {
+        height: size,
+        width: size,
+        chw,
+        region: lhmpp::node::preprocess::BBox {
+            x0: 0,
+            y0: 0,
+            x1: i64::from(size),
+            y1: i64::from(size),
+        },
+    }
+}
