@@ -83,15 +83,11 @@ fn write_hub_folder(dir: &Path) -> (usize, usize) {
         .map(|(k, d)| (k.clone(), tensor_bytes(7, k, d), d.clone()))
         .collect();
     let params = keys.iter().map(|(_, d)| d.iter().product::<usize>()).sum();
-    let views: Vec<(String, safetensors::tensor::TensorView)> = data
-        .iter()
-        .map(|(n, b, d)| {
-            let v = safetensors::tensor::TensorView::new(safetensors::Dtype::BF16, d.clone(), b)
-                .unwrap();
-            (n.clone(), v)
-        })
-        .collect();
-    safetensors::serialize_to_file(views, None, &dir.join("model.safetensors")).unwrap();
+    official_support::write_tensors(
+        &dir.join("model.safetensors"),
+        safetensors::Dtype::BF16,
+        &data,
+    );
     (keys.len(), params)
 }
 

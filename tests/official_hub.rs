@@ -29,7 +29,7 @@ fn write_weights(path: &Path, tensors: &[(&str, Vec<usize>)]) {
             (n.to_string(), vec![0u8; 4 * count], dims.clone())
         })
         .collect();
-    official_support::write_f32_tensors(path, &data);
+    official_support::write_tensors(path, safetensors::Dtype::F32, &data);
 }
 
 #[test]

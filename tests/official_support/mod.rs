@@ -244,13 +244,16 @@ pub fn slim_point_backbone(v: &mut serde_json::Value) {
     pb["dec_patch_size"] = json!([256, 256, 128]);
 }
 
-/// Writes f32 tensors `(name, little-endian bytes, shape)` as one safetensors file.
-pub fn write_f32_tensors(path: &Path, tensors: &[(String, Vec<u8>, Vec<usize>)]) {
+/// Writes tensors `(name, little-endian bytes, shape)` of `dtype` as one safetensors file.
+pub fn write_tensors(
+    path: &Path,
+    dtype: safetensors::Dtype,
+    tensors: &[(String, Vec<u8>, Vec<usize>)],
+) {
     let views: Vec<(String, safetensors::tensor::TensorView)> = tensors
         .iter()
         .map(|(n, b, d)| {
-            let v = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, d.clone(), b)
-                .unwrap();
+            let v = safetensors::tensor::TensorView::new(dtype, d.clone(), b).unwrap();
             (n.clone(), v)
         })
         .collect();
