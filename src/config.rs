@@ -88,8 +88,13 @@ pub struct InputConfig {
     pub compressed_image_topics: Vec<String>,
     /// sensor_msgs/CameraInfo topics, matched to image topics by position (may be empty).
     pub camera_info_topics: Vec<String>,
-    /// Optional person-mask topic (mono8 Image); empty disables it.
+    /// Optional person-mask topic (mono8 Image) shared by every camera, matched to a frame by
+    /// stamp and size; empty disables it.
     pub mask_topic: String,
+    /// Person-mask topics (mono8 Image), one per camera, matched by position to
+    /// `image_topics` followed by `compressed_image_topics` (may be shorter); a camera's frames
+    /// are cropped to the person by its own mask of the same stamp.
+    pub mask_topics: Vec<String>,
     /// lhmpp_msgs/BodyPose topic that drives animation.
     pub pose_topic: String,
     /// Optional lhmpp_msgs/BodyShape topic (body shape of the person); empty disables it.
@@ -255,6 +260,7 @@ impl Default for InputConfig {
             compressed_image_topics: Vec::new(),
             camera_info_topics: Vec::new(),
             mask_topic: String::new(),
+            mask_topics: Vec::new(),
             pose_topic: "/lhmpp/body_pose".into(),
             shape_topic: String::new(),
             image_qos: "sensor_data".into(),
@@ -389,6 +395,16 @@ impl NodeConfig {
             return Err(bad(
                 "inputs.image_topics",
                 "no image topic configured (set image_topics or compressed_image_topics)".into(),
+            ));
+        }
+        let cameras = self.inputs.image_topics.len() + self.inputs.compressed_image_topics.len();
+        if self.inputs.mask_topics.len() > cameras {
+            return Err(bad(
+                "inputs.mask_topics",
+                format!(
+                    "{} mask topics for {cameras} camera topics (one mask topic per camera, by position)",
+                    self.inputs.mask_topics.len()
+                ),
             ));
         }
         if !["sensor_data", "reliable"].contains(&self.inputs.image_qos.as_str()) {

@@ -3,7 +3,7 @@
 //! reported in assets/model/README.md, floors that seeded random weights do not reach.
 
 use lhmpp::config::ModelConfig;
-use lhmpp::eval::heldout::evaluate_bag;
+use lhmpp::eval::heldout::{evaluate_bag, InputCrop};
 use std::path::Path;
 
 const BAG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/bags/eval_seed2.mcap");
@@ -18,7 +18,7 @@ fn scores(checkpoint: &str) -> (f64, f64, f64) {
         checkpoint: checkpoint.into(),
         ..ModelConfig::default()
     };
-    let rows = evaluate_bag(Path::new(BAG), &model, &[4]).unwrap();
+    let rows = evaluate_bag(Path::new(BAG), &model, &[4], InputCrop::FullFrame).unwrap();
     assert_eq!(rows.len(), 1);
     assert_eq!(rows[0].views, 4);
     rows[0].means()

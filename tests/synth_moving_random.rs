@@ -162,7 +162,13 @@ fn eval_uses_every_frame_of_a_moving_camera_as_a_view() {
     let bag = dir.path().join("moving.mcap");
     write_synthetic_bag(&bag, &small(5, CameraMode::Moving, SynthPose::Walk(8.0))).unwrap();
     let model = NodeConfig::default().model;
-    let rows = lhmpp::eval::heldout::evaluate_bag(&bag, &model, &[1, 4, 8]).unwrap();
+    let rows = lhmpp::eval::heldout::evaluate_bag(
+        &bag,
+        &model,
+        &[1, 4, 8],
+        lhmpp::eval::heldout::InputCrop::FullFrame,
+    )
+    .unwrap();
     // One camera topic with 4 frames gives 4 input views (8 is clamped to 4).
     let counts: Vec<usize> = rows.iter().map(|r| r.views).collect();
     assert_eq!(counts, vec![1, 4]);

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result};
 use lhmpp::config::NodeConfig;
-use lhmpp::eval::heldout::evaluate_bag;
+use lhmpp::eval::heldout::{evaluate_bag, InputCrop};
 use std::path::PathBuf;
 
 /// Arguments of `lhmpp eval`.
@@ -18,6 +18,11 @@ pub struct EvalArgs {
     /// truth | our render from the held-out camera (PNG).
     #[arg(long)]
     picture: Option<PathBuf>,
+    /// Feed whole input frames to the encoder (the node without `inputs.mask_topics`). By
+    /// default each input view is cropped to the person by its `/camN/mask` in the bag, as the
+    /// node does when `inputs.mask_topics` are set.
+    #[arg(long)]
+    full_frame: bool,
     /// Parameter file for the model settings; omitted = built-in defaults.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -39,7 +44,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
         "| bag | input views | held-out views | PSNR (dB) | SSIM | mask IoU |\n| --- | ---: | ---: | ---: | ---: | ---: |"
     );
     for (b, bag) in args.bags.iter().enumerate() {
-        let rows = evaluate_bag(bag, &config.model, &args.views)?;
+        let crop = if args.full_frame {
+            InputCrop::FullFrame
+        } else {
+            InputCrop::Mask
+        };
+        let rows = evaluate_bag(bag, &config.model, &args.views, crop)?;
         if let (0, Some(path), Some(last)) = (b, &args.picture, rows.last()) {
             last.picture
                 .save(path)
@@ -55,6 +65,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
             );
         }
     }
+    println!(
+        "inputs: {}",
+        if args.full_frame {
+            "whole frames"
+        } else {
+            "cropped to the person by the bag's /camN/mask"
+        }
+    );
     println!(
         "model: preset {}, {}",
         config.model.preset,

@@ -31,6 +31,10 @@ pub struct SynthDatasetArgs {
     /// Encoder input width in pixels (the network's image_width).
     #[arg(long, default_value_t = 112)]
     input_width: u32,
+    /// Fraction of input views cropped to the person by its mask, as the node does when
+    /// `inputs.mask_topics` are set (the rest are whole frames).
+    #[arg(long, default_value_t = 0.25)]
+    mask_fraction: f64,
     /// Target view side in pixels.
     #[arg(long, default_value_t = 96)]
     target_size: u32,
@@ -46,6 +50,11 @@ pub fn run(args: SynthDatasetArgs) -> Result<()> {
         "--first-seed {} is an evaluation seed (training seeds start at {TRAIN_SEED_START})",
         args.first_seed
     );
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.mask_fraction),
+        "--mask-fraction {} is not in 0..=1",
+        args.mask_fraction
+    );
     anyhow::ensure!(args.shard_size >= 1, "--shard-size must be at least 1");
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
@@ -55,6 +64,7 @@ pub fn run(args: SynthDatasetArgs) -> Result<()> {
         input_height: args.input_height,
         input_width: args.input_width,
         target_size: args.target_size,
+        mask_fraction: args.mask_fraction,
         ..DatasetOptions::default()
     };
     let bar = ProgressBar::new(args.samples);

@@ -82,8 +82,26 @@ struct HeldoutView {
 }
 
 /// Ground truth read from a synthetic bag.
+/// How the evaluation crops its input views before the encoder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum InputCrop {
+    /// Each view is cropped to the person by its `/camN/mask` in the bag, as the node does when
+    /// `inputs.mask_topics` are set (a view without a mask falls back to the whole frame).
+    #[default]
+    Mask,
+    /// Whole frames, as the node does without mask topics.
+    FullFrame,
+}
+
+/// One input view of the bag: its name, image and person mask (when the bag has one).
+struct InputView {
+    name: String,
+    rgb: image::RgbImage,
+    mask: Option<image::GrayImage>,
+}
+
 struct GroundTruth {
-    inputs: Vec<(String, image::RgbImage)>,
+    inputs: Vec<InputView>,
     heldout: Vec<HeldoutView>,
     pose: Pose,
     /// The person's body shape, when the bag carries one (`lhmpp synth --publish-shape`).
@@ -120,6 +138,25 @@ fn decode_all_images(bag: &BagReader, topic: &str) -> Result<Vec<image::RgbImage
         .iter()
         .filter(|m| &*m.topic == topic)
         .map(|m| decode_message(bag, topic, m))
+        .collect()
+}
+
+/// Every mono8 mask on `topic`, in bag order.
+fn decode_all_masks(bag: &BagReader, topic: &str) -> Result<Vec<image::GrayImage>, EvalError> {
+    bag.messages()
+        .iter()
+        .filter(|m| &*m.topic == topic)
+        .map(|m| {
+            let msg: Image = bag.decode(m)?;
+            let bad = || EvalError::MissingGroundTruth {
+                path: bag.path().display().to_string(),
+                message: format!("{topic}: expected a mono8 mask"),
+            };
+            if msg.encoding != "mono8" || msg.step != msg.width {
+                return Err(bad());
+            }
+            image::GrayImage::from_raw(msg.width, msg.height, msg.data).ok_or_else(bad)
+        })
         .collect()
 }
 
@@ -163,6 +200,7 @@ fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
     for name in names {
         if !name.starts_with("heldout") {
             let frames = decode_all_images(bag, &image_topic(&name))?;
+            let mut masks = decode_all_masks(bag, &mask_topic(&name))?.into_iter();
             let several = frames.len() > 1;
             for (i, rgb) in frames.into_iter().enumerate() {
                 let view = if several {
@@ -170,7 +208,12 @@ fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
                 } else {
                     name.clone()
                 };
-                inputs.push((view, rgb));
+                let mask = masks.next().filter(|m| m.dimensions() == rgb.dimensions());
+                inputs.push(InputView {
+                    name: view,
+                    rgb,
+                    mask,
+                });
             }
             continue;
         }
@@ -224,12 +267,14 @@ fn spread(n: usize, k: usize) -> Vec<usize> {
 
 /// Reconstructs from `k` input views spread evenly over the bag's views (every `n/k`-th: on a
 /// camera ring, cameras all around the person) for each `k` in `view_counts` (clamped to the
-/// views in the bag) and scores the held-out views. Every frame of an input camera topic is a
+/// views in the bag) and scores the held-out views. `crop` says how the input views are
+/// located (by their masks, or whole frames). Every frame of an input camera topic is a
 /// view (a moving-camera bag has one topic with several frames).
 pub fn evaluate_bag(
     path: &Path,
     model: &ModelConfig,
     view_counts: &[usize],
+    crop: InputCrop,
 ) -> Result<Vec<EvalRow>, EvalError> {
     let bag = BagReader::open(path)?;
     let gt = read_ground_truth(&bag)?;
@@ -253,10 +298,14 @@ pub fn evaluate_bag(
     let images = gt
         .inputs
         .iter()
-        .map(|(name, rgb)| {
-            preprocess(rgb, Subject::FullFrame, &pre).map_err(|e| EvalError::MissingGroundTruth {
+        .map(|v| {
+            let subject = match (&v.mask, crop) {
+                (Some(mask), InputCrop::Mask) => Subject::Mask(mask),
+                _ => Subject::FullFrame,
+            };
+            preprocess(&v.rgb, subject, &pre).map_err(|e| EvalError::MissingGroundTruth {
                 path: path.display().to_string(),
-                message: format!("{name}: {e}"),
+                message: format!("{}: {e}", v.name),
             })
         })
         .collect::<Result<Vec<_>, _>>()?;
@@ -299,7 +348,7 @@ pub fn evaluate_bag(
             .collect();
         let shown: Vec<&image::RgbImage> = spread(gt.inputs.len(), k.min(4))
             .into_iter()
-            .map(|i| &gt.inputs[i].1)
+            .map(|i| &gt.inputs[i].rgb)
             .collect();
         let picture = comparison_strip(&shown, &gt.heldout[0], first_render.as_ref());
         rows.push(EvalRow {

@@ -99,7 +99,11 @@ impl BagReplay {
                 })
         } else if t.mask.as_deref() == Some(topic) {
             self.decode::<Image>(m)
-                .and_then(|msg| inputs::mask_event(topic, msg, arrival, self.max_side))
+                .and_then(|msg| inputs::mask_event(topic, None, msg, arrival, self.max_side))
+        } else if let Some((_, camera)) = t.camera_masks.iter().find(|(x, _)| x == topic) {
+            self.decode::<Image>(m).and_then(|msg| {
+                inputs::mask_event(topic, Some(camera), msg, arrival, self.max_side)
+            })
         } else if t.pose.as_deref() == Some(topic) {
             self.decode::<BodyPose>(m).map(|pose| InputEvent::BodyPose {
                 topic: topic.to_owned(),

@@ -42,6 +42,9 @@ pub struct DatasetOptions {
     pub heldout_targets: usize,
     /// Gaussians of the ground-truth person.
     pub person_points: usize,
+    /// Fraction of input views cropped to the person by its mask (`Subject::Mask`, as the node
+    /// does with `inputs.mask_topics`); the others are whole frames.
+    pub mask_fraction: f64,
 }
 
 impl Default for DatasetOptions {
@@ -55,6 +58,7 @@ impl Default for DatasetOptions {
             max_views: 8,
             heldout_targets: 2,
             person_points: 20_000,
+            mask_fraction: 0.25,
         }
     }
 }
@@ -266,7 +270,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
             let c = (c.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
             image::Rgb([c.x as u8, c.y as u8, c.z as u8])
         });
-        let masked = rng.gen_bool(0.25);
+        let masked = rng.gen_bool(options.mask_fraction.clamp(0.0, 1.0));
         let mask = GrayImage::from_fn(w, h, |x, y| {
             image::Luma([if out.alpha[(y * w + x) as usize] >= 0.5 {
                 255

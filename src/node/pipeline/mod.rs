@@ -14,10 +14,9 @@ use crate::config::NodeConfig;
 use crate::msgs::{BodyShape, ReconstructionStatus};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
-use crate::node::ros::{CameraFrame, InputEvent};
+use crate::node::ros::{CameraFrame, InputEvent, MaskFrame};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::splat::Gaussians;
-use image::GrayImage;
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
 use outputs::{status_message, FileOutputs};
 use reconstructor::{ReconstructError, Reconstructor};
@@ -33,8 +32,8 @@ use std::time::Duration;
 
 /// Side of the thumbnail grid used as the frame-store embedding (cheap, no network pass).
 const EMBEDDING_GRID: u32 = 12;
-/// Masks kept to pair with frames by stamp.
-const MASKS_KEPT: usize = 16;
+/// Masks kept to pair with frames by stamp (and camera, for per-camera mask topics).
+const MASKS_KEPT: usize = 32;
 /// Latencies kept for the summary.
 const LATENCIES_KEPT: usize = 256;
 
@@ -134,7 +133,7 @@ pub struct Pipeline {
     store: FrameStore,
     scheduler: Scheduler,
     preprocess: PreprocessConfig,
-    masks: VecDeque<(i64, Arc<GrayImage>)>,
+    masks: VecDeque<MaskFrame>,
     pose: Option<Pose>,
     next_frame_id: u64,
     shape_changes: u64,
@@ -321,7 +320,7 @@ impl Pipeline {
         match event {
             InputEvent::Frame(frame) => self.on_frame(frame, now),
             InputEvent::Mask(mask) => {
-                self.masks.push_back((mask.stamp_ns, mask.mask));
+                self.masks.push_back(mask);
                 while self.masks.len() > MASKS_KEPT {
                     self.masks.pop_front();
                 }
@@ -406,10 +405,12 @@ impl Pipeline {
             .masks
             .iter()
             .rev()
-            .find(|(stamp, m)| {
-                *stamp == frame.stamp_ns && m.dimensions() == frame.image.dimensions()
+            .find(|m| {
+                m.stamp_ns == frame.stamp_ns
+                    && m.camera.as_ref().is_none_or(|c| *c == frame.topic)
+                    && m.mask.dimensions() == frame.image.dimensions()
             })
-            .map(|(_, m)| m.clone());
+            .map(|m| m.mask.clone());
         let subject = mask.as_deref().map_or(Subject::FullFrame, Subject::Mask);
         let image = match preprocess(&frame.image, subject, &self.preprocess) {
             Ok(image) => Arc::new(image),

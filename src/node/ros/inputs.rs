@@ -27,6 +27,8 @@ pub struct CameraFrame {
 pub struct MaskFrame {
     /// Resolved topic.
     pub topic: String,
+    /// The camera topic whose frames it masks; `None` for the shared mask topic (any camera).
+    pub camera: Option<String>,
     /// `header.stamp` in nanoseconds since the epoch (matches the frame it masks).
     pub stamp_ns: i64,
     /// Node clock at arrival.
@@ -109,9 +111,10 @@ pub(crate) fn compressed_event(
     }))
 }
 
-/// mono8 `sensor_msgs/Image` → [`InputEvent::Mask`].
+/// mono8 `sensor_msgs/Image` → [`InputEvent::Mask`] of `camera` (`None`: any camera).
 pub(crate) fn mask_event(
     topic: &str,
+    camera: Option<&str>,
     msg: Image,
     arrival: Duration,
     max_side: u32,
@@ -120,6 +123,7 @@ pub(crate) fn mask_event(
     let mask = decode_mask(topic, &raw, max_side).map_err(|e| e.to_string())?;
     Ok(InputEvent::Mask(MaskFrame {
         topic: topic.to_owned(),
+        camera: camera.map(str::to_owned),
         stamp_ns: msg.header.stamp.as_nanos(),
         arrival,
         mask: Arc::new(mask),

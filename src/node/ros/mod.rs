@@ -84,8 +84,10 @@ pub struct RosNodeOptions {
     pub compressed_image_topics: Vec<String>,
     /// sensor_msgs/CameraInfo topics (paired with image topics by position).
     pub camera_info_topics: Vec<String>,
-    /// Optional mono8 mask topic.
+    /// Optional mono8 mask topic shared by every camera.
     pub mask_topic: Option<String>,
+    /// Per-camera mono8 mask topics, by position over image then compressed-image topics.
+    pub mask_topics: Vec<String>,
     /// Optional BodyPose topic.
     pub pose_topic: Option<String>,
     /// Optional BodyShape topic.
@@ -136,6 +138,7 @@ impl RosNodeOptions {
             compressed_image_topics: cfg.inputs.compressed_image_topics.clone(),
             camera_info_topics: cfg.inputs.camera_info_topics.clone(),
             mask_topic: non_empty(&cfg.inputs.mask_topic),
+            mask_topics: cfg.inputs.mask_topics.clone(),
             pose_topic: non_empty(&cfg.inputs.pose_topic),
             shape_topic: non_empty(&cfg.inputs.shape_topic),
             image_qos: InputQos::parse(&cfg.inputs.image_qos)?,
@@ -171,8 +174,10 @@ pub struct ResolvedTopics {
     pub compressed_images: Vec<String>,
     /// CameraInfo topics.
     pub camera_infos: Vec<String>,
-    /// Mask topic.
+    /// Mask topic shared by every camera.
     pub mask: Option<String>,
+    /// Per-camera mask topics and the camera topic each one masks.
+    pub camera_masks: Vec<(String, String)>,
     /// BodyPose topic.
     pub pose: Option<String>,
     /// BodyShape topic.
@@ -207,6 +212,14 @@ impl ResolvedTopics {
             images: all(&opts.image_topics)?,
             compressed_images: all(&opts.compressed_image_topics)?,
             camera_infos: all(&opts.camera_info_topics)?,
+            camera_masks: all(&opts.mask_topics)?
+                .into_iter()
+                .zip(
+                    all(&opts.image_topics)?
+                        .into_iter()
+                        .chain(all(&opts.compressed_image_topics)?),
+                )
+                .collect(),
             mask: opts
                 .mask_topic
                 .as_deref()
@@ -310,7 +323,14 @@ impl RosNode {
         if let Some(topic) = &topics.mask {
             let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
             tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
-                inputs::mask_event(t, m, a, max_side)
+                inputs::mask_event(t, None, m, a, max_side)
+            }));
+        }
+        for (topic, camera) in &topics.camera_masks {
+            let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
+            let camera = camera.clone();
+            tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
+                inputs::mask_event(t, Some(&camera), m, a, max_side)
             }));
         }
         if let Some(topic) = &topics.pose {
