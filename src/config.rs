@@ -619,6 +619,30 @@ mod tests {
     }
 
     #[test]
+    fn more_mask_topics_than_cameras_is_refused_naming_the_key() {
+        let yaml = |masks: &str| {
+            format!(
+                "lhmpp:\n  ros__parameters:\n    inputs:\n      image_topics: [/a, /b]\n      mask_topics: [{masks}]\n"
+            )
+        };
+        assert_eq!(
+            load(&yaml("/a_mask, /b_mask"), &[])
+                .unwrap()
+                .inputs
+                .mask_topics
+                .len(),
+            2
+        );
+        let e = load(&yaml("/a_mask, /b_mask, /c_mask"), &[])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("inputs.mask_topics") && e.contains("3 mask topics"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn render_device_must_be_cpu_or_a_cuda_this_binary_supports() {
         let yaml = |d: &str| {
             format!("lhmpp:\n  ros__parameters:\n    outputs:\n      render_device: {d}\n")

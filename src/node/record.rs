@@ -124,7 +124,7 @@ fn bag_qos(qos: &QosProfile) -> bag::QosProfile {
 }
 
 /// Every topic the node uses, with the QoS the node uses on it: inputs first (images, compressed
-/// images, camera infos, mask, pose, shape), then outputs (avatar, status, rendered frames).
+/// images, camera infos, masks, pose, shape), then outputs (avatar, status, rendered frames).
 pub fn plan(topics: &ResolvedTopics, image_qos: InputQos) -> Vec<RecordTopic> {
     let topic = |name: &str, kind, qos| RecordTopic {
         name: name.to_owned(),
@@ -142,6 +142,9 @@ pub fn plan(topics: &ResolvedTopics, image_qos: InputQos) -> Vec<RecordTopic> {
         out.push(topic(t, RecordType::CameraInfo, reliable_input_qos()));
     }
     if let Some(t) = &topics.mask {
+        out.push(topic(t, RecordType::Image, image_qos.profile()));
+    }
+    for (t, _) in &topics.camera_masks {
         out.push(topic(t, RecordType::Image, image_qos.profile()));
     }
     if let Some(t) = &topics.pose {
@@ -484,6 +487,7 @@ mod tests {
             compressed_images: vec!["/cam1/image_raw/compressed".into()],
             camera_infos: vec!["/cam0/camera_info".into()],
             mask: Some("/mask".into()),
+            camera_masks: vec![("/cam0/mask".into(), "/cam0/image_raw".into())],
             pose: Some("/pose".into()),
             shape: Some("/shape".into()),
             avatar: "/avatar".into(),
@@ -505,6 +509,7 @@ mod tests {
                 "/cam1/image_raw/compressed",
                 "/cam0/camera_info",
                 "/mask",
+                "/cam0/mask",
                 "/pose",
                 "/shape",
                 "/avatar",
@@ -514,14 +519,15 @@ mod tests {
         );
         assert_eq!(p[0].kind.type_name(), "sensor_msgs/msg/Image");
         assert_eq!(p[0].bag_qos().reliability, bag::Reliability::BestEffort);
-        assert_eq!(p[4].kind, RecordType::BodyPose);
-        assert_eq!(p[4].bag_qos().reliability, bag::Reliability::Reliable);
-        assert_eq!(p[5].kind, RecordType::BodyShape);
+        assert_eq!(p[4].kind, RecordType::Image);
+        assert_eq!(p[5].kind, RecordType::BodyPose);
         assert_eq!(p[5].bag_qos().reliability, bag::Reliability::Reliable);
-        let avatar = p[6].bag_qos();
+        assert_eq!(p[6].kind, RecordType::BodyShape);
+        assert_eq!(p[6].bag_qos().reliability, bag::Reliability::Reliable);
+        let avatar = p[7].bag_qos();
         assert_eq!(avatar.durability, bag::Durability::TransientLocal);
         assert_eq!(avatar.depth, 1);
-        assert_eq!(p[8].bag_qos().reliability, bag::Reliability::BestEffort);
+        assert_eq!(p[9].bag_qos().reliability, bag::Reliability::BestEffort);
     }
 
     #[test]

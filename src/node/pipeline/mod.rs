@@ -2,6 +2,7 @@
 //! decode → preprocess → frame store → scheduler → reconstruction → avatar → render → outputs.
 //! Live topics and bag replay feed it the same events, so both share this code path.
 
+pub mod masks;
 pub mod neural_frames;
 pub mod outputs;
 pub mod reconstructor;
@@ -14,9 +15,10 @@ use crate::config::NodeConfig;
 use crate::msgs::{BodyShape, ReconstructionStatus};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
-use crate::node::ros::{CameraFrame, InputEvent, MaskFrame};
+use crate::node::ros::{CameraFrame, InputEvent};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::splat::Gaussians;
+use masks::MaskBuffer;
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
 use outputs::{status_message, FileOutputs};
 use reconstructor::{ReconstructError, Reconstructor};
@@ -133,7 +135,7 @@ pub struct Pipeline {
     store: FrameStore,
     scheduler: Scheduler,
     preprocess: PreprocessConfig,
-    masks: VecDeque<MaskFrame>,
+    masks: MaskBuffer,
     pose: Option<Pose>,
     next_frame_id: u64,
     shape_changes: u64,
@@ -239,7 +241,7 @@ impl Pipeline {
                 out_width: w,
                 ..PreprocessConfig::default()
             },
-            masks: VecDeque::new(),
+            masks: MaskBuffer::new(MASKS_KEPT),
             pose: None,
             next_frame_id: 1,
             shape_changes: 0,
@@ -320,10 +322,7 @@ impl Pipeline {
         match event {
             InputEvent::Frame(frame) => self.on_frame(frame, now),
             InputEvent::Mask(mask) => {
-                self.masks.push_back(mask);
-                while self.masks.len() > MASKS_KEPT {
-                    self.masks.pop_front();
-                }
+                self.masks.push(mask);
             }
             InputEvent::CameraInfo { .. } => {}
             InputEvent::BodyPose { topic, pose, .. } => match pose.to_pose() {
@@ -401,16 +400,7 @@ impl Pipeline {
 
     fn on_frame(&mut self, frame: CameraFrame, now: Duration) {
         self.stats.frames += 1;
-        let mask = self
-            .masks
-            .iter()
-            .rev()
-            .find(|m| {
-                m.stamp_ns == frame.stamp_ns
-                    && m.camera.as_ref().is_none_or(|c| *c == frame.topic)
-                    && m.mask.dimensions() == frame.image.dimensions()
-            })
-            .map(|m| m.mask.clone());
+        let mask = self.masks.find(&frame);
         let subject = mask.as_deref().map_or(Subject::FullFrame, Subject::Mask);
         let image = match preprocess(&frame.image, subject, &self.preprocess) {
             Ok(image) => Arc::new(image),

@@ -593,6 +593,7 @@ mod tests {
         assert_eq!(t.images, vec!["/cameras/front/color", "/abs/cam"]);
         assert_eq!(t.camera_infos, vec!["/robot/front/camera_info"]);
         assert_eq!(t.mask, None);
+        assert!(t.camera_masks.is_empty());
         assert_eq!(t.pose.as_deref(), Some("/lhmpp/body_pose"));
         assert_eq!(t.shape, None, "the shape topic is off by default");
         assert_eq!(t.avatar, "/avatars/person_0");
@@ -602,6 +603,25 @@ mod tests {
             vec![
                 "/robot/render/cam0/image_raw",
                 "/robot/render/cam1/image_raw"
+            ]
+        );
+    }
+
+    #[test]
+    fn per_camera_masks_pair_with_cameras_by_position() {
+        let mut cfg = config();
+        cfg.inputs.compressed_image_topics = vec!["side/compressed".into()];
+        cfg.inputs.mask_topics = vec!["front/mask".into(), "/abs/mask".into(), "side/mask".into()];
+        let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None).unwrap();
+        let names = NameResolver::new(&opts.namespace, &opts.node_name).unwrap();
+        let t = ResolvedTopics::resolve(&opts, &names).unwrap();
+        let pair = |m: &str, c: &str| (m.to_string(), c.to_string());
+        assert_eq!(
+            t.camera_masks,
+            vec![
+                pair("/robot/front/mask", "/robot/front/image_raw"),
+                pair("/abs/mask", "/abs/cam"),
+                pair("/robot/side/mask", "/robot/side/compressed"),
             ]
         );
     }
