@@ -9,7 +9,7 @@ fn main() -> std::process::ExitCode {
             // One line: the error and its causes (`{:#}`), without the backtrace that
             // returning the error from `main` prints under RUST_BACKTRACE=1.
             eprintln!("Error: {e:#}");
-            std::process::ExitCode::FAILURE
+            std::process::ExitCode::from(cli::exit_code(&e))
         }
     }
 }

@@ -1,24 +1,13 @@
 //! A bag cut short (a recorder killed mid-write) still opens: no panic, every message up to
 //! the last complete chunk comes back intact, and the cut is reported with its byte offset.
 
+mod bag_support;
+
+use bag_support::numbered_image as image;
 use lhmpp::bag::{BagReader, BagStream, BagWriter, BagWriterOptions};
 use lhmpp::msgs::{Image, RosMessage};
 
 const T0: u64 = 1_000_000_000;
-
-fn image(i: u32) -> Image {
-    Image {
-        height: 8,
-        width: 8,
-        encoding: "mono8".into(),
-        step: 8,
-        // Incompressible-ish bytes so chunks have real size.
-        data: (0..64u32)
-            .map(|k| (k.wrapping_mul(2654435761).wrapping_add(i * 97) >> 13) as u8)
-            .collect(),
-        ..Default::default()
-    }
-}
 
 /// Writes 40 images in 4 flushed chunks of 10; returns the bag bytes and the file size after
 /// each flush (chunk boundaries).
@@ -118,15 +107,21 @@ fn every_cut_offset_opens_without_panicking_and_never_invents_messages() {
 }
 
 #[test]
-fn a_corrupted_chunk_stops_the_scan_with_a_clear_reason() {
+fn a_corrupted_chunk_is_skipped_and_reading_goes_on() {
     let dir = tempfile::tempdir().unwrap();
     let (mut bytes, boundaries) = chunked_bag(dir.path());
     let inside_second_chunk = (boundaries[0] + boundaries[1]) as usize / 2;
     bytes[inside_second_chunk] ^= 0xFF;
     let bag = BagReader::from_bytes("corrupt.mcap".into(), &bytes).unwrap();
-    assert_eq!(bag.read_topic::<Image>("/img").unwrap().len(), 10);
-    let truncation = bag.truncation().unwrap();
-    assert!(truncation.reason.contains("chunk"), "{}", truncation.reason);
+    let images = bag.read_topic::<Image>("/img").unwrap();
+    assert_eq!(images.len(), 30, "chunks 1, 3 and 4");
+    assert_eq!(images[10].1, image(20));
+    assert!(bag.truncation().is_none());
+    let skipped = &bag.salvage().skipped;
+    assert_eq!(skipped.len(), 1);
+    assert_eq!(skipped[0].offset, boundaries[0]);
+    assert_eq!(skipped[0].messages, Some(10));
+    assert!(skipped[0].reason.contains("chunk"), "{}", skipped[0].reason);
 }
 
 #[test]

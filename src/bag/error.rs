@@ -62,6 +62,20 @@ pub enum BagError {
         /// Type asked for.
         requested: String,
     },
+    /// A metadata record whose name the writer reserves for itself.
+    #[error("bag {path}: metadata record `{name}` is written by the bag writer itself")]
+    ReservedMetadata {
+        /// The bag file.
+        path: PathBuf,
+        /// The record name.
+        name: String,
+    },
+    /// A recovery asked to write over the bag it reads.
+    #[error("bag {path}: will not write the recovered bag over the damaged one")]
+    SameFile {
+        /// The bag file.
+        path: PathBuf,
+    },
     /// Writing after `finish`.
     #[error("bag {path}: already finished")]
     Finished {

@@ -3,8 +3,10 @@
 //!
 //! The whole data section is scanned record by record (chunks decompressed and CRC-checked),
 //! so a bag with no summary or footer reads like a complete one up to the first incomplete
-//! record; that point is reported as a [`Truncation`] and logged as a warning.
+//! record, and an unreadable chunk is skipped with reading going on after it. What was skipped
+//! and where a cut file ends are its [`Salvage`], logged as warnings.
 
+use super::damage::{Salvage, Truncation};
 use super::scan::RecordScanner;
 use super::{BagError, MESSAGE_ENCODING, PROFILE};
 use crate::msgs::{registry, RosMessage};
@@ -25,6 +27,9 @@ pub struct TopicInfo {
     pub message_encoding: String,
     /// Schema encoding, `ros2msg` for ROS 2.
     pub schema_encoding: String,
+    /// The schema's definition text (`ros2msg`: the `.msg` with its dependencies); empty when
+    /// the schema is unknown.
+    pub schema: String,
     /// The `offered_qos_profiles` metadata, if recorded.
     pub offered_qos_profiles: Option<String>,
     /// Messages read on this topic.
@@ -46,15 +51,6 @@ pub struct BagMessage {
     pub data: Vec<u8>,
 }
 
-/// Where and why the scan of an incomplete bag stopped.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Truncation {
-    /// Byte offset of the first record that could not be read.
-    pub offset: u64,
-    /// What was wrong there.
-    pub reason: String,
-}
-
 /// An opened bag, messages sorted by log time (records with equal times keep file order).
 #[derive(Debug)]
 pub struct BagReader {
@@ -67,17 +63,29 @@ pub struct BagReader {
     compression: BTreeSet<String>,
     chunk_count: usize,
     metadata: BTreeMap<String, BTreeMap<String, String>>,
-    truncation: Option<Truncation>,
+    salvage: Salvage,
 }
 
-/// Logs that a bag is incomplete, naming the file and the byte offset.
-pub(super) fn warn_truncated(path: &Path, t: &Truncation, file_size: u64, messages: usize) {
-    tracing::warn!(
-        "bag {} is incomplete: stopped at byte {} of {file_size}: {}; read {messages} messages before it",
-        path.display(),
-        t.offset,
-        t.reason,
-    );
+/// Logs what reading a damaged bag skipped and where an incomplete one stopped, naming the
+/// file and the byte offsets.
+pub(super) fn warn_damaged(path: &Path, salvage: &Salvage, file_size: u64, messages: usize) {
+    for s in &salvage.skipped {
+        tracing::warn!("bag {}: skipped unreadable {s}", path.display());
+    }
+    if let Some(t) = &salvage.truncation {
+        tracing::warn!(
+            "bag {} is incomplete: stopped at byte {} of {file_size}: {}; read {messages} messages before it",
+            path.display(),
+            t.offset,
+            t.reason,
+        );
+    }
+    if !salvage.skipped.is_empty() {
+        tracing::warn!(
+            "bag {}: {salvage}; read {messages} messages",
+            path.display()
+        );
+    }
 }
 
 struct ChannelEntry {
@@ -99,6 +107,26 @@ struct Scan {
 }
 
 impl Scan {
+    /// Starts with the schemas and channels of the summary, so messages after a skipped chunk
+    /// that defined them still read.
+    fn seeded(summary: Option<&mcap::Summary>) -> Self {
+        let mut scan = Self::default();
+        for channel in summary.iter().flat_map(|s| s.channels.values()) {
+            if let Some(schema) = &channel.schema {
+                let text = String::from_utf8_lossy(&schema.data).into_owned();
+                scan.schemas.insert(schema.id, (schema.name.clone(), text));
+            }
+            scan.take(Record::Channel(mcap::records::Channel {
+                id: channel.id,
+                schema_id: channel.schema.as_ref().map_or(0, |s| s.id),
+                topic: channel.topic.clone(),
+                message_encoding: channel.message_encoding.clone(),
+                metadata: channel.metadata.clone(),
+            }));
+        }
+        scan
+    }
+
     fn take(&mut self, record: Record<'_>) {
         match record {
             Record::Header(h) => {
@@ -179,20 +207,23 @@ impl BagReader {
     pub fn from_bytes(path: PathBuf, bytes: &[u8]) -> Result<Self, BagError> {
         let mut scanner = RecordScanner::new(Cursor::new(bytes), bytes.len() as u64)
             .ok_or_else(|| BagError::NotMcap { path: path.clone() })?;
-        let mut scan = Scan::default();
+        let mut scan = Scan::seeded(scanner.summary.as_ref());
         for record in scanner.by_ref() {
             scan.take(record);
         }
-        if let Some(t) = &scanner.truncation {
-            warn_truncated(&path, t, bytes.len() as u64, scan.messages.len());
-        }
+        warn_damaged(
+            &path,
+            &scanner.salvage,
+            bytes.len() as u64,
+            scan.messages.len(),
+        );
         Ok(Self::assemble(
             path,
             bytes.len() as u64,
             scan,
             scanner.compression,
             scanner.chunk_count,
-            scanner.truncation,
+            scanner.salvage,
         ))
     }
 
@@ -202,7 +233,7 @@ impl BagReader {
         mut scan: Scan,
         compression: BTreeSet<String>,
         chunk_count: usize,
-        truncation: Option<Truncation>,
+        salvage: Salvage,
     ) -> Self {
         let mut counts: HashMap<u16, u64> = HashMap::new();
         let unknown: Arc<str> = Arc::from("");
@@ -249,6 +280,11 @@ impl BagReader {
                     .get(&c.schema_id)
                     .map(|_| super::SCHEMA_ENCODING.to_string())
                     .unwrap_or_default(),
+                schema: scan
+                    .schemas
+                    .get(&c.schema_id)
+                    .map(|(_, text)| text.clone())
+                    .unwrap_or_default(),
                 offered_qos_profiles: c.qos.clone(),
                 message_count: counts.get(id).copied().unwrap_or(0),
             })
@@ -263,7 +299,7 @@ impl BagReader {
             compression,
             chunk_count,
             metadata: scan.metadata,
-            truncation,
+            salvage,
         }
     }
 
@@ -331,7 +367,17 @@ impl BagReader {
 
     /// Where reading stopped in an incomplete bag; `None` for a complete one.
     pub fn truncation(&self) -> Option<&Truncation> {
-        self.truncation.as_ref()
+        self.salvage.truncation.as_ref()
+    }
+
+    /// What reading skipped as unreadable and where an incomplete file ends.
+    pub fn salvage(&self) -> &Salvage {
+        &self.salvage
+    }
+
+    /// True when the whole bag was read: nothing skipped, nothing cut.
+    pub fn is_complete(&self) -> bool {
+        self.salvage.is_complete()
     }
 
     /// Decodes a message as `M`, checking the recorded type first.

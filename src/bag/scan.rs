@@ -1,15 +1,18 @@
 //! A record-by-record scan of an MCAP file's data section over any `Read + Seek`, expanding
-//! chunks (decompressed, CRC-checked) and stopping cleanly at the first incomplete or
-//! unreadable record, which it reports as a [`Truncation`].
+//! chunks (decompressed, CRC-checked). An unreadable record (bad CRC, compression or length) is
+//! skipped and reading goes on at the next readable one: after the chunk when its length is
+//! sound, else at the next chunk of the summary's chunk index, else at the next chunk record a
+//! byte scan finds ([`super::resync`]). Each skip is a [`Skipped`]; an incomplete file's end is a
+//! [`Truncation`].
 
-use super::reader::Truncation;
-use mcap::records::Record;
+use super::damage::{Resync, Salvage, Skipped, Truncation};
+use super::resync;
+use mcap::records::{op, Record};
 use std::collections::{BTreeSet, VecDeque};
 use std::io::{Read, Seek, SeekFrom};
 
-/// Opcodes that end the data section.
-const DATA_END: u8 = 0x0F;
-const FOOTER: u8 = 0x02;
+/// Record header: opcode and length.
+const RECORD_HEAD: u64 = 9;
 
 /// Yields the records of the data section in file order (chunk contents in place of chunks).
 pub(super) struct RecordScanner<R> {
@@ -18,12 +21,34 @@ pub(super) struct RecordScanner<R> {
     len: u64,
     pending: VecDeque<Record<'static>>,
     finished: bool,
-    /// Where and why the scan stopped early; set once the scan is over.
-    pub truncation: Option<Truncation>,
+    /// Message index records after a skipped chunk count its messages while this is set.
+    counting: bool,
+    /// The summary section, when the footer and summary could be read.
+    pub summary: Option<mcap::Summary>,
+    /// Where the data end record is, from the footer.
+    data_end: Option<u64>,
+    /// Chunk starts and lengths from the summary's chunk index, by offset.
+    chunk_index: Vec<(u64, u64)>,
+    /// What was skipped or cut; final once the scan is over.
+    pub salvage: Salvage,
     /// Chunk compressions seen.
     pub compression: BTreeSet<String>,
     /// Complete chunks read.
     pub chunk_count: usize,
+}
+
+/// What the record at the scan position turned out to be.
+enum Step {
+    /// A readable record; the next one starts at the offset.
+    Records(Vec<Record<'static>>, u64),
+    /// The data section is over.
+    End,
+    /// An unreadable chunk whose length is sound: it ends at the offset.
+    BadChunk(String, u64),
+    /// An unreadable record of unknown extent.
+    Bad(String),
+    /// The file cannot be read on (an I/O error).
+    Stop(String),
 }
 
 impl<R: Read + Seek> RecordScanner<R> {
@@ -33,24 +58,44 @@ impl<R: Read + Seek> RecordScanner<R> {
         if len < 8 || reader.read_exact(&mut magic).is_err() || magic != mcap::MAGIC {
             return None;
         }
+        let data_end = resync::data_end(&mut reader, len);
+        let summary = resync::read_summary(&mut reader, len);
+        let mut chunk_index: Vec<(u64, u64)> = summary
+            .iter()
+            .flat_map(|s| &s.chunk_indexes)
+            .map(|c| (c.chunk_start_offset, c.chunk_length))
+            .filter(|&(start, length)| {
+                start >= 8 && start.checked_add(length).is_some_and(|e| e <= len)
+            })
+            .collect();
+        chunk_index.sort_unstable();
+        reader.seek(SeekFrom::Start(8)).ok()?;
+        let expected_messages = summary
+            .as_ref()
+            .and_then(|s| s.stats.as_ref())
+            .map(|s| s.message_count);
         Some(Self {
             reader,
             pos: 8,
             len,
             pending: VecDeque::new(),
             finished: false,
-            truncation: None,
+            counting: false,
+            summary,
+            data_end,
+            chunk_index,
+            salvage: Salvage {
+                expected_messages,
+                ..Salvage::default()
+            },
             compression: BTreeSet::new(),
             chunk_count: 0,
         })
     }
 
-    fn stop(&mut self, reason: String) {
+    fn stop(&mut self, offset: u64, reason: String) {
         self.finished = true;
-        self.truncation = Some(Truncation {
-            offset: self.pos,
-            reason,
-        });
+        self.salvage.truncation = Some(Truncation { offset, reason });
     }
 
     fn tail_is_complete(&mut self, end: u64) -> bool {
@@ -61,86 +106,173 @@ impl<R: Read + Seek> RecordScanner<R> {
             && magic == mcap::MAGIC
     }
 
-    /// Reads the next top-level record; `false` when the scan is over.
-    fn advance(&mut self) -> bool {
-        if self.finished {
-            return false;
-        }
+    /// Reads the record at the scan position.
+    fn step(&mut self) -> Step {
         let remaining = self.len - self.pos;
         if remaining == 0 {
-            self.stop("the file ends before the data section does (no footer)".into());
-            return false;
+            return Step::Bad("the file ends before the data section does (no footer)".into());
         }
-        if remaining < 9 {
-            self.stop(format!("incomplete record header ({remaining} bytes)"));
-            return false;
+        if remaining < RECORD_HEAD {
+            return Step::Bad(format!("incomplete record header ({remaining} bytes)"));
         }
-        let mut head = [0u8; 9];
-        if let Err(e) = self.reader.read_exact(&mut head) {
-            self.stop(format!("read error: {e}"));
-            return false;
+        let mut head = [0u8; RECORD_HEAD as usize];
+        if let Err(e) = self
+            .reader
+            .seek(SeekFrom::Start(self.pos))
+            .and_then(|_| self.reader.read_exact(&mut head))
+        {
+            return Step::Stop(format!("read error: {e}"));
         }
         let opcode = head[0];
         let len = u64::from_le_bytes(head[1..].try_into().expect("8 bytes"));
         if len == u64::MAX {
             // The MCAP writer patches a chunk's length in when the chunk closes.
-            self.stop(format!(
+            return Step::Bad(format!(
                 "record with opcode 0x{opcode:02X} was still being written (length placeholder)"
             ));
-            return false;
         }
-        if len > remaining - 9 {
-            self.stop(format!(
+        if len > remaining - RECORD_HEAD {
+            return Step::Bad(format!(
                 "record with opcode 0x{opcode:02X} needs {len} bytes, {} left",
-                remaining - 9
+                remaining - RECORD_HEAD
             ));
-            return false;
         }
-        let end = self.pos + 9 + len;
-        if opcode == DATA_END || opcode == FOOTER {
+        let end = self.pos + RECORD_HEAD + len;
+        if opcode != op::CHUNK
+            && self
+                .chunk_index
+                .binary_search_by_key(&self.pos, |c| c.0)
+                .is_ok()
+        {
+            return Step::Bad(format!(
+                "the chunk index puts a chunk here, the record has opcode 0x{opcode:02X}"
+            ));
+        }
+        if opcode == op::DATA_END || opcode == op::FOOTER {
             // Every message is in; a complete file still ends with footer and magic.
             if !self.tail_is_complete(end) {
-                self.pos = end;
-                self.stop("the data section is complete but the summary and footer are cut".into());
+                self.stop(
+                    end,
+                    "the data section is complete but the summary and footer are cut".into(),
+                );
             }
-            self.finished = true;
-            return false;
+            return Step::End;
         }
         let mut body = vec![0u8; len as usize];
         if let Err(e) = self.reader.read_exact(&mut body) {
-            self.stop(format!("read error: {e}"));
-            return false;
+            return Step::Stop(format!("read error: {e}"));
         }
         let record = match mcap::parse_record(opcode, &body) {
             Ok(record) => record,
-            Err(e) => {
-                self.stop(format!("malformed record 0x{opcode:02X}: {e}"));
-                return false;
-            }
+            Err(e) => return Step::Bad(format!("malformed record 0x{opcode:02X}: {e}")),
         };
-        if let Record::Chunk { header, data } = record {
-            let compression = header.compression.clone();
-            let records: Result<Vec<Record<'_>>, _> =
-                mcap::read::ChunkReader::new(header, &data).and_then(|r| r.collect());
-            match records {
-                Ok(records) => {
-                    self.pending
-                        .extend(records.into_iter().map(Record::into_owned));
-                    self.chunk_count += 1;
-                    if !compression.is_empty() {
-                        self.compression.insert(compression);
+        let Record::Chunk { header, data } = record else {
+            return Step::Records(vec![record.into_owned()], end);
+        };
+        // A chunk length damaged into another that still parses: the index knows the real one.
+        let end = match self.chunk_index.binary_search_by_key(&self.pos, |c| c.0) {
+            Ok(i) => self.pos + self.chunk_index[i].1.max(RECORD_HEAD),
+            Err(_) => end,
+        };
+        let compression = header.compression.clone();
+        let records: Result<Vec<Record<'_>>, _> =
+            mcap::read::ChunkReader::new(header, &data).and_then(|r| r.collect());
+        match records {
+            Ok(records) => {
+                self.chunk_count += 1;
+                if !compression.is_empty() {
+                    self.compression.insert(compression);
+                }
+                Step::Records(records.into_iter().map(Record::into_owned).collect(), end)
+            }
+            Err(e) => Step::BadChunk(format!("unreadable chunk: {e}"), end),
+        }
+    }
+
+    /// Records a skip of `[self.pos, end)` holding `messages` and resumes reading at `end`;
+    /// `counting`: the message index records of a skipped chunk come next and count its
+    /// messages.
+    fn skip_to(
+        &mut self,
+        end: u64,
+        reason: String,
+        resync: Resync,
+        messages: Option<u64>,
+        counting: bool,
+    ) {
+        tracing::debug!(offset = self.pos, end, %resync, "skipping unreadable bytes: {reason}");
+        self.salvage.skipped.push(Skipped {
+            offset: self.pos,
+            end,
+            reason,
+            messages,
+            resync,
+        });
+        self.counting = counting;
+        self.pos = end;
+    }
+
+    /// Finds the next readable record after an unreadable one of unknown extent at the scan
+    /// position; stops the scan as truncated when there is none.
+    fn resync(&mut self, reason: String) {
+        let from = self.pos;
+        let indexed = !self.chunk_index.is_empty();
+        if let Some(&(_, length)) = self.chunk_index.iter().find(|c| c.0 == from) {
+            // The damaged record is an indexed chunk (its length counts the record header):
+            // its message index records follow it.
+            let end = from + length.max(RECORD_HEAD);
+            return self.skip_to(end, reason, Resync::ChunkIndex, None, true);
+        }
+        if let Some(&(next, _)) = self.chunk_index.iter().find(|c| c.0 > from) {
+            // No chunk starts in the range (a message index record, say): no messages lost.
+            return self.skip_to(next, reason, Resync::ChunkIndex, Some(0), false);
+        }
+        if !indexed {
+            let limit = self.data_end.unwrap_or(self.len);
+            if let Some(next) = resync::find_chunk(&mut self.reader, from + 1, limit) {
+                return self.skip_to(next, reason, Resync::Scan, None, false);
+            }
+        }
+        match self.data_end {
+            Some(end) if end > from => {
+                let messages = indexed.then_some(0);
+                self.skip_to(end, reason, Resync::DataEnd, messages, false)
+            }
+            _ => self.stop(from, reason),
+        }
+    }
+
+    /// Reads the next top-level record; `false` when the scan is over.
+    fn advance(&mut self) -> bool {
+        if self.finished {
+            return false;
+        }
+        match self.step() {
+            Step::Records(records, end) => {
+                for record in records {
+                    match &record {
+                        Record::MessageIndex(index) if self.counting => {
+                            if let Some(last) = self.salvage.skipped.last_mut() {
+                                *last.messages.get_or_insert(0) += index.records.len() as u64;
+                            }
+                        }
+                        Record::MessageIndex(_) => {}
+                        _ => {
+                            self.counting = false;
+                            self.pending.push_back(record);
+                        }
                     }
                 }
-                Err(e) => {
-                    self.stop(format!("unreadable chunk: {e}"));
-                    return false;
-                }
+                self.pos = end;
             }
-        } else {
-            self.pending.push_back(record.into_owned());
+            Step::End => self.finished = true,
+            Step::BadChunk(reason, end) => {
+                self.skip_to(end, reason, Resync::RecordLength, None, true)
+            }
+            Step::Bad(reason) => self.resync(reason),
+            Step::Stop(reason) => self.stop(self.pos, reason),
         }
-        self.pos = end;
-        true
+        !self.finished || !self.pending.is_empty()
     }
 }
 
@@ -152,7 +284,7 @@ impl<R: Read + Seek> Iterator for RecordScanner<R> {
             if let Some(record) = self.pending.pop_front() {
                 return Some(record);
             }
-            if !self.advance() {
+            if !self.advance() && self.pending.is_empty() {
                 return None;
             }
         }

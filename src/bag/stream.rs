@@ -1,7 +1,8 @@
 //! [`BagStream`]: messages of a bag read lazily in file order, one chunk in memory at a time,
 //! for replaying recordings too large to load whole.
 
-use super::reader::{warn_truncated, BagMessage, BagReader, Truncation};
+use super::damage::{Salvage, Truncation};
+use super::reader::{warn_damaged, BagMessage, BagReader};
 use super::scan::RecordScanner;
 use super::BagError;
 use mcap::records::Record;
@@ -12,7 +13,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Iterates a bag's messages in file order (the recording order of a single recorder) without
-/// loading the file; stops at the first incomplete record of a cut bag, like [`BagReader`].
+/// loading the file; skips unreadable chunks and stops at the end of a cut bag, like
+/// [`BagReader`].
 pub struct BagStream {
     path: PathBuf,
     file_size: u64,
@@ -35,12 +37,20 @@ impl BagStream {
         let file_size = file.metadata().map_err(io_error)?.len();
         let scanner = RecordScanner::new(BufReader::new(file), file_size)
             .ok_or_else(|| BagError::NotMcap { path: path.clone() })?;
+        // The summary's channels, so messages after a skipped chunk that defined them read.
+        let channels = scanner.summary.iter().flat_map(|s| s.channels.values());
+        let channels = channels
+            .map(|c| {
+                let type_name = c.schema.as_ref().map_or("", |s| s.name.as_str());
+                (c.id, (c.topic.as_str().into(), type_name.into()))
+            })
+            .collect();
         Ok(Self {
             path,
             file_size,
             scanner,
             schemas: HashMap::new(),
-            channels: HashMap::new(),
+            channels,
             yielded: 0,
             warned: false,
         })
@@ -48,7 +58,13 @@ impl BagStream {
 
     /// Where reading stopped in an incomplete bag; known once the iterator has ended.
     pub fn truncation(&self) -> Option<&Truncation> {
-        self.scanner.truncation.as_ref()
+        self.scanner.salvage.truncation.as_ref()
+    }
+
+    /// What was skipped so far and where an incomplete bag ends; final once the iterator has
+    /// ended.
+    pub fn salvage(&self) -> &Salvage {
+        &self.scanner.salvage
     }
 }
 
@@ -90,9 +106,12 @@ impl Iterator for BagStream {
         }
         if !self.warned {
             self.warned = true;
-            if let Some(t) = &self.scanner.truncation {
-                warn_truncated(&self.path, t, self.file_size, self.yielded);
-            }
+            warn_damaged(
+                &self.path,
+                &self.scanner.salvage,
+                self.file_size,
+                self.yielded,
+            );
         }
         None
     }

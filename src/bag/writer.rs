@@ -104,21 +104,30 @@ impl BagWriter {
 
     /// The MCAP file and, for a bag directory, its `metadata.yaml`.
     fn layout(path: &Path) -> Result<(PathBuf, Option<PathBuf>), BagError> {
-        if path.extension().is_some_and(|e| e == "mcap") {
-            return Ok((path.to_path_buf(), None));
+        let (file, yaml) = Self::files(path);
+        if yaml.is_some() {
+            std::fs::create_dir_all(path).map_err(|source| BagError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
         }
-        std::fs::create_dir_all(path).map_err(|source| BagError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        Ok((file, yaml))
+    }
+
+    /// The MCAP file a bag at `path` is written to and, for a bag directory, its
+    /// `metadata.yaml`; creates nothing.
+    pub(super) fn files(path: &Path) -> (PathBuf, Option<PathBuf>) {
+        if path.extension().is_some_and(|e| e == "mcap") {
+            return (path.to_path_buf(), None);
+        }
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().to_string())
             .unwrap_or_else(|| "bag".into());
-        Ok((
+        (
             path.join(format!("{name}_0.mcap")),
             Some(path.join("metadata.yaml")),
-        ))
+        )
     }
 
     /// The MCAP file being written.
@@ -179,7 +188,44 @@ impl BagWriter {
                 id
             }
         };
-        let qos_yaml = qos.offered_profiles_yaml();
+        self.add_channel(topic, full_type, schema_id, qos.offered_profiles_yaml())
+    }
+
+    /// Declares `topic` as another bag holds it: its type name, `ros2msg` schema text and
+    /// `offered_qos_profiles` YAML kept as they are (types this crate does not know too). A
+    /// topic added twice keeps its first declaration.
+    pub fn add_topic_as(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        schema: &str,
+        qos_yaml: &str,
+    ) -> Result<(), BagError> {
+        if self.topics.contains_key(topic) {
+            return Ok(());
+        }
+        let full_type = registry::full_type_name(type_name);
+        let schema_id = match self.schemas.get(&full_type) {
+            Some(id) => *id,
+            None => {
+                let id = self
+                    .writer()?
+                    .add_schema(&full_type, SCHEMA_ENCODING, schema.as_bytes());
+                let id = id.map_err(|e| self.mcap_err(e))?;
+                self.schemas.insert(full_type.clone(), id);
+                id
+            }
+        };
+        self.add_channel(topic, &full_type, schema_id, qos_yaml.to_string())
+    }
+
+    fn add_channel(
+        &mut self,
+        topic: &str,
+        full_type: &str,
+        schema_id: u16,
+        qos_yaml: String,
+    ) -> Result<(), BagError> {
         let channel_metadata = BTreeMap::from([("offered_qos_profiles".into(), qos_yaml.clone())]);
         let channel_id =
             self.writer()?
@@ -197,6 +243,27 @@ impl BagWriter {
         );
         self.topic_order.push(topic.to_string());
         Ok(())
+    }
+
+    /// Writes a metadata record other than the `rosbag2` one, which [`BagWriter::finish`]
+    /// writes (a record of that name is refused).
+    pub fn write_metadata(
+        &mut self,
+        name: &str,
+        entries: BTreeMap<String, String>,
+    ) -> Result<(), BagError> {
+        if name == metadata::RECORD_NAME {
+            return Err(BagError::ReservedMetadata {
+                path: self.path.clone(),
+                name: name.into(),
+            });
+        }
+        let record = Metadata {
+            name: name.into(),
+            metadata: entries,
+        };
+        let result = self.writer()?.write_metadata(&record);
+        result.map_err(|e| self.mcap_err(e))
     }
 
     /// Records `message` on `topic` at `time_ns` (log and publish time, nanoseconds since the
@@ -218,6 +285,19 @@ impl BagWriter {
         time_ns: u64,
         cdr: &[u8],
     ) -> Result<(), BagError> {
+        self.write_raw_at(topic, type_name, time_ns, time_ns, cdr)
+    }
+
+    /// Records an encoded CDR message with its own log and publish times (ns since the epoch).
+    pub fn write_raw_at(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        log_time: u64,
+        publish_time: u64,
+        cdr: &[u8],
+    ) -> Result<(), BagError> {
+        let time_ns = log_time;
         if !self.topics.contains_key(topic) {
             self.add_topic(topic, type_name, &QosProfile::default())?;
         }
@@ -234,8 +314,8 @@ impl BagWriter {
         let header = MessageHeader {
             channel_id: state.channel_id,
             sequence: state.sequence,
-            log_time: time_ns,
-            publish_time: time_ns,
+            log_time,
+            publish_time,
         };
         state.sequence = state.sequence.wrapping_add(1);
         state.count += 1;

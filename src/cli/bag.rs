@@ -1,9 +1,15 @@
-//! `lhmpp bag ...`: inspect MCAP bags (`info`, like `ros2 bag info`).
+//! `lhmpp bag ...`: inspect MCAP bags (`info`, like `ros2 bag info`) and rewrite damaged ones
+//! (`recover`).
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use lhmpp::bag::BagReader;
+use lhmpp::bag::{BagReader, Salvage};
+use std::io::Write;
 use std::path::PathBuf;
+
+/// Exit status of `bag info` for a damaged bag: it was read, but unreadable ranges were
+/// skipped or the file is cut short.
+pub const EXIT_DAMAGED: u8 = 3;
 
 /// Arguments of `lhmpp bag`.
 #[derive(Args, Debug)]
@@ -14,10 +20,25 @@ pub struct BagArgs {
 
 #[derive(Subcommand, Debug)]
 enum BagCommand {
-    /// Print a bag's topics, types, message counts, duration, size and compression.
+    /// Print a bag's topics, types, message counts, duration, size and compression, and what
+    /// a damaged bag lost (skipped byte ranges, lost messages, where a cut file ends).
+    #[command(
+        after_help = "Exit status: 0 complete bag; 3 damaged bag (unreadable ranges \
+        skipped or the file cut short; everything readable is counted above); 1 unreadable \
+        (not an MCAP file, cannot be opened); 2 bad command line."
+    )]
     Info {
-        /// The MCAP bag file.
+        /// The MCAP bag file (or rosbag2 bag directory).
         bag: PathBuf,
+    },
+    /// Write every readable message of a damaged bag into a clean bag (rosbag2 profile, the
+    /// same schemas, channels and metadata records); never over the input.
+    Recover {
+        /// The damaged MCAP bag file (or rosbag2 bag directory).
+        input: PathBuf,
+        /// The clean bag: an `.mcap` file, or a bag directory (with `metadata.yaml`).
+        #[arg(short, long)]
+        output: PathBuf,
     },
 }
 
@@ -27,6 +48,33 @@ pub fn run(args: BagArgs) -> Result<()> {
         BagCommand::Info { bag } => {
             let reader = BagReader::open(&bag)?;
             print!("{}", info_text(&reader));
+            if reader.is_complete() {
+                return Ok(());
+            }
+            Err(super::ExitStatus {
+                code: EXIT_DAMAGED,
+                message: format!(
+                    "bag {} is damaged: {}",
+                    reader.path().display(),
+                    reader.salvage()
+                ),
+            }
+            .into())
+        }
+        BagCommand::Recover { input, output } => {
+            let recovery = lhmpp::bag::recover(&input, &output, |done, total| {
+                eprint!("\rrecovering: {done}/{total} messages");
+                let _ = std::io::stderr().flush();
+            })?;
+            eprintln!();
+            println!(
+                "recovered {} messages on {} topics into {}; input {}: {}",
+                recovery.messages,
+                recovery.topics,
+                recovery.output.display(),
+                input.display(),
+                recovery.salvage
+            );
             Ok(())
         }
     }
@@ -49,6 +97,22 @@ fn human_size(bytes: u64) -> String {
 
 fn seconds(ns: u64) -> String {
     format!("{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
+}
+
+/// The `Skipped:` line of each unreadable range and a `Damaged:` total.
+fn damage_lines(salvage: &Salvage, read: usize, line: &mut impl FnMut(&str, String)) {
+    for (i, s) in salvage.skipped.iter().enumerate() {
+        line(if i == 0 { "Skipped:" } else { "" }, s.to_string());
+    }
+    if !salvage.skipped.is_empty() {
+        let expected = salvage
+            .expected_messages
+            .map_or(String::new(), |n| format!(" of {n} (summary statistics)"));
+        line(
+            "Damaged:",
+            format!("{salvage}; read {read} messages{expected}"),
+        );
+    }
 }
 
 /// The report `ros2 bag info` would print, in the same shape.
@@ -89,6 +153,7 @@ fn info_text(bag: &BagReader) -> String {
             format!("read up to byte {}: {}", t.offset, t.reason),
         );
     }
+    damage_lines(bag.salvage(), bag.messages().len(), &mut line);
     let topics = bag.topics();
     let name_width = topics.iter().map(|t| t.name.len()).max().unwrap_or(0);
     let type_width = topics.iter().map(|t| t.type_name.len()).max().unwrap_or(0);

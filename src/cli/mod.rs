@@ -46,7 +46,8 @@ enum Command {
     SynthDataset(synth_dataset::SynthDatasetArgs),
     /// Score reconstructions on held-out views of synthetic bags (PSNR, SSIM, mask IoU).
     Eval(eval::EvalArgs),
-    /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`).
+    /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`), recover damaged ones
+    /// (`bag recover IN -o OUT`).
     Bag(bag::BagArgs),
     /// Record the node's input and output topics into an MCAP bag (`record --config FILE`).
     Record(record::RecordArgs),
@@ -60,6 +61,22 @@ enum Command {
     ShmEcho(shm_echo::ShmEchoArgs),
     /// Benchmarks that print tables (`bench render|model|points|transport`).
     Bench(bench::BenchArgs),
+}
+
+/// An error that ends `lhmpp` with its own exit status, documented by its subcommand's
+/// `--help`, instead of 1.
+#[derive(Debug, thiserror::Error)]
+#[error("{message}")]
+pub struct ExitStatus {
+    /// The exit status.
+    pub code: u8,
+    /// The error line.
+    pub message: String,
+}
+
+/// The exit status for an error returned by [`main`]: an [`ExitStatus`]'s code, else 1.
+pub fn exit_code(error: &anyhow::Error) -> u8 {
+    error.downcast_ref::<ExitStatus>().map_or(1, |s| s.code)
 }
 
 /// Parses the command line, sets up logging and runs the subcommand.

@@ -290,3 +290,53 @@ pub fn write_every_type(writer: &mut BagWriter, copies: u64) -> Value {
     }
     Value::Object(expected)
 }
+
+/// A small mono8 image whose bytes depend on `i` (incompressible-ish, so chunks have size).
+pub fn numbered_image(i: u32) -> Image {
+    Image {
+        height: 8,
+        width: 8,
+        encoding: "mono8".into(),
+        step: 8,
+        data: (0..64u32)
+            .map(|k| (k.wrapping_mul(2654435761).wrapping_add(i * 97) >> 13) as u8)
+            .collect(),
+        ..Default::default()
+    }
+}
+
+/// Log time of [`numbered_image`] `i` in [`chunked_image_bag`].
+pub fn image_time(i: u32) -> u64 {
+    1_000_000_000 + i as u64
+}
+
+/// Writes `chunks` × `per_chunk` numbered images on `/img` into `path` (`.mcap` file or bag
+/// directory), one flushed chunk each, and finishes it; returns the MCAP file's bytes and its
+/// chunk index (sorted by offset).
+pub fn chunked_image_bag(
+    path: &std::path::Path,
+    chunks: u32,
+    per_chunk: u32,
+) -> (Vec<u8>, Vec<mcap::records::ChunkIndex>) {
+    let options = lhmpp::bag::BagWriterOptions {
+        chunk_size: 1 << 30,
+        flush_interval: None,
+        ..Default::default()
+    };
+    let mut writer = BagWriter::create_with(path, options).unwrap();
+    for i in 0..chunks * per_chunk {
+        writer
+            .write("/img", image_time(i), &numbered_image(i))
+            .unwrap();
+        if (i + 1) % per_chunk == 0 {
+            writer.flush().unwrap();
+        }
+    }
+    let file = writer.path().to_path_buf();
+    writer.finish().unwrap();
+    let bytes = std::fs::read(file).unwrap();
+    let mut index = mcap::Summary::read(&bytes).unwrap().unwrap().chunk_indexes;
+    index.sort_by_key(|c| c.chunk_start_offset);
+    assert_eq!(index.len(), chunks as usize);
+    (bytes, index)
+}
