@@ -45,6 +45,7 @@ impl Avatar {
             colours: &self.colours,
             bones: &self.bones,
             weights: &self.weights,
+            rgb_latent: false,
         }
     }
 }

@@ -98,6 +98,7 @@ impl Publisher for ShmOutputs {
             colours: &colours,
             bones: &u.avatar.skin.bones,
             weights: &u.avatar.skin.weights,
+            rgb_latent: !u.rgb_display_ready,
         };
         if let Err(e) = self
             .avatar

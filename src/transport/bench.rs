@@ -110,6 +110,7 @@ impl BenchCase {
             colours: &colours,
             bones: &bones,
             weights: &weights,
+            rgb_latent: false,
         };
         Self::encode(format!("avatar {gaussians} G"), PayloadBody::Avatar(view))
     }

@@ -21,7 +21,8 @@
 //!     80    4 width          u32  frame: pixels per row (0 for avatars)
 //!     84    4 height         u32  frame: rows (0 for avatars)
 //!     88    4 channels       u32  frame: 3 = rgb8, 4 = rgba8 (0 for avatars)
-//!     92    4 reserved       u32  0
+//!     92    4 flags          u32  avatar: bit 0 = colours are latent features (FLAG_RGB_LATENT);
+//!                                 other bits and frames: 0
 //!     96  128 arrays         8 × { offset u64, len u64 }, byte offset from the payload start
 //!                            and byte length; len 0 = array absent
 //! ```
@@ -42,6 +43,9 @@ use super::checksum::Fnv1a64;
 pub const MAGIC: u32 = u32::from_le_bytes(*b"LHMP");
 /// Version of this layout; bumped on any incompatible change.
 pub const LAYOUT_VERSION: u16 = 1;
+/// Avatar header flag: the colours are latent features of a checkpoint whose Gaussian RGB is
+/// not display-ready (LHMPP-700M, LHMPPS-700M); render them through its neural renderer.
+pub const FLAG_RGB_LATENT: u32 = 1;
 /// Number of array descriptors in every header.
 pub const ARRAY_SLOTS: usize = 8;
 /// Every array starts at a multiple of this many bytes from the payload start.
@@ -150,8 +154,8 @@ pub struct PayloadHeader {
     pub height: u32,
     /// Frame: bytes per pixel in the pixel array (3 = rgb8, 4 = rgba8).
     pub channels: u32,
-    /// Zero.
-    pub reserved: u32,
+    /// Avatar: [`FLAG_RGB_LATENT`] when the colours are not display-ready; otherwise 0.
+    pub flags: u32,
     /// Array descriptors; see [`avatar_slot`] and [`frame_slot`].
     pub arrays: [ArrayRef; ARRAY_SLOTS],
 }
@@ -329,6 +333,9 @@ pub struct AvatarView<'a> {
     pub bones: &'a [[u16; 4]],
     /// Skinning weights.
     pub weights: &'a [[f32; 4]],
+    /// The colours are latent features, not display-ready RGB (header flag
+    /// [`FLAG_RGB_LATENT`]): a viewer must not show them as colours.
+    pub rgb_latent: bool,
 }
 
 impl<'a> AvatarView<'a> {
@@ -535,6 +542,7 @@ struct Counts {
     width: u32,
     height: u32,
     channels: u32,
+    flags: u32,
 }
 
 /// The header of a payload whose arrays have the byte lengths `lens` (0 = absent), each
@@ -573,7 +581,7 @@ fn lay_out(
         width: counts.width,
         height: counts.height,
         channels: counts.channels,
-        reserved: 0,
+        flags: counts.flags,
         arrays: refs,
     }
 }
@@ -659,6 +667,7 @@ impl<'a> Encoder<'a> {
             PayloadBody::Avatar(a) => Counts {
                 gaussians: a.gaussians() as u32,
                 sh_coeffs: a.sh_coeffs,
+                flags: if a.rgb_latent { FLAG_RGB_LATENT } else { 0 },
                 ..Counts::default()
             },
             PayloadBody::Frame(f) => Counts {
@@ -835,6 +844,7 @@ fn decode_avatar<'a>(
         colours: cast(arrays, COLOURS, t)?,
         bones: cast(arrays, BONES, t)?,
         weights: cast(arrays, WEIGHTS, t)?,
+        rgb_latent: header.flags & FLAG_RGB_LATENT != 0,
     };
     if view.gaussians() != header.gaussians as usize {
         return Err(LayoutError::CountMismatch {
@@ -916,6 +926,35 @@ mod tests {
             colours: &a.colours,
             bones: &a.bones,
             weights: &a.weights,
+            rgb_latent: false,
+        }
+    }
+
+    #[test]
+    fn the_latent_rgb_flag_is_bit_0_at_byte_92_and_round_trips() {
+        let a = avatar(3);
+        let person = PersonId::new("p").unwrap();
+        for latent in [false, true] {
+            let v = AvatarView {
+                rgb_latent: latent,
+                ..view(&a)
+            };
+            let stamp = Stamp {
+                revision: 1,
+                timestamp_ns: 2,
+            };
+            let bytes = Encoder::new(&person, stamp, &PayloadBody::Avatar(v))
+                .unwrap()
+                .to_vec();
+            assert_eq!(bytes[92], u8::from(latent));
+            let words = aligned(&bytes);
+            match decode(&bytemuck::cast_slice(&words)[..bytes.len()])
+                .unwrap()
+                .body
+            {
+                PayloadBody::Avatar(d) => assert_eq!(d.rgb_latent, latent),
+                PayloadBody::Frame(_) => panic!("decoded a frame"),
+            }
         }
     }
 

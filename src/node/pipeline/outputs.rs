@@ -177,10 +177,88 @@ pub fn status_message(
         last_render_ms: render_ms,
         state,
         message: message.into(),
+        ..Default::default()
     }
 }
 
 /// An rgb8 Image message of a rendered frame.
 pub fn frame_message(image: &RgbImage, stamp_ns: i64, frame_id: &str) -> Image {
     crate::node::ros::rgb8_image(image, stamp_ns, frame_id)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::body::SkinWeights;
+    use crate::splat::Gaussians;
+    use glam::{Quat, Vec3};
+    use std::sync::{Arc, Mutex};
+
+    fn avatar() -> Avatar {
+        let g = Gaussians::from_rgb(
+            vec![Vec3::ZERO],
+            vec![Vec3::splat(0.01)],
+            vec![Quat::IDENTITY],
+            vec![1.0],
+            &[Vec3::new(0.2, 0.4, 0.6)],
+        )
+        .unwrap();
+        let skin = SkinWeights {
+            bones: vec![[0; 4]],
+            weights: vec![[1.0, 0.0, 0.0, 0.0]],
+        };
+        Avatar::new(g, skin, "test-body").unwrap()
+    }
+
+    /// The log lines written while `f` runs, at warn level and above.
+    fn warnings(f: impl FnOnce()) -> String {
+        #[derive(Clone, Default)]
+        struct Buf(Arc<Mutex<Vec<u8>>>);
+        impl std::io::Write for Buf {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let buf = Buf::default();
+        let writer = buf.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_max_level(tracing::Level::WARN)
+            .with_ansi(false)
+            .with_writer(move || writer.clone())
+            .finish();
+        tracing::subscriber::with_default(subscriber, f);
+        let text = buf.0.lock().unwrap().clone();
+        String::from_utf8(text).unwrap()
+    }
+
+    #[test]
+    fn latent_rgb_ply_export_warns_once_naming_the_checkpoint_kind() {
+        let tmp = tempfile::tempdir().unwrap();
+        let files = FileOutputs::new(tmp.path())
+            .unwrap()
+            .with_latent_rgb("LHMPP-700M");
+        let log = warnings(|| {
+            for revision in 1..=3 {
+                files.write_avatar("p", revision, &avatar()).unwrap();
+            }
+        });
+        assert_eq!(log.matches("not display-ready").count(), 1, "{log}");
+        assert!(log.contains("LHMPP-700M"), "{log}");
+        assert!(tmp.path().join("avatar_p_rev3.ply").exists());
+    }
+
+    #[test]
+    fn display_ready_ply_export_is_silent() {
+        let tmp = tempfile::tempdir().unwrap();
+        let files = FileOutputs::new(tmp.path()).unwrap();
+        let log = warnings(|| {
+            files.write_avatar("p", 1, &avatar()).unwrap();
+        });
+        assert_eq!(log, "");
+        assert!(tmp.path().join("avatar_p.ply").exists());
+    }
 }
