@@ -46,6 +46,10 @@ pub const LAYOUT_VERSION: u16 = 1;
 /// Avatar header flag: the colours are latent features of a checkpoint whose Gaussian RGB is
 /// not display-ready (LHMPP-700M, LHMPPS-700M); render them through its neural renderer.
 pub const FLAG_RGB_LATENT: u32 = 1;
+/// Byte offset of `revision` in the header (the sequence number a reader checks first).
+pub const REVISION_OFFSET: usize = std::mem::offset_of!(PayloadHeader, revision);
+/// Byte offset of `timestamp_ns` in the header.
+pub const TIMESTAMP_OFFSET: usize = std::mem::offset_of!(PayloadHeader, timestamp_ns);
 /// Number of array descriptors in every header.
 pub const ARRAY_SLOTS: usize = 8;
 /// Every array starts at a multiple of this many bytes from the payload start.

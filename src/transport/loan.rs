@@ -7,12 +7,10 @@ use iceoryx2::sample_mut::SampleMut;
 use super::error::{iceoryx, ShmError};
 use super::layout::{
     frame_slot, read_header, ArrayRef, LayoutError, PayloadHeader, PayloadKind, HEADER_LEN,
+    TIMESTAMP_OFFSET,
 };
 use super::node::Svc;
 use super::publisher::ShmPublisher;
-
-/// Byte offset of `timestamp_ns` in the header.
-const TIMESTAMP_OFFSET: usize = 56;
 
 /// A zero-filled shared-memory sample of a fixed byte length, loaned from a [`ShmPublisher`].
 /// The producer writes a complete payload (header first) into [`PayloadLoan::bytes_mut`];

@@ -7,9 +7,7 @@
 //! This module is synchronous except [`ShmSubscriber::wait_async`], which lets a tokio task
 //! sleep on the listener's file descriptor.
 
-pub mod bench;
 pub mod checksum;
-pub mod dds_bench;
 mod error;
 pub mod footprint;
 pub mod layout;
@@ -18,7 +16,6 @@ mod node;
 pub mod options;
 mod publisher;
 mod subscriber;
-pub mod udp_buffers;
 
 pub use error::ShmError;
 pub use layout::{AvatarView, Decoded, FrameShape, FrameView, PayloadBody, PayloadKind, Stamp};

@@ -1,7 +1,7 @@
 //! Publish→receive benchmark of a transport: latency from the header timestamp to receipt
 //! (p50/p99) and throughput, printed as one table row per transport and payload.
 //!
-//! Transports implement [`TransportBench`] over the encoded [`layout`](super::layout) bytes, so
+//! Transports implement [`TransportBench`] over the encoded `lhmpp::transport::layout` bytes, so
 //! a second transport (DDS) adds rows to the same table. The harness runs lock-step: stamp the
 //! payload, publish, wait for its receipt, repeat. Latency therefore includes writing the
 //! payload into the transport (one copy into shared memory for iceoryx2) and waking the
@@ -13,16 +13,11 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use super::layout::{
+use lhmpp::transport::layout::{
     read_header, unix_time_ns, AvatarView, Encoder, FrameView, PayloadBody, PayloadKind, PersonId,
-    Stamp,
+    Stamp, REVISION_OFFSET, TIMESTAMP_OFFSET,
 };
-use super::{ShmNode, ShmOptions, ShmPublisher};
-
-/// Byte offset of `revision` in the header.
-const REVISION_OFFSET: usize = 48;
-/// Byte offset of `timestamp_ns` in the header.
-const TIMESTAMP_OFFSET: usize = 56;
+use lhmpp::transport::{ShmError, ShmNode, ShmOptions, ShmPublisher};
 
 /// Errors of a benchmark run; each names the transport.
 #[derive(Debug, thiserror::Error)]
@@ -295,7 +290,7 @@ impl Iceoryx2Bench {
         options: ShmOptions,
         write: ShmWrite,
     ) -> Result<Self, BenchError> {
-        let fail = |e: super::ShmError| BenchError::Transport {
+        let fail = |e: ShmError| BenchError::Transport {
             transport: "iceoryx2".into(),
             message: e.to_string(),
         };

@@ -4,13 +4,15 @@
 //! 1920×1080 RGBA frame.
 
 use anyhow::{Context, Result};
-use lhmpp::transport::bench::{
-    render_table, run_case, BenchCase, BenchRow, Iceoryx2Bench, ShmWrite,
-};
-use lhmpp::transport::dds_bench::{DdsBench, DEFAULT_RECEIVE_BUFFER};
+mod dds;
+mod harness;
+mod udp_buffers;
+
+use dds::{DdsBench, DEFAULT_RECEIVE_BUFFER};
+use harness::{render_table, run_case, BenchCase, BenchRow, Iceoryx2Bench, ShmWrite};
 use lhmpp::transport::footprint::ShmSnapshot;
-use lhmpp::transport::udp_buffers::{self, RmemMaxRaised};
 use lhmpp::transport::ShmOptions;
+use udp_buffers::RmemMaxRaised;
 
 /// Arguments of `lhmpp bench transport`.
 #[derive(clap::Args, Debug)]

@@ -8,11 +8,11 @@
 //! The subscriber's task (on the bench's own tokio runtime) reports one [`Receipt`] per message,
 //! read from the payload's own header.
 
-use super::bench::{BenchError, Receipt, TransportBench};
-use super::layout::{read_header, unix_time_ns};
-use crate::msgs::{Header, Image, RosMessage};
-use crate::node::ros::{create_context, ParticipantOptions};
+use super::harness::{BenchError, Receipt, TransportBench};
 use futures::StreamExt;
+use lhmpp::msgs::{Header, Image, RosMessage};
+use lhmpp::node::ros::{create_context, ParticipantOptions};
+use lhmpp::transport::layout::{read_header, unix_time_ns};
 use ros2_client::qos::{History, QosProfile, Reliability, WhenFull};
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
 use std::net::IpAddr;
@@ -209,8 +209,8 @@ impl Drop for DdsBench {
 
 #[cfg(test)]
 mod tests {
+    use super::super::harness::{run_case, BenchCase};
     use super::*;
-    use crate::transport::bench::{run_case, BenchCase};
 
     #[test]
     fn dds_bench_delivers_every_revision_in_lock_step() {
