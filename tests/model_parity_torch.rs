@@ -14,7 +14,7 @@ use serde_json::Value;
 /// The f32 limit of issues 4 and 10.
 const MAX_REL_F32: f64 = 1e-4;
 
-/// The bf16 limit of issue 4, raised to twice PyTorch's own bf16 error where that is larger.
+/// The bf16 limit (1e-2), raised to twice PyTorch's own bf16 error where that is larger.
 const MAX_REL_BF16: f64 = 1e-2;
 
 /// Runs the parity command on one fixture in `dtype` and returns its rows.

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-/// Agreement bound of the emulation: 4× below the 2e-3 required of the GPU build (issue 5),
+/// Agreement bound of the emulation: 4× below the 2e-3 required of the GPU build,
 /// since on the CPU neither side fuses multiply-adds (measured: 8e-5 at most, 2e-7 typical).
 const TOLERANCE: f32 = 5e-4;
 

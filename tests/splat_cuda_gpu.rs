@@ -1,5 +1,5 @@
 //! The CUDA rasteriser on a real GPU (only with `--features cuda`; needs CUDA device 0): its
-//! images agree with the CPU rasteriser within 2e-3 (issue 5), its maps stay on the GPU as
+//! images agree with the CPU rasteriser within 2e-3, its maps stay on the GPU as
 //! tensors of the right shapes, and a bad scene tensor is refused with its name.
 #![cfg(feature = "cuda")]
 
