@@ -118,6 +118,8 @@ fn every_message_type_round_trips_and_rejects_every_truncation() {
         last_render_ms: 37.5,
         state: ReconstructionStatus::STATE_RECONSTRUCTING,
         message: String::new(),
+        rejected_reasons: vec!["cdr".into(), "image".into()],
+        rejected_counts: vec![2, 4],
     });
 }
 

@@ -311,6 +311,12 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
         stats.rejected.get(topic).copied().unwrap_or(0) >= 1,
         "{stats:?}"
     );
+    // Counted by reason too, the same messages.
+    assert_eq!(
+        stats.rejections.total(),
+        stats.rejected.values().sum::<u64>(),
+        "{stats:?}"
+    );
     let status = peer.0.wait().expect("peer exit status");
     assert!(status.success(), "peer exited with {status}");
 }

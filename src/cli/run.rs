@@ -43,13 +43,13 @@ pub fn run(args: RunArgs) -> Result<()> {
         v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
     };
     println!(
-        "frames {} (rejected {}, duplicates {}), views held {}, views encoded {}, \
+        "frames {} (duplicates {}), rejected messages {}, views held {}, views encoded {}, \
          reconstructions {} (failed {}), revision {}, median latency {:.0} ms, \
          median reconstruction {:.0} ms, rendered frames {} (dropped {}, last {:.1} ms/frame), \
          wall {:.1} s",
         s.frames,
-        s.rejected,
         s.duplicates,
+        summary.rejections,
         summary.views_held,
         summary.encoded_views,
         s.reconstructions,
@@ -62,6 +62,9 @@ pub fn run(args: RunArgs) -> Result<()> {
         s.last_render_ms,
         summary.wall.as_secs_f64()
     );
+    if let Some(salvage) = summary.bag.as_ref().filter(|s| !s.is_complete()) {
+        println!("bag {}: {salvage}", config.replay.bag);
+    }
     if !config.outputs.dir.is_empty() {
         println!("outputs in {}/", config.outputs.dir);
     }

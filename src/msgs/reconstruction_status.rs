@@ -23,6 +23,11 @@ pub struct ReconstructionStatus {
     pub state: u8,
     /// Human-readable detail, e.g. an error.
     pub message: String,
+    /// Reasons input messages were rejected for since the node started (`cdr`, `image`,
+    /// `frame`, `pose`, `shape`), those with at least one rejection.
+    pub rejected_reasons: Vec<String>,
+    /// Messages rejected for each of `rejected_reasons`.
+    pub rejected_counts: Vec<u64>,
 }
 ros_message!(
     ReconstructionStatus,

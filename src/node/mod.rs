@@ -15,6 +15,7 @@ pub mod preprocess;
 pub mod preview;
 pub mod publishers;
 pub mod record;
+pub mod rejections;
 pub mod replay;
 pub mod ros;
 pub mod run;

@@ -2,8 +2,9 @@
 //! produces (same decoding functions), paced by their log times scaled by a rate, or as fast as
 //! the pipeline consumes them (rate 0).
 
-use crate::bag::{BagError, BagMessage, BagReader};
+use crate::bag::{BagError, BagMessage, BagReader, Salvage};
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image, RosMessage};
+use crate::node::rejections::RejectReason;
 use crate::node::ros::{inputs, InputEvent, ResolvedTopics};
 use std::path::Path;
 use std::time::Duration;
@@ -13,12 +14,15 @@ use std::time::Duration;
 pub enum Replayed {
     /// An input event for the pipeline.
     Event(InputEvent),
-    /// A subscribed topic whose message could not be decoded (logged by the caller).
+    /// A subscribed topic whose message could not be decoded (counted and logged by the
+    /// caller: [`crate::node::pipeline::Pipeline::reject`]).
     Rejected {
         /// Topic.
         topic: String,
-        /// Why.
-        reason: String,
+        /// Its CDR does not decode, or it is an unusable image.
+        reason: RejectReason,
+        /// What was wrong, naming the numbers.
+        detail: String,
     },
 }
 
@@ -32,15 +36,16 @@ pub struct BagReplay {
 }
 
 impl BagReplay {
-    /// Opens `path`; a truncated bag replays up to its last complete chunk (with a warning).
+    /// Opens `path`; a damaged bag replays every readable message (unreadable chunks skipped,
+    /// a cut file up to its last complete chunk), with a warning saying what was skipped.
     pub fn open(path: &Path, topics: ResolvedTopics, max_side: u32) -> Result<Self, BagError> {
         let reader = BagReader::open(path)?;
-        if let Some(t) = reader.truncation() {
+        if !reader.is_complete() {
             tracing::warn!(
-                "{}: incomplete bag, replaying up to byte {} ({})",
+                "{}: damaged bag, replaying the {} messages read: {}",
                 path.display(),
-                t.offset,
-                t.reason
+                reader.messages().len(),
+                reader.salvage()
             );
         }
         let start_ns = reader.time_range().map_or(0, |(s, _)| s);
@@ -63,6 +68,11 @@ impl BagReplay {
         self.reader.messages().is_empty()
     }
 
+    /// What reading the bag skipped; complete for an intact bag.
+    pub fn salvage(&self) -> &Salvage {
+        self.reader.salvage()
+    }
+
     /// The next message on a subscribed topic with its offset from the bag start (log time),
     /// converted to an event stamped with `arrival`; `None` at the end.
     pub fn next(&mut self, arrival: impl Fn() -> Duration) -> Option<(Duration, Replayed)> {
@@ -79,16 +89,15 @@ impl BagReplay {
     fn convert(&self, m: &BagMessage, arrival: Duration) -> Option<Replayed> {
         let topic: &str = &m.topic;
         let t = &self.topics;
-        let reject = |reason: String| Replayed::Rejected {
-            topic: topic.to_owned(),
-            reason,
-        };
+        let max_side = self.max_side;
         let result = if t.images.iter().any(|x| x == topic) {
-            self.decode::<Image>(m)
-                .and_then(|msg| inputs::image_event(topic, msg, arrival, self.max_side))
+            self.decode::<Image>(m).and_then(|msg| {
+                inputs::image_event(topic, msg, arrival, max_side).map_err(image_error)
+            })
         } else if t.compressed_images.iter().any(|x| x == topic) {
-            self.decode::<CompressedImage>(m)
-                .and_then(|msg| inputs::compressed_event(topic, msg, arrival, self.max_side))
+            self.decode::<CompressedImage>(m).and_then(|msg| {
+                inputs::compressed_event(topic, msg, arrival, max_side).map_err(image_error)
+            })
         } else if let Some(camera_index) = t.camera_infos.iter().position(|x| x == topic) {
             self.decode::<CameraInfo>(m)
                 .map(|info| InputEvent::CameraInfo {
@@ -98,11 +107,12 @@ impl BagReplay {
                     info: Box::new(info),
                 })
         } else if t.mask.as_deref() == Some(topic) {
-            self.decode::<Image>(m)
-                .and_then(|msg| inputs::mask_event(topic, None, msg, arrival, self.max_side))
+            self.decode::<Image>(m).and_then(|msg| {
+                inputs::mask_event(topic, None, msg, arrival, max_side).map_err(image_error)
+            })
         } else if let Some((_, camera)) = t.camera_masks.iter().find(|(x, _)| x == topic) {
             self.decode::<Image>(m).and_then(|msg| {
-                inputs::mask_event(topic, Some(camera), msg, arrival, self.max_side)
+                inputs::mask_event(topic, Some(camera), msg, arrival, max_side).map_err(image_error)
             })
         } else if t.pose.as_deref() == Some(topic) {
             self.decode::<BodyPose>(m).map(|pose| InputEvent::BodyPose {
@@ -120,10 +130,23 @@ impl BagReplay {
         } else {
             return None;
         };
-        Some(result.map_or_else(reject, Replayed::Event))
+        Some(match result {
+            Ok(event) => Replayed::Event(event),
+            Err((reason, detail)) => Replayed::Rejected {
+                topic: topic.to_owned(),
+                reason,
+                detail,
+            },
+        })
     }
 
-    fn decode<M: RosMessage>(&self, m: &BagMessage) -> Result<M, String> {
-        self.reader.decode::<M>(m).map_err(|e| e.to_string())
+    fn decode<M: RosMessage>(&self, m: &BagMessage) -> Result<M, (RejectReason, String)> {
+        let decoded = self.reader.decode::<M>(m);
+        decoded.map_err(|e| (RejectReason::Cdr, e.to_string()))
     }
+}
+
+/// An image that decoded from CDR but cannot be used.
+fn image_error(detail: String) -> (RejectReason, String) {
+    (RejectReason::Image, detail)
 }

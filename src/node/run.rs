@@ -7,7 +7,9 @@ use super::pipeline::{Fanout, Pipeline, PipelineError, PipelineStats, Publisher}
 use super::publishers::{RosPublisher, ShmOutputs};
 use super::replay::{BagReplay, Replayed};
 use super::ros::{InputEvent, ResolvedTopics, RosError, RosNode, RosNodeOptions};
+use crate::bag::Salvage;
 use crate::config::NodeConfig;
+use crate::node::rejections::Rejections;
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -45,6 +47,10 @@ pub enum RunError {
 pub struct RunSummary {
     /// Pipeline counters.
     pub stats: PipelineStats,
+    /// Input messages rejected on every path (live, replay, pipeline), by reason.
+    pub rejections: Rejections,
+    /// What reading the replayed bag skipped (`None` for a live run).
+    pub bag: Option<Salvage>,
     /// Views held at the end.
     pub views_held: usize,
     /// Latest avatar revision.
@@ -133,13 +139,15 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         if !stop.load(Ordering::SeqCst) && config.replay.exit_when_done {
             animation_frames = pipeline.write_animation(ANIMATION_FRAMES);
         } else if !config.replay.exit_when_done {
-            run_live(&mut pipeline, &wake_rx, &stop, &clock);
+            run_live(&mut pipeline, &wake_rx, None, &stop, &clock);
         }
     } else {
-        run_live(&mut pipeline, &wake_rx, &stop, &clock);
+        run_live(&mut pipeline, &wake_rx, ros.as_deref(), &stop, &clock);
     }
     let summary = RunSummary {
         stats: pipeline.stats().clone(),
+        rejections: pipeline.rejections(),
+        bag: replay.as_ref().map(|r| r.salvage().clone()),
         views_held: pipeline.views_held(),
         revision: pipeline.revision(),
         encoded_views: pipeline.encoded_views(),
@@ -179,14 +187,19 @@ async fn wait_for_signal() {
     }
 }
 
-/// Feeds live events until a stop is requested; runs due work in between.
+/// Feeds live events until a stop is requested; runs due work in between. `inputs`: the
+/// subscriptions whose rejection counts the pipeline reports.
 fn run_live(
     pipeline: &mut Pipeline,
     events: &Receiver<InputEvent>,
+    inputs: Option<&RosNode>,
     stop: &AtomicBool,
     clock: &impl Fn() -> Duration,
 ) {
     while !stop.load(Ordering::SeqCst) {
+        if let Some(node) = inputs {
+            pipeline.set_input_rejections(node.input_stats().rejections);
+        }
         let now = clock();
         let wait = pipeline
             .next_deadline()
@@ -200,9 +213,9 @@ fn run_live(
     }
 }
 
-/// Plays the bag into the pipeline (paced by `rate`, or as fast as consumed when 0), then
-/// waits for the last reconstruction.
-fn run_replay(
+/// Plays the bag into the pipeline (paced by `rate`, or as fast as consumed when 0), counting
+/// the messages that do not decode, then waits for the last reconstruction.
+pub fn run_replay(
     pipeline: &mut Pipeline,
     replay: &mut BagReplay,
     rate: f64,
@@ -225,9 +238,11 @@ fn run_replay(
         }
         match item {
             Replayed::Event(event) => pipeline.handle(event, clock()),
-            Replayed::Rejected { topic, reason } => {
-                tracing::warn!(%topic, "bag message rejected: {reason}")
-            }
+            Replayed::Rejected {
+                topic,
+                reason,
+                detail,
+            } => pipeline.reject(&topic, reason, &detail),
         }
         pipeline.step(clock(), clock);
     }

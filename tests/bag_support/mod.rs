@@ -280,12 +280,15 @@ pub fn write_every_type(writer: &mut BagWriter, copies: u64) -> Value {
             last_render_ms: 41.25,
             state: ReconstructionStatus::STATE_RECONSTRUCTING,
             message: "running".into(),
+            rejected_reasons: vec!["cdr".into(), "image".into()],
+            rejected_counts: vec![2, 4],
         };
         writer.write("/status", t, &status).unwrap();
         put(
             "/status",
             ReconstructionStatus::TYPE_NAME,
-            json!({"views_held": 4, "last_latency_ms": 812.5, "last_render_ms": 41.25, "state": 2, "message": "running"}),
+            json!({"views_held": 4, "last_latency_ms": 812.5, "last_render_ms": 41.25, "state": 2, "message": "running",
+                   "rejected_reasons": ["cdr", "image"], "rejected_counts": [2, 4]}),
         );
     }
     Value::Object(expected)

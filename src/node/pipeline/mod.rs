@@ -15,6 +15,7 @@ use crate::config::NodeConfig;
 use crate::msgs::{BodyShape, ReconstructionStatus};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::ros::{CameraFrame, InputEvent};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::splat::Gaussians;
@@ -120,6 +121,9 @@ pub struct PipelineStats {
     pub shapes_applied: u64,
     /// Body shapes rejected (wrong model, length or values).
     pub shapes_rejected: u64,
+    /// Input messages rejected by the pipeline's checks and reported to it by the bag replay
+    /// ([`Pipeline::reject`]), by reason; [`Pipeline::rejections`] adds the live inputs'.
+    pub rejections: Rejections,
 }
 
 /// The latest avatar and what it was built from.
@@ -155,6 +159,8 @@ pub struct Pipeline {
     slow_render_noted: bool,
     neural_renderer_id: String,
     stats: PipelineStats,
+    /// Rejections counted by the live subscriptions, as last reported.
+    input_rejections: Rejections,
 }
 
 /// Errors that stop the pipeline from starting.
@@ -260,6 +266,7 @@ impl Pipeline {
             slow_render_noted: false,
             neural_renderer_id,
             stats: PipelineStats::default(),
+            input_rejections: Rejections::default(),
         })
     }
 
@@ -278,6 +285,24 @@ impl Pipeline {
     /// Run counters so far.
     pub fn stats(&self) -> &PipelineStats {
         &self.stats
+    }
+
+    /// Counts and logs an input message rejected before it became an event (a bag message
+    /// whose CDR or image does not decode).
+    pub fn reject(&mut self, topic: &str, reason: RejectReason, detail: &str) {
+        self.stats.rejections.add(reason);
+        tracing::warn!(%topic, reason = reason.as_str(), "bag message rejected: {detail}");
+    }
+
+    /// Sets the rejections the live subscriptions have counted so far (they log their own).
+    pub fn set_input_rejections(&mut self, rejections: Rejections) {
+        self.input_rejections = rejections;
+    }
+
+    /// Every input message rejected so far, by reason: the pipeline's, the replay's and the
+    /// live subscriptions'.
+    pub fn rejections(&self) -> Rejections {
+        self.stats.rejections.merged(&self.input_rejections)
     }
 
     /// Views currently held for the person.
@@ -328,9 +353,9 @@ impl Pipeline {
             InputEvent::BodyPose { topic, pose, .. } => match pose.to_pose() {
                 Ok(p) => match self.recon.template().skeleton.check_pose(&p) {
                     Ok(()) => self.pose = Some(p),
-                    Err(e) => tracing::warn!(%topic, "body pose rejected: {e}"),
+                    Err(e) => self.reject_pose(&topic, &e.to_string()),
                 },
-                Err(e) => tracing::warn!(%topic, "body pose rejected: {e}"),
+                Err(e) => self.reject_pose(&topic, &e.to_string()),
             },
             InputEvent::BodyShape {
                 topic,
@@ -338,6 +363,11 @@ impl Pipeline {
                 shape,
             } => self.on_shape(&topic, &shape, arrival, now),
         }
+    }
+
+    fn reject_pose(&mut self, topic: &str, detail: &str) {
+        self.stats.rejections.add(RejectReason::Pose);
+        tracing::warn!(%topic, "body pose rejected: {detail}");
     }
 
     /// The body shape in use, as `GaussianAvatar.shape_params` carries it (empty if none).
@@ -370,6 +400,7 @@ impl Pipeline {
             Ok(s) => s,
             Err(e) => {
                 self.stats.shapes_rejected += 1;
+                self.stats.rejections.add(RejectReason::Shape);
                 tracing::warn!(%topic, "body shape rejected: {e}");
                 return;
             }
@@ -393,6 +424,7 @@ impl Pipeline {
             }
             Err(e) => {
                 self.stats.shapes_rejected += 1;
+                self.stats.rejections.add(RejectReason::Shape);
                 tracing::warn!(%topic, "body shape rejected: {e}");
             }
         }
@@ -406,6 +438,7 @@ impl Pipeline {
             Ok(image) => Arc::new(image),
             Err(e) => {
                 self.stats.rejected += 1;
+                self.stats.rejections.add(RejectReason::Frame);
                 tracing::warn!(topic = %frame.topic, "frame rejected: {e}");
                 return;
             }
@@ -599,7 +632,7 @@ impl Pipeline {
         message: impl Into<String>,
     ) {
         if let Some(p) = &self.publisher {
-            p.status(status_message(
+            let mut msg = status_message(
                 &self.person,
                 self.views_held(),
                 revision,
@@ -608,7 +641,13 @@ impl Pipeline {
                 state,
                 message,
                 0,
-            ));
+            );
+            (msg.rejected_reasons, msg.rejected_counts) = self
+                .rejections()
+                .nonzero()
+                .map(|(r, n)| (r.as_str().to_owned(), n))
+                .unzip();
+            p.status(msg);
         }
     }
 

@@ -4,6 +4,7 @@
 
 use crate::node::input_errors::InputErrors;
 use crate::node::input_queue::QueueSender;
+use crate::node::rejections::{RejectReason, Rejections};
 use futures::StreamExt;
 use ros2_client::dds::{NodeLoggingHandle, RosoutRaw, Subscription};
 use ros2_client::log::LogLevel;
@@ -19,6 +20,8 @@ pub struct InputStats {
     pub accepted: BTreeMap<String, u64>,
     /// Messages rejected (malformed or undecodable), per resolved topic.
     pub rejected: BTreeMap<String, u64>,
+    /// The same rejections by reason (`cdr`: does not deserialize; `image`: unusable image).
+    pub rejections: Rejections,
     /// Events dropped because the input queue was full.
     pub queue_dropped: u64,
 }
@@ -27,6 +30,7 @@ pub struct InputStats {
 struct Counters {
     accepted: BTreeMap<String, u64>,
     errors: InputErrors,
+    rejections: Rejections,
 }
 
 /// Shared by the subscription tasks of one node.
@@ -60,6 +64,7 @@ impl<E: Send + 'static> InputSink<E> {
             counters: Arc::new(Mutex::new(Counters {
                 accepted: BTreeMap::new(),
                 errors: InputErrors::new(report_period),
+                rejections: Rejections::default(),
             })),
             start,
             rosout: rosout.map(Arc::new),
@@ -82,14 +87,13 @@ impl<E: Send + 'static> InputSink<E> {
         self.queue.send(event);
     }
 
-    fn reject(&self, topic: &str, reason: &str) {
+    fn reject(&self, topic: &str, kind: RejectReason, reason: &str) {
         let now = self.now();
-        let line = self
-            .counters
-            .lock()
-            .expect("input counters poisoned")
-            .errors
-            .record(topic, reason, now);
+        let line = {
+            let mut counters = self.counters.lock().expect("input counters poisoned");
+            counters.rejections.add(kind);
+            counters.errors.record(topic, reason, now)
+        };
         if let Some(line) = line {
             match &self.rosout {
                 // rosout_raw also forwards the line to `tracing`.
@@ -113,6 +117,7 @@ impl<E: Send + 'static> InputSink<E> {
         InputStats {
             accepted: c.accepted.clone(),
             rejected: c.errors.counts().map(|(t, n)| (t.to_owned(), n)).collect(),
+            rejections: c.rejections,
             queue_dropped: self.queue.dropped(),
         }
     }
@@ -150,9 +155,14 @@ async fn read_subscription<E, M, F>(
         match item {
             Ok((msg, _info)) => match convert(&topic, msg, sink.now()) {
                 Ok(event) => sink.accept(&topic, event),
-                Err(reason) => sink.reject(&topic, &reason),
+                // Conversions fail only on image contents (size, encoding, JPEG/PNG data).
+                Err(reason) => sink.reject(&topic, RejectReason::Image, &reason),
             },
-            Err(e) => sink.reject(&topic, &format!("malformed message: {e}")),
+            Err(e) => sink.reject(
+                &topic,
+                RejectReason::Cdr,
+                &format!("malformed message: {e}"),
+            ),
         }
     }
     tracing::debug!(topic, "subscription stream ended");

@@ -1,0 +1,188 @@
+//! Bad messages planted in a replayed bag (garbage and truncated CDR, images whose step and
+//! size disagree or whose encoding is unsupported, a pose with an unknown bone, a shape out of
+//! range) are each counted once by reason, and the counts agree everywhere: the warnings
+//! logged, the summary `lhmpp replay` prints, the pipeline's counters and the last
+//! ReconstructionStatus published. The good views still make an avatar.
+
+use lhmpp::bag::{BagReader, BagWriter};
+use lhmpp::config::NodeConfig;
+use lhmpp::msgs::{
+    BodyPose, BodyShape, Header, Image, Quaternion, ReconstructionStatus, RosMessage, Transform,
+};
+use lhmpp::node::pipeline::{AvatarUpdate, Pipeline, Publisher, RenderedFrame};
+use lhmpp::node::rejections::RejectReason;
+use lhmpp::node::replay::BagReplay;
+use lhmpp::node::ros::{ResolvedTopics, RosNodeOptions};
+use lhmpp::synth::capture::{image_topic, POSE_TOPIC, SHAPE_TOPIC, START_NS};
+use lhmpp::synth::{write_synthetic_bag, SynthOptions};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+const VIEWS: usize = 3;
+
+/// The planted bad messages by reason.
+fn planted() -> BTreeMap<String, u64> {
+    [("cdr", 3), ("image", 3), ("pose", 1), ("shape", 1)]
+        .into_iter()
+        .map(|(r, n)| (r.to_string(), n))
+        .collect()
+}
+
+/// A synthetic person's bag with the bad messages written first.
+fn bag_with_bad_messages(dir: &Path) -> PathBuf {
+    let synth = dir.join("synth.mcap");
+    let options = SynthOptions {
+        views: VIEWS,
+        heldout: 0,
+        size: 96,
+        points: 4000,
+        publish_shape: false,
+        ..SynthOptions::default()
+    };
+    write_synthetic_bag(&synth, &options).unwrap();
+    let source = BagReader::open(&synth).unwrap();
+    let path = dir.join("bad.mcap");
+    let mut bag = BagWriter::create(&path).unwrap();
+    let t = START_NS;
+    let cam = |i: usize| image_topic(&format!("cam{i}"));
+    // cdr 3: garbage on an image topic (twice), a BodyPose cut in half.
+    let garbage = [0u8, 1, 0, 0, 0xde, 0xad, 0xbe, 0xef];
+    bag.write_raw(&cam(0), Image::TYPE_NAME, t, &garbage)
+        .unwrap();
+    bag.write_raw(&cam(0), Image::TYPE_NAME, t, &garbage)
+        .unwrap();
+    let pose = |bone: &str| BodyPose {
+        header: Header::default(),
+        person_id: "person_0".into(),
+        bone_names: vec![bone.into()],
+        rotations: vec![Quaternion::default()],
+        root: Transform::default(),
+    };
+    let cdr = pose("spine").encode_cdr();
+    bag.write_raw(POSE_TOPIC, BodyPose::TYPE_NAME, t, &cdr[..cdr.len() / 2])
+        .unwrap();
+    // image 3: step and size disagree (twice), an unsupported encoding.
+    let image = |encoding: &str, step: u32| Image {
+        height: 4,
+        width: 4,
+        encoding: encoding.into(),
+        step,
+        data: vec![0; 48],
+        ..Default::default()
+    };
+    bag.write(&cam(1), t, &image("rgb8", 13)).unwrap();
+    bag.write(&cam(1), t, &image("rgb8", 13)).unwrap();
+    bag.write(&cam(2), t, &image("16UC1", 12)).unwrap();
+    // pose 1: a bone the skeleton does not have; shape 1: height_scale out of range.
+    bag.write(POSE_TOPIC, t, &pose("tail_07")).unwrap();
+    let shape = BodyShape {
+        header: Header::default(),
+        person_id: "person_0".into(),
+        body_model: "makehuman-cc0".into(),
+        shape_params: vec![1.0, 3.0],
+    };
+    bag.write(SHAPE_TOPIC, t, &shape).unwrap();
+    for m in source.messages() {
+        bag.write_raw(&m.topic, &m.type_name, m.log_time, &m.data)
+            .unwrap();
+    }
+    bag.finish().unwrap();
+    path
+}
+
+fn overrides(bag: &Path) -> Vec<String> {
+    let topics: Vec<String> = (0..VIEWS)
+        .map(|i| image_topic(&format!("cam{i}")))
+        .collect();
+    vec![
+        format!("inputs.image_topics=[{}]", topics.join(",")),
+        format!("inputs.shape_topic={SHAPE_TOPIC}"),
+        "model.num_points=1024".into(),
+        "frame_store.debounce_ms=0".into(),
+        "outputs.dir=''".into(),
+        "outputs.ros=false".into(),
+        "outputs.render_rate_hz=0".into(),
+        format!("replay.bag={}", bag.display()),
+    ]
+}
+
+/// Keeps every status published.
+#[derive(Clone, Default)]
+struct Statuses(Arc<Mutex<Vec<ReconstructionStatus>>>);
+
+impl Publisher for Statuses {
+    fn avatar(&self, _: &AvatarUpdate<'_>) {}
+    fn status(&self, msg: ReconstructionStatus) {
+        self.0.lock().unwrap().push(msg);
+    }
+    fn frame(&self, _: usize, _: &RenderedFrame, _: i64) {}
+}
+
+#[test]
+fn rejections_agree_across_log_summary_pipeline_and_status() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = bag_with_bad_messages(dir.path());
+
+    // The node's replay path, with a publisher that keeps the statuses.
+    let text = NodeConfig::default().to_param_file();
+    let cfg = NodeConfig::from_yaml(&text, "<defaults>".as_ref(), &overrides(&bag)).unwrap();
+    let statuses = Statuses::default();
+    let mut pipeline = Pipeline::new(&cfg, Some(Box::new(statuses.clone()))).unwrap();
+    let options = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None).unwrap();
+    let topics = ResolvedTopics::from_options(&options).unwrap();
+    let mut replay = BagReplay::open(&bag, topics, cfg.inputs.max_image_side).unwrap();
+    let start = Instant::now();
+    let clock = move || start.elapsed();
+    lhmpp::node::run::run_replay(
+        &mut pipeline,
+        &mut replay,
+        0.0,
+        &AtomicBool::new(false),
+        &clock,
+    );
+    let counted: BTreeMap<String, u64> = pipeline
+        .rejections()
+        .nonzero()
+        .map(|(r, n)| (r.as_str().to_string(), n))
+        .collect();
+    assert_eq!(counted, planted());
+    assert_eq!(pipeline.rejections().count(RejectReason::Frame), 0);
+    assert_eq!(pipeline.views_held(), VIEWS, "the good views are held");
+    let last = statuses
+        .0
+        .lock()
+        .unwrap()
+        .last()
+        .cloned()
+        .expect("a status");
+    assert!(last.revision >= 1, "an avatar was made: {last:?}");
+    let in_status: BTreeMap<String, u64> = last
+        .rejected_reasons
+        .iter()
+        .cloned()
+        .zip(last.rejected_counts.iter().copied())
+        .collect();
+    assert_eq!(in_status, planted(), "{last:?}");
+
+    // `lhmpp replay`: the summary line and the warnings logged.
+    let mut command = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
+    command.args(["replay", "--fast"]).arg(&bag);
+    for o in overrides(&bag).iter().filter(|o| !o.starts_with("replay.")) {
+        command.args(["--set", o]);
+    }
+    let out = command.output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    println!("{stdout}");
+    assert!(
+        stdout.contains("rejected messages 8 (cdr 3, image 3, pose 1, shape 1),"),
+        "{stdout}"
+    );
+    let logged = stderr.lines().filter(|l| l.contains(" rejected")).count();
+    assert_eq!(logged, 8, "{stderr}");
+}
