@@ -15,7 +15,7 @@ pub use camera::{Camera, Intrinsics};
 pub use gaussians::{
     rgb_to_sh_dc, sh_coeff_count, sh_dc_to_rgb, GaussianError, Gaussians, MAX_SH_DEGREE, SH_C0,
 };
-pub use nearest::{nearest_vertex_skin, PointGrid};
+pub use nearest::nearest_vertex_skin;
 pub use ply::{read_ply, read_ply_from, write_ply, write_ply_to, PlyError, PlyGaussians};
 pub use render::{
     blend_instruction_set, render, render_timed, Rasterizer, RenderOptions, RenderOutput,

@@ -21,12 +21,10 @@
 //!
 //! The free MakeHuman template stays the default body for every other model.
 
-mod nearest;
 mod ply_points;
 mod prior;
 mod volume;
 
-pub use nearest::nearest_indices;
 pub use ply_points::read_ply_points;
 pub use prior::{
     neutral_pose, OfficialPrior, PriorPaths, SkinRow, BODY_FACE_RATIO, HAND_OPACITY,

@@ -9,7 +9,6 @@ use candle_core::{npy::NpzTensors, DType};
 use glam::{Mat4, Quat, Vec3};
 use rayon::prelude::*;
 
-use super::nearest::nearest_indices;
 use super::ply_points::read_ply_points;
 use super::volume::BlendWeightVolume;
 use crate::body::motion::official::SmplxFrame;
@@ -155,7 +154,11 @@ impl OfficialPrior {
         volume: BlendWeightVolume,
     ) -> Self {
         let n = rest_points.len();
-        let nearest = nearest_indices(&rest_points, &template.vertices);
+        let grid = crate::body::PointGrid::for_surface(&template.vertices);
+        let nearest: Vec<u32> = rest_points
+            .par_iter()
+            .map(|q| grid.nearest(*q).unwrap_or(0) as u32)
+            .collect();
         let normals = vertex_normals(&template.vertices, &template.triangles);
         let neutral_mats = template.skeleton.skinning_matrices(&neutral_pose());
         let part = |v: usize| {
