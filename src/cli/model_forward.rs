@@ -1,6 +1,8 @@
 //! `lhmpp model forward`: one whole forward pass of the network on tensors from a safetensors
-//! file, every Gaussian-head output written to another (for parity with the PyTorch twin in
-//! `scripts/train/lhmpp_torch.py`, checked by `scripts/train/check_parity.py`).
+//! file, every output written to another: for parity with the PyTorch twin in
+//! `scripts/train/lhmpp_torch.py` (`scripts/train/check_parity.py`) and with the official code
+//! (`scripts/parity/official/`), whose random draws it replays. Tensor names:
+//! docs/model-forward.md.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -12,8 +14,9 @@ use clap::Args;
 
 use lhmpp::body::BodyTemplate;
 use lhmpp::model::config::LhmppConfig;
+use lhmpp::model::draws::ForwardDraws;
 use lhmpp::model::lhmpp::Lhmpp;
-use lhmpp::model::{checkpoint, hub};
+use lhmpp::model::{checkpoint, gs_head, hub, tensor_file};
 
 /// Arguments of `lhmpp model forward`.
 #[derive(Args, Debug)]
@@ -24,11 +27,19 @@ pub struct ForwardArgs {
     /// Preset (default: the one in the checkpoint's metadata, else `tiny`).
     #[arg(long)]
     preset: Option<String>,
-    /// Input safetensors: `images` [V,3,H,W] in [0,1], `anchors` [N,3], `normals` [N,3] (f32).
-    #[arg(long, required_unless_present = "dump_anchors")]
+    /// Our network config as JSON (`LhmppConfig`), for a safetensors file at widths that no
+    /// preset or official config.json expresses (the official fixture's reduced DINOv2 and DPT).
+    #[arg(long, conflicts_with = "preset")]
+    config_json: Option<PathBuf>,
+    /// Input safetensors: `images` [V,3,H,W] in [0,1], `anchors` [N,3], `normals` [N,3];
+    /// optional part masks `is_rhand`, `is_lhand`, `is_upper_body`, `is_constrain_body` [N]
+    /// (BOOL or u8), draws `pooling_orders` [P,4] and `tome_destinations` [B,cells] (integers),
+    /// and a splatted `feature_image` [V',C,H',W'] for the neural renderer.
+    #[arg(long, alias = "inputs", required_unless_present = "dump_anchors")]
     input: Option<PathBuf>,
-    /// Output safetensors: features, colors, scales, rotations, opacities, offsets, positions
-    /// (f32; or `anchors` and `normals` with --dump-anchors).
+    /// Output safetensors: features, colors, scales, rotations, opacities, offsets, positions,
+    /// and neural_rgb, neural_mask given a feature image (f32; or `anchors` and `normals` with
+    /// --dump-anchors).
     #[arg(short, long)]
     output: PathBuf,
     /// Write the node's body anchors (`anchors`, `normals`: MakeHuman template, --points,
@@ -52,9 +63,11 @@ pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
         bail!("--checkpoint and --input are required (unless --dump-anchors)");
     };
     let dev = Device::Cpu;
-    let model = build(spec, args.preset.as_deref(), &dev)?;
-    let tensors = candle_core::safetensors::load(input, &dev)
-        .with_context(|| format!("reading {}", input.display()))?;
+    let model = match &args.config_json {
+        Some(file) => build_with_config(spec, file, &dev)?,
+        None => build(spec, args.preset.as_deref(), &dev)?,
+    };
+    let tensors = tensor_file::read_safetensors(input, &dev)?;
     let get = |name: &str| -> anyhow::Result<Tensor> {
         let t = tensors
             .get(name)
@@ -62,15 +75,30 @@ pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
         Ok(t.to_dtype(DType::F32)?)
     };
     let (images, anchors, normals) = (get("images")?, get("anchors")?, get("normals")?);
+    let draws = ForwardDraws::from_tensors(&tensors)
+        .with_context(|| format!("{}: draws", input.display()))?;
+    let masks = gs_head::part_masks(&tensors)
+        .with_context(|| format!("{}: part masks", input.display()))?;
     let (v, _, h, w) = images.dims4()?;
     let start = Instant::now();
     let views = (0..v)
         .map(|i| model.encode_view(&images.get(i)?))
         .collect::<candle_core::Result<Vec<_>>>()?;
-    let feat = model.fuse(&anchors, &normals, &views)?;
-    let g = model.gs_head().forward(&feat, &anchors)?;
+    let (feat, _) = model.fuse_with_draws(&anchors, &normals, &views, &draws)?;
+    let mut g = model.gs_head().forward(&feat, &anchors)?;
+    if let Some((hands, upper)) = &masks {
+        g = g.with_part_masks(hands, upper)?;
+    }
     let secs = start.elapsed().as_secs_f64();
-    let out: HashMap<String, Tensor> = [
+    let neural = match tensors.get("feature_image") {
+        Some(f) => {
+            let start = Instant::now();
+            let (rgb, mask) = model.neural_renderer().forward(&f.to_dtype(DType::F32)?)?;
+            Some((rgb, mask, start.elapsed().as_secs_f64()))
+        }
+        None => None,
+    };
+    let mut out: HashMap<String, Tensor> = [
         ("features", g.features),
         ("colors", g.colors),
         ("scales", g.scales),
@@ -82,14 +110,21 @@ pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
     .into_iter()
     .map(|(k, t)| (k.to_string(), t))
     .collect();
+    if let Some((rgb, mask, _)) = &neural {
+        out.insert("neural_rgb".into(), rgb.clone());
+        out.insert("neural_mask".into(), mask.clone());
+    }
     candle_core::safetensors::save(&out, &args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
     println!(
-        "forward `{}`: {v} views {h}x{w}, {} anchors -> {} Gaussians (features {:?}) in {secs:.3} s; wrote {}",
+        "forward `{}`: {v} views {h}x{w}, {} anchors -> {} Gaussians (features {:?}) in {secs:.3} s{}{}{}; wrote {}",
         model.config().preset,
         anchors.dim(0)?,
         out["positions"].dim(0)?,
         out["features"].dims(),
+        if draws.is_default() { "" } else { ", replayed draws" },
+        if masks.is_some() { ", part masks" } else { "" },
+        neural.map_or(String::new(), |(_, _, s)| format!(", neural renderer {s:.3} s")),
         args.output.display()
     );
     Ok(())
@@ -116,6 +151,17 @@ fn build(spec: &str, preset: Option<&str>, dev: &Device) -> anyhow::Result<Lhmpp
         None => "tiny".into(),
     };
     let loaded = hub::load_checkpoint(path, &LhmppConfig::preset(&name)?, DType::F32, dev)
+        .with_context(|| format!("loading {spec}"))?;
+    Ok(Lhmpp::new(&loaded.config, loaded.var_builder)?)
+}
+
+/// The network of `config` (an `LhmppConfig` JSON file) with the weights of file `spec`.
+fn build_with_config(spec: &str, config: &Path, dev: &Device) -> anyhow::Result<Lhmpp> {
+    let text =
+        std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
+    let cfg: LhmppConfig =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", config.display()))?;
+    let loaded = hub::load_checkpoint(Path::new(spec), &cfg, DType::F32, dev)
         .with_context(|| format!("loading {spec}"))?;
     Ok(Lhmpp::new(&loaded.config, loaded.var_builder)?)
 }

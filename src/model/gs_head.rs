@@ -12,6 +12,7 @@ use candle_nn::{Init, VarBuilder};
 use super::ops::linear::{linear, Linear};
 
 use super::config::GsHeadConfig;
+use crate::body::official::{HAND_OPACITY, UPPER_BODY_MAX_SCALE};
 
 /// Training init of the scaling bias (exp(−6) ≈ 2.5 mm).
 pub const SCALING_BIAS_INIT: f64 = -6.0;
@@ -35,6 +36,50 @@ pub struct GaussianOutput {
     pub colors: Tensor,
     /// Point features for the neural renderer `[N, q]`.
     pub features: Tensor,
+}
+
+/// The part masks of the official `mesh_meta` in a tensor map (u8 or any numeric dtype,
+/// non-zero = in the part): (hands = `is_rhand` | `is_lhand`, `is_upper_body`), `None` when
+/// none of the three is there. `is_constrain_body` is passed by the official code but changes
+/// no output.
+pub fn part_masks(
+    tensors: &std::collections::HashMap<String, Tensor>,
+) -> Result<Option<(Tensor, Tensor)>> {
+    let names = ["is_rhand", "is_lhand", "is_upper_body"];
+    let found: Vec<Option<&Tensor>> = names.iter().map(|n| tensors.get(*n)).collect();
+    let flag = |t: &Tensor| t.to_dtype(DType::F32)?.ne(0f32);
+    match found.as_slice() {
+        [Some(r), Some(l), Some(u)] => {
+            let hands = flag(r)?.maximum(&flag(l)?)?;
+            Ok(Some((hands, flag(u)?)))
+        }
+        [None, None, None] => Ok(None),
+        _ => candle_core::bail!("part masks need all of {names:?}"),
+    }
+}
+
+impl GaussianOutput {
+    /// The official inference rules of `GSMLPDecoder` on body-part masks (`u8 [N]`, non-zero =
+    /// in the part): hand Gaussians get opacity [`HAND_OPACITY`], upper-body scales are clamped
+    /// to [`UPPER_BODY_MAX_SCALE`]. (The node applies the same rules on the prior's masks.)
+    pub fn with_part_masks(self, hands: &Tensor, upper_body: &Tensor) -> Result<Self> {
+        let n = self.opacities.dim(0)?;
+        let mask = |m: &Tensor, width: usize| -> Result<Tensor> {
+            m.to_dtype(DType::U8)?
+                .ne(0u8)?
+                .reshape((n, 1))?
+                .broadcast_as((n, width))
+        };
+        let hand_opacity = Tensor::full(HAND_OPACITY, (n, 1), self.opacities.device())?;
+        let opacities = mask(hands, 1)?.where_cond(&hand_opacity, &self.opacities)?;
+        let clamped = self.scales.clamp(0f32, UPPER_BODY_MAX_SCALE)?;
+        let scales = mask(upper_body, 3)?.where_cond(&clamped, &self.scales)?;
+        Ok(Self {
+            opacities,
+            scales,
+            ..self
+        })
+    }
 }
 
 /// [`GaussianOutput`] copied to plain row-major arrays.
@@ -219,5 +264,41 @@ mod tests {
             assert!((p - a0 - o).abs() < 1e-6);
         }
         assert_eq!(a.features.len(), 200 * cfg.gs_query_dim);
+    }
+
+    #[test]
+    fn part_masks_fix_hand_opacity_and_clamp_upper_body_scales() {
+        let cfg = LhmppConfig::tiny().gs_head;
+        let vb = crate::model::checkpoint::seeded_var_builder(3, DType::F32, &Device::Cpu);
+        let h = GsHead::new(&cfg, vb.pp("renderer")).unwrap();
+        let dev = Device::Cpu;
+        let feats = Tensor::randn(0f32, 1.0, (6, cfg.gs_query_dim), &dev).unwrap();
+        let g = h
+            .forward(&feats, &Tensor::zeros((6, 3), DType::F32, &dev).unwrap())
+            .unwrap();
+        let before = g.to_cpu_arrays().unwrap();
+        let hands = Tensor::new(&[1u8, 0, 0, 1, 0, 0], &dev).unwrap();
+        let upper = Tensor::new(&[0u8, 1, 0, 1, 0, 0], &dev).unwrap();
+        let after = g
+            .with_part_masks(&hands, &upper)
+            .unwrap()
+            .to_cpu_arrays()
+            .unwrap();
+        for i in 0..6 {
+            let hand = i == 0 || i == 3;
+            let up = i == 1 || i == 3;
+            let want = if hand {
+                HAND_OPACITY
+            } else {
+                before.opacities[i]
+            };
+            assert_eq!(after.opacities[i], want);
+            for k in 0..3 {
+                let s = before.scales[3 * i + k];
+                let want = if up { s.min(UPPER_BODY_MAX_SCALE) } else { s };
+                assert_eq!(after.scales[3 * i + k], want);
+            }
+        }
+        assert_eq!(after.colors, before.colors);
     }
 }

@@ -507,6 +507,19 @@ pub fn derive_config(
     config_path: &Path,
     dir: &Path,
 ) -> Result<(LhmppConfig, Vec<String>), HubError> {
+    derive_config_with_encoder(o, None, config_path, dir)
+}
+
+/// [`derive_config`] with the DINOv2 widths `(embed dim, depth, heads)` given instead of read
+/// from `encoder_model_name` (`None`: from the name): for official configs built with a DINOv2
+/// that is not a released variant, such as the reduced `dinov2_fixture14_reg` of the official
+/// forward fixture (`scripts/parity/official/`).
+pub fn derive_config_with_encoder(
+    o: &OfficialModelConfig,
+    encoder: Option<(usize, usize, usize)>,
+    config_path: &Path,
+    dir: &Path,
+) -> Result<(LhmppConfig, Vec<String>), HubError> {
     let mut cfg = LhmppConfig::lhmpp_700m();
     let mut d = Vec::new();
     let mut unsupported = Vec::new();
@@ -515,7 +528,7 @@ pub fn derive_config(
             unsupported.push(format!("{field} = {value:?} (supported: {want})"));
         }
     };
-    match dinov2_variant(&o.encoder_model_name) {
+    match encoder.or_else(|| dinov2_variant(&o.encoder_model_name)) {
         Some((dim, depth, heads)) => {
             if o.encoder_model_name != "dinov2_vitl14_reg" {
                 d.push(format!(

@@ -13,6 +13,7 @@ use super::ops::layer_norm::{layer_norm, LayerNorm};
 
 use super::config::LhmppConfig;
 use super::dpt::NeuralRenderer;
+use super::draws::ForwardDraws;
 use super::encoder::DinoEncoder;
 use super::frame_block::{ImageBackbone, SPECIAL_TOKENS};
 use super::gs_head::{GaussianOutput, GsHead};
@@ -211,6 +212,19 @@ impl Lhmpp {
         normals: &Tensor,
         views: &[ViewTokens],
     ) -> Result<(Tensor, Tensor)> {
+        self.fuse_with_draws(anchors, normals, views, &ForwardDraws::default())
+    }
+
+    /// [`Self::fuse_with_tokens`] replaying the official random choices `draws` (order
+    /// permutation after each GridPooling, ToMe destinations per multi-modal block);
+    /// `ForwardDraws::default()` is the deterministic forward.
+    pub fn fuse_with_draws(
+        &self,
+        anchors: &Tensor,
+        normals: &Tensor,
+        views: &[ViewTokens],
+        draws: &ForwardDraws,
+    ) -> Result<(Tensor, Tensor)> {
         let grid = views.first().map(|v| v.grid).ok_or_else(|| {
             candle_core::Error::Msg("reconstruction needs at least one view".into())
         })?;
@@ -220,13 +234,29 @@ impl Lhmpp {
         let rope = self
             .image_backbone
             .rope(grid.0, grid.1, tokens.dtype(), tokens.device())?;
+        let orders = self.cfg.point_backbone.order.len();
+        let wrap = candle_core::Error::wrap;
         let mut state = self.point_backbone.embed(anchors, normals)?;
         state = self.point_backbone.encoder_stage(0, state)?;
         let mut metric = None;
+        let tome_grid = (grid.0, grid.1 * views.len());
+        let step = |block_index: usize| -> Result<StepParams<'_>> {
+            let dest = draws
+                .destinations(block_index, tome_grid.0, tome_grid.1)
+                .map_err(wrap)?;
+            Ok(StepParams {
+                grid,
+                merge_ratio: ratio,
+                destinations: dest,
+            })
+        };
         for (i, block) in self.pit_enc.iter().enumerate() {
-            state = self.point_backbone.encoder_stage(i + 1, state)?;
+            let perm = draws.pooling_order(i, orders).map_err(wrap)?;
+            state = self
+                .point_backbone
+                .encoder_stage_ordered(i + 1, state, perm)?;
             let (t, k) = self.image_backbone.block(i, &tokens, &rope)?;
-            let (s, t) = self.point_step(block, state, &t, &k, &temb, grid, ratio)?;
+            let (s, t) = self.point_step(block, state, &t, &k, &temb, &step(i)?)?;
             state = s;
             tokens = t;
             metric = Some(k);
@@ -236,7 +266,8 @@ impl Lhmpp {
         let levels = self.pit_dec.len();
         for (j, block) in self.pit_dec.iter().enumerate() {
             state = self.point_backbone.decoder_stage(levels - 1 - j, state)?;
-            let (s, t) = self.point_step(block, state, &tokens, &metric, &temb, grid, ratio)?;
+            let params = step(self.pit_enc.len() + j)?;
+            let (s, t) = self.point_step(block, state, &tokens, &metric, &temb, &params)?;
             state = s;
             tokens = t;
         }
@@ -244,9 +275,8 @@ impl Lhmpp {
         Ok((state.to_input_points(&feat)?, tokens))
     }
 
-    /// Puts the points in Hilbert order, runs [`multi_modal_step`], and restores their order
-    /// (the block's output replaces the point features).
-    #[allow(clippy::too_many_arguments)]
+    /// Puts the points in Hilbert order, runs [`multi_modal_step_drawn`], and restores their
+    /// order (the block's output replaces the point features).
     fn point_step(
         &self,
         block: &JointBlock,
@@ -254,13 +284,13 @@ impl Lhmpp {
         tokens: &Tensor,
         metric: &Tensor,
         temb: &Tensor,
-        grid: (usize, usize),
-        ratio: f64,
+        params: &StepParams<'_>,
     ) -> Result<(PointState, Tensor)> {
         let order = state.hilbert_order()?;
         let inverse = inverse_permutation(&order)?;
         let points = state.feat().index_select(&order, 0)?;
-        let (points, tokens) = multi_modal_step(block, tokens, metric, &points, temb, grid, ratio)?;
+        let (points, tokens) =
+            multi_modal_step_drawn(block, tokens, metric, &points, temb, params)?;
         let feat = points.index_select(&inverse, 0)?;
         Ok((state.with_feat(feat), tokens))
     }
@@ -287,12 +317,24 @@ fn inverse_permutation(order: &Tensor) -> Result<Tensor> {
     Tensor::from_vec(inv, o.len(), order.device())
 }
 
+/// The token grid, merge ratio and ToMe destination draw of one multi-modal step.
+#[derive(Debug, Clone, Copy)]
+pub struct StepParams<'a> {
+    /// Patch grid of one view (rows, cols).
+    pub grid: (usize, usize),
+    /// Fraction of the image tokens merged away.
+    pub merge_ratio: f64,
+    /// ToMe destination per 2×2 cell of the `h × w·V` grid (`None`: top-left).
+    pub destinations: Option<&'a [u8]>,
+}
+
 /// One multi-modal step (`multi_modality_layer`): strip the special tokens, ToMe-merge the
 /// image tokens of all views on the keys metric (grid `h × w·V`), run the joint block with
 /// the points (already in their sequence order), unmerge, and re-attach the special tokens.
 ///
 /// `tokens [V, 5+h·w, C]`, `metric [V, 5+h·w, D]`, `points [N, pv]` → (new points `[N, pv]`,
-/// new tokens `[V, 5+h·w, C]`; unchanged for a context-pre-only block).
+/// new tokens `[V, 5+h·w, C]`; unchanged for a context-pre-only block). ToMe destinations at
+/// the top-left of each cell.
 pub fn multi_modal_step(
     block: &JointBlock,
     tokens: &Tensor,
@@ -302,13 +344,31 @@ pub fn multi_modal_step(
     grid: (usize, usize),
     merge_ratio: f64,
 ) -> Result<(Tensor, Tensor)> {
+    let params = StepParams {
+        grid,
+        merge_ratio,
+        destinations: None,
+    };
+    multi_modal_step_drawn(block, tokens, metric, points, temb, &params)
+}
+
+/// [`multi_modal_step`] with the ToMe destinations of `params`.
+pub fn multi_modal_step_drawn(
+    block: &JointBlock,
+    tokens: &Tensor,
+    metric: &Tensor,
+    points: &Tensor,
+    temb: &Tensor,
+    params: &StepParams<'_>,
+) -> Result<(Tensor, Tensor)> {
     let (v, n, c) = tokens.dims3()?;
+    let grid = params.grid;
     let hw = n - SPECIAL_TOKENS;
     let image = tokens.narrow(1, SPECIAL_TOKENS, hw)?.reshape((v * hw, c))?;
     let m = metric.narrow(1, SPECIAL_TOKENS, hw)?;
     let m = m.reshape((v * hw, m.dim(2)?))?;
-    let r = (merge_ratio * (v * hw) as f64) as usize;
-    let plan = TokenMerge::new(&m, grid.0, grid.1 * v, r)?;
+    let r = (params.merge_ratio * (v * hw) as f64) as usize;
+    let plan = TokenMerge::with_destinations(&m, grid.0, grid.1 * v, r, params.destinations)?;
     let merged = plan.merge(&image)?;
     let (new_points, new_image) = block.forward(points, &merged, temb)?;
     let tokens = match new_image {

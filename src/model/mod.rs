@@ -11,6 +11,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod default_weights;
 pub mod dpt;
+pub mod draws;
 pub mod encoder;
 pub mod frame_block;
 pub mod gs_head;
@@ -21,6 +22,7 @@ pub mod ops;
 pub mod point;
 pub mod rgb_kind;
 pub mod shape_head;
+pub mod tensor_file;
 pub mod token_merge;
 
 #[cfg(test)]

@@ -2,9 +2,10 @@
 //!
 //! The tokens are seen as an `h × w` grid (LHM++ passes `w = W_patches · V`, `h = H_patches`
 //! although the memory order is view-major: we reproduce that index-for-index). One destination
-//! is chosen per `sy × sx = 2 × 2` cell; the choice is deterministic: the top-left token of each
-//! cell (the reference's `no_rand` option; the official code draws it from a CUDA RNG). Rows
-//! and columns left over by the integer division stay sources. The `r` sources with the
+//! is chosen per `sy × sx = 2 × 2` cell: by default the top-left token of each cell (the
+//! reference's `no_rand` option); [`TokenMerge::with_destinations`] replays the official random
+//! draw (`torch.randint(4, (h/2, w/2, 1))`, see [`super::draws`]). Rows and columns left over by
+//! the integer division stay sources. The `r` sources with the
 //! highest cosine similarity (on the metric) to their best destination are merged into it by
 //! mean; unmerge copies each destination's value back to its merged sources.
 
@@ -33,8 +34,10 @@ pub struct TokenMerge {
     merged_len: usize,
 }
 
-/// Destination (b) and source (a) indices of an `h×w` grid, in the reference's sort order.
-fn split_grid(h: usize, w: usize) -> (Vec<usize>, Vec<usize>) {
+/// Destination (b) and source (a) indices of an `h×w` grid, in the reference's sort order;
+/// `draw[cell]` (row-major over the `h/2 × w/2` cells) is the destination's index `dy·2 + dx`
+/// inside its cell, top-left (0) when `None`.
+fn split_grid(h: usize, w: usize, draw: Option<&[u8]>) -> (Vec<usize>, Vec<usize>) {
     let (hsy, wsx) = (h / STRIDE, w / STRIDE);
     let mut dst = Vec::with_capacity(hsy * wsx);
     let mut src = Vec::with_capacity(h * w - hsy * wsx);
@@ -42,7 +45,11 @@ fn split_grid(h: usize, w: usize) -> (Vec<usize>, Vec<usize>) {
     for y in 0..h {
         for x in 0..w {
             let idx = y * w + x;
-            let is_dst = y < hsy * STRIDE && x < wsx * STRIDE && y % STRIDE == 0 && x % STRIDE == 0;
+            let in_cells = y < hsy * STRIDE && x < wsx * STRIDE;
+            let is_dst = in_cells && {
+                let k = draw.map_or(0, |d| d[(y / STRIDE) * wsx + x / STRIDE] as usize);
+                y % STRIDE == k / STRIDE && x % STRIDE == k % STRIDE
+            };
             if is_dst {
                 dst.push(idx);
             } else {
@@ -62,14 +69,36 @@ fn index(v: &[usize], dev: &Device) -> Result<Tensor> {
 }
 
 impl TokenMerge {
-    /// Plans the merge of `r` tokens from `metric [N, C]` seen as an `h × w` grid (`N = h·w`).
+    /// Plans the merge of `r` tokens from `metric [N, C]` seen as an `h × w` grid (`N = h·w`),
+    /// destinations at the top-left of each cell.
     pub fn new(metric: &Tensor, h: usize, w: usize, r: usize) -> Result<Self> {
+        Self::with_destinations(metric, h, w, r, None)
+    }
+
+    /// [`Self::new`] with the destination of each 2×2 cell drawn: `draw` holds
+    /// `(h/2)·(w/2)` values `dy·2 + dx` in `0..4`, row-major over the cells (`None`: top-left).
+    pub fn with_destinations(
+        metric: &Tensor,
+        h: usize,
+        w: usize,
+        r: usize,
+        draw: Option<&[u8]>,
+    ) -> Result<Self> {
         let (n, _) = metric.dims2()?;
         let dev = metric.device();
         if n != h * w {
             candle_core::bail!("token merge: {n} tokens do not form a {h}x{w} grid");
         }
-        let (b_idx, a_idx) = split_grid(h, w);
+        if let Some(d) = draw {
+            let cells = (h / STRIDE) * (w / STRIDE);
+            if d.len() != cells || d.iter().any(|&k| k as usize >= STRIDE * STRIDE) {
+                candle_core::bail!(
+                    "token merge: a destination draw needs {cells} values in 0..4, got {}",
+                    d.len()
+                );
+            }
+        }
+        let (b_idx, a_idx) = split_grid(h, w, draw);
         let r = r.min(a_idx.len());
         if r == 0 || b_idx.is_empty() {
             let all: Vec<usize> = (0..n).collect();
@@ -226,6 +255,25 @@ mod tests {
         assert_eq!(out.dims(), &[35, 2]);
         // Merging a copy-unmerged tensor gives it back (groups hold equal values).
         assert!(max_abs((plan.merge(&out).unwrap() - &y).unwrap()) < 1e-6);
+    }
+
+    #[test]
+    fn drawn_destinations_pick_the_token_inside_each_cell() {
+        // 4x6 grid: 2x3 cells; draw (row-major cells) 3 = bottom-right, 1 = top-right, 2 = bottom-left.
+        let draw = [3u8, 1, 2, 0, 0, 3];
+        let (dst, src) = split_grid(4, 6, Some(&draw));
+        assert_eq!(dst, vec![3, 7, 10, 12, 14, 23]);
+        assert_eq!(dst.len() + src.len(), 24);
+        assert_eq!(split_grid(4, 6, Some(&[0; 6])), split_grid(4, 6, None));
+        // Odd sizes: the leftover row and column stay sources.
+        let (dst, _) = split_grid(5, 5, Some(&[3, 3, 3, 3]));
+        assert_eq!(dst, vec![6, 8, 16, 18]);
+        let metric = tokens(24, 4);
+        let plan = TokenMerge::with_destinations(&metric, 4, 6, 8, Some(&draw)).unwrap();
+        let rows = plan.dst_rows.to_vec1::<u32>().unwrap();
+        assert_eq!(rows, vec![3, 7, 10, 12, 14, 23]);
+        assert!(TokenMerge::with_destinations(&metric, 4, 6, 8, Some(&[0; 5])).is_err());
+        assert!(TokenMerge::with_destinations(&metric, 4, 6, 8, Some(&[4; 6])).is_err());
     }
 
     #[test]

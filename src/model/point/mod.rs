@@ -190,8 +190,32 @@ struct Level {
 }
 
 impl Level {
-    fn new(grid: Vec<[u32; 3]>, order: &[SerializationOrder], device: &Device) -> Result<Self> {
-        let orders = serialize_all(&grid, order);
+    /// `perm`: the official order shuffle after a GridPooling (`orders[k]` becomes the
+    /// serialization of `order[perm[k]]`); `None` keeps the config's order.
+    fn new(
+        grid: Vec<[u32; 3]>,
+        order: &[SerializationOrder],
+        perm: Option<&[usize]>,
+        device: &Device,
+    ) -> Result<Self> {
+        let mut orders = serialize_all(&grid, order);
+        if let Some(perm) = perm {
+            let mut sorted = perm.to_vec();
+            sorted.sort_unstable();
+            if sorted != (0..orders.len()).collect::<Vec<_>>() {
+                return Err(fail(PointError::Shape {
+                    what: format!(
+                        "order permutation {perm:?} is not a permutation of 0..{}",
+                        orders.len()
+                    ),
+                }));
+            }
+            let mut slots: Vec<Option<Serialized>> = orders.into_iter().map(Some).collect();
+            orders = perm
+                .iter()
+                .map(|&p| slots[p].take().expect("checked permutation"))
+                .collect();
+        }
         let neighbours = NeighbourMap::new(&grid, device)?;
         Ok(Self {
             grid,
@@ -217,7 +241,6 @@ pub struct PointState {
     level: Level,
     parents: Vec<Parent>,
     input_inverse: Tensor,
-    hilbert_index: Option<usize>,
 }
 
 impl PointState {
@@ -231,11 +254,17 @@ impl PointState {
         Self { feat, ..self }
     }
 
-    /// Hilbert-order permutation `u32 [M]` (sequence position → point), the MM block's sequence order.
+    /// Hilbert-order permutation `u32 [M]` (sequence position → point), the MM block's sequence
+    /// order (the official `mm_order`, taken before the order shuffle).
     pub fn hilbert_order(&self) -> Result<Tensor> {
         let device = self.feat.device();
-        let order = match self.hilbert_index {
-            Some(i) => self.level.orders[i].order.clone(),
+        let hilbert = self
+            .level
+            .orders
+            .iter()
+            .find(|s| s.kind == SerializationOrder::Hilbert);
+        let order = match hilbert {
+            Some(s) => s.order.clone(),
             None => {
                 let depth = serialization::serialization_depth(&self.level.grid);
                 serialization::serialize(&self.level.grid, SerializationOrder::Hilbert, depth).order
@@ -424,23 +453,32 @@ impl PointBackbone {
         let feat = Tensor::from_vec(feat6, (m, 6), &self.device)?.to_dtype(self.dtype)?;
         let feat = gelu_erf(&self.stem_norm.forward(&self.stem_linear.forward(&feat)?)?)?;
         let input_inverse = Tensor::from_vec(sample.inverse, n, &self.device)?;
-        let level = Level::new(sample.grid, &self.cfg.order, &self.device)?;
+        let level = Level::new(sample.grid, &self.cfg.order, None, &self.device)?;
         Ok(PointState {
             feat,
             level,
             parents: Vec::new(),
             input_inverse,
-            hilbert_index: self
-                .cfg
-                .order
-                .iter()
-                .position(|&o| o == SerializationOrder::Hilbert),
         })
     }
 
     /// Encoder level `level` (0..num_levels): GridPooling by `stride[level-1]` for level > 0
-    /// (Linear+LN+GELU, max-reduce), then the PTv3 blocks.
+    /// (Linear+LN+GELU, max-reduce), then the PTv3 blocks; the pooled level keeps the config's
+    /// order of serializations.
     pub fn encoder_stage(&self, level: usize, state: PointState) -> Result<PointState> {
+        self.encoder_stage_ordered(level, state, None)
+    }
+
+    /// [`Self::encoder_stage`] with the pooled level's serializations permuted by `perm`
+    /// (the official `torch.randperm` after GridPooling: block i attends in
+    /// `order[perm[i % len]]`, here and in the decoder level that unpools back to this one).
+    /// Ignored at level 0, which has no pooling.
+    pub fn encoder_stage_ordered(
+        &self,
+        level: usize,
+        state: PointState,
+        perm: Option<&[usize]>,
+    ) -> Result<PointState> {
         let stage = self.enc.get(level).ok_or_else(|| {
             fail(PointError::NoSuchLevel {
                 stage: "encoder",
@@ -461,7 +499,7 @@ impl PointBackbone {
             let clusters = pool_cells(&state.level.grid, *stride);
             let index = PoolingIndex::new(&clusters, &self.device)?;
             let feat = pool.forward(&state.feat, &index)?;
-            let level = Level::new(clusters.cells, &self.cfg.order, &self.device)?;
+            let level = Level::new(clusters.cells, &self.cfg.order, perm, &self.device)?;
             state.parents.push(Parent {
                 feat: state.feat,
                 level: state.level,
