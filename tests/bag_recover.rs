@@ -6,7 +6,7 @@
 
 mod bag_support;
 
-use bag_support::{chunked_image_bag, image_time, numbered_image};
+use bag_support::{chunked_image_bag, data_end, flip_chunk_crc, image_time, numbered_image};
 use lhmpp::bag::BagReader;
 use lhmpp::msgs::{Image, RosMessage};
 use std::path::{Path, PathBuf};
@@ -26,10 +26,9 @@ fn text(bytes: &[u8]) -> String {
 /// A 16-chunk bag whose 8th chunk fails its CRC, cut at its data end (no summary, no footer).
 fn damaged_bag(dir: &Path) -> PathBuf {
     let (mut bytes, index) = chunked_image_bag(&dir.join("full.mcap"), 16, 4);
-    bytes[index[7].chunk_start_offset as usize + 9 + 24] ^= 0x5A;
-    let data_end = mcap::read::footer(&bytes).unwrap().summary_start as usize - 13;
+    flip_chunk_crc(&mut bytes, &index[7]);
     let path = dir.join("damaged.mcap");
-    std::fs::write(&path, &bytes[..data_end]).unwrap();
+    std::fs::write(&path, &bytes[..data_end(&bytes)]).unwrap();
     path
 }
 

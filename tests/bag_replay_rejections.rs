@@ -2,9 +2,12 @@
 //! size disagree or whose encoding is unsupported, a pose with an unknown bone, a shape out of
 //! range) are each counted once by reason, and the counts agree everywhere: the warnings
 //! logged, the summary `lhmpp replay` prints, the pipeline's counters and the last
-//! ReconstructionStatus published. The good views still make an avatar.
+//! ReconstructionStatus published. The good views still make an avatar. A bag with an
+//! unreadable chunk replays everything else and the summary says what was skipped.
 
-use lhmpp::bag::{BagReader, BagWriter};
+mod bag_support;
+
+use lhmpp::bag::{BagReader, BagWriter, BagWriterOptions};
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{
     BodyPose, BodyShape, Header, Image, Quaternion, ReconstructionStatus, RosMessage, Transform,
@@ -185,4 +188,72 @@ fn rejections_agree_across_log_summary_pipeline_and_status() {
     );
     let logged = stderr.lines().filter(|l| l.contains(" rejected")).count();
     assert_eq!(logged, 8, "{stderr}");
+}
+
+#[test]
+fn a_damaged_bag_replays_the_other_views_and_the_summary_says_what_was_skipped() {
+    let dir = tempfile::tempdir().unwrap();
+    let synth = dir.path().join("synth.mcap");
+    let options = SynthOptions {
+        views: VIEWS,
+        heldout: 0,
+        size: 96,
+        points: 4000,
+        ..SynthOptions::default()
+    };
+    write_synthetic_bag(&synth, &options).unwrap();
+    // Everything but the images in the first chunk, then one chunk per image.
+    let source = BagReader::open(&synth).unwrap();
+    let path = dir.path().join("one_chunk_per_view.mcap");
+    let options = BagWriterOptions {
+        chunk_size: 1 << 30,
+        flush_interval: None,
+        ..Default::default()
+    };
+    let mut bag = BagWriter::create_with(&path, options).unwrap();
+    let (images, others): (Vec<_>, Vec<_>) = source
+        .messages()
+        .iter()
+        .partition(|m| m.topic.ends_with("/image_raw"));
+    for m in others.iter().chain(&images) {
+        bag.write_raw(&m.topic, &m.type_name, m.log_time, &m.data)
+            .unwrap();
+        bag.flush().unwrap();
+    }
+    bag.finish().unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let mut index = mcap::Summary::read(&bytes).unwrap().unwrap().chunk_indexes;
+    index.sort_by_key(|c| c.chunk_start_offset);
+    assert_eq!(index.len(), others.len() + VIEWS);
+    let lost = &index[others.len() + 1];
+    bag_support::flip_chunk_crc(&mut bytes, lost);
+    std::fs::write(&path, &bytes).unwrap();
+
+    let mut command = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
+    command.args(["replay", "--fast"]).arg(&path);
+    for o in overrides(&path)
+        .iter()
+        .filter(|o| !o.starts_with("replay."))
+    {
+        command.args(["--set", o]);
+    }
+    let out = command.output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    println!("{stdout}");
+    assert!(stdout.contains("views held 2,"), "{stdout}");
+    assert!(
+        !stdout.contains("revision 0,"),
+        "an avatar was made: {stdout}"
+    );
+    let expected = format!(
+        "bag {}: skipped 1 unreadable range ({} bytes, 1 messages lost)",
+        path.display(),
+        lost.chunk_length
+    );
+    assert!(stdout.contains(&expected), "{stdout}");
 }

@@ -6,7 +6,7 @@
 
 mod bag_support;
 
-use bag_support::{chunked_image_bag, image_time, numbered_image};
+use bag_support::{chunked_image_bag, data_end, flip_chunk_crc, image_time, numbered_image};
 use lhmpp::bag::{BagReader, BagStream, Resync};
 use lhmpp::msgs::Image;
 use mcap::records::ChunkIndex;
@@ -46,8 +46,7 @@ impl Damage {
             bytes[start + 1..body].copy_from_slice(&len.to_le_bytes());
         };
         match self {
-            // uncompressed_crc follows the start and end times and the uncompressed size.
-            Damage::Crc => bytes[body + 24] ^= 0x5A,
+            Damage::Crc => flip_chunk_crc(bytes, chunk),
             Damage::Compression => {
                 assert_eq!(&bytes[body + 32..body + 36], b"zstd");
                 bytes[body + 35] = b'x';
@@ -125,13 +124,12 @@ fn one_unreadable_chunk_in_sixteen_loses_only_its_own_messages() {
     let full = BagReader::from_bytes("full.mcap".into(), &bytes).unwrap();
     assert!(full.is_complete());
     assert_eq!(full.messages().len(), 64);
-    let data_end = mcap::read::footer(&bytes).unwrap().summary_start as usize - 13;
-    assert_eq!(bytes[data_end], 0x0F, "data end record");
+    let end = data_end(&bytes);
     for damage in Damage::ALL {
         let mut damaged = bytes.clone();
         damage.apply(&mut damaged, &index[BAD]);
         check(&format!("{damage:?}"), &damaged, &index, damage, true);
-        let cut = &damaged[..data_end];
+        let cut = &damaged[..end];
         check(
             &format!("{damage:?} without summary"),
             cut,
@@ -152,8 +150,8 @@ fn two_damaged_chunks_in_a_row_are_one_skip_each_or_one_scan() {
     assert_eq!(bag.messages().len(), 56);
     assert_eq!(bag.salvage().skipped.len(), 2);
     assert_eq!(bag.salvage().lost_messages(), (8, true));
-    let data_end = mcap::read::footer(&bytes).unwrap().summary_start as usize - 13;
-    let cut = BagReader::from_bytes("two_cut.mcap".into(), &bytes[..data_end]).unwrap();
+    let end = data_end(&bytes);
+    let cut = BagReader::from_bytes("two_cut.mcap".into(), &bytes[..end]).unwrap();
     assert_eq!(cut.messages().len(), 56);
     // The scan passes the bad-CRC chunk by, so both chunks are one range of unknown count.
     let skipped = &cut.salvage().skipped;
@@ -162,4 +160,46 @@ fn two_damaged_chunks_in_a_row_are_one_skip_each_or_one_scan() {
         (skipped[0].offset, skipped[0].end),
         (index[3].chunk_start_offset, index[5].chunk_start_offset)
     );
+}
+
+#[test]
+fn messages_on_a_channel_defined_in_the_lost_chunk_need_the_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("late.mcap");
+    let options = lhmpp::bag::BagWriterOptions {
+        chunk_size: 1 << 30,
+        flush_interval: None,
+        ..Default::default()
+    };
+    let mut writer = lhmpp::bag::BagWriter::create_with(&path, options).unwrap();
+    // Chunk 0: /img; chunk 1 defines /late (damaged below); chunk 2: /late again.
+    for (chunk, topics) in [["/img", "/img"], ["/late", "/img"], ["/late", "/img"]]
+        .iter()
+        .enumerate()
+    {
+        for (k, topic) in topics.iter().enumerate() {
+            let i = (chunk * 2 + k) as u32;
+            writer
+                .write(topic, image_time(i), &numbered_image(i))
+                .unwrap();
+        }
+        writer.flush().unwrap();
+    }
+    writer.finish().unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let mut index = mcap::Summary::read(&bytes).unwrap().unwrap().chunk_indexes;
+    index.sort_by_key(|c| c.chunk_start_offset);
+    Damage::Crc.apply(&mut bytes, &index[1]);
+    let bag = BagReader::from_bytes("late.mcap".into(), &bytes).unwrap();
+    assert_eq!(bag.messages().len(), 4, "the summary names /late");
+    assert_eq!(bag.salvage().unknown_channel, 0);
+    let end = data_end(&bytes);
+    let cut = BagReader::from_bytes("late_cut.mcap".into(), &bytes[..end]).unwrap();
+    assert_eq!(
+        cut.messages().len(),
+        3,
+        "chunk 2's /late message has no channel"
+    );
+    assert_eq!(cut.salvage().unknown_channel, 1);
+    assert!(cut.salvage().to_string().contains("dropped 1 messages"));
 }

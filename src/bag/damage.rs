@@ -61,12 +61,15 @@ pub struct Salvage {
     pub truncation: Option<Truncation>,
     /// Messages the bag's summary statistics record counts, when the summary was read.
     pub expected_messages: Option<u64>,
+    /// Messages dropped because their channel is unknown: its record was in a skipped range
+    /// and no summary repeats it.
+    pub unknown_channel: u64,
 }
 
 impl Salvage {
-    /// True when nothing was skipped and the file is complete.
+    /// True when nothing was skipped or dropped and the file is complete.
     pub fn is_complete(&self) -> bool {
-        self.skipped.is_empty() && self.truncation.is_none()
+        self.skipped.is_empty() && self.truncation.is_none() && self.unknown_channel == 0
     }
 
     /// Bytes in the skipped ranges.
@@ -90,13 +93,22 @@ impl fmt::Display for Salvage {
         }
         let mut parts = Vec::new();
         if !self.skipped.is_empty() {
-            let (lost, all_known) = self.lost_messages();
+            let lost = match self.lost_messages() {
+                (n, true) => format!("{n} messages lost"),
+                (0, false) => "messages lost unknown".into(),
+                (n, false) => format!("at least {n} messages lost"),
+            };
             let n = self.skipped.len();
             parts.push(format!(
-                "skipped {n} unreadable range{} ({} bytes, {}{lost} messages lost)",
+                "skipped {n} unreadable range{} ({} bytes, {lost})",
                 if n == 1 { "" } else { "s" },
                 self.skipped_bytes(),
-                if all_known { "" } else { "at least " },
+            ));
+        }
+        if self.unknown_channel > 0 {
+            parts.push(format!(
+                "dropped {} messages whose channel was defined only in a skipped range",
+                self.unknown_channel
             ));
         }
         if let Some(t) = &self.truncation {
@@ -148,6 +160,7 @@ mod tests {
             "skipped 1 unreadable range (300 bytes, 4 messages lost)"
         );
         s.skipped.push(skipped(500, 600, None));
+        s.unknown_channel = 2;
         s.truncation = Some(Truncation {
             offset: 900,
             reason: "no footer".into(),
@@ -155,6 +168,7 @@ mod tests {
         assert_eq!(
             s.to_string(),
             "skipped 2 unreadable ranges (400 bytes, at least 4 messages lost); \
+             dropped 2 messages whose channel was defined only in a skipped range; \
              cut short at byte 900: no footer"
         );
         assert_eq!(s.lost_messages(), (4, false));

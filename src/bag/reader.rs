@@ -80,7 +80,7 @@ pub(super) fn warn_damaged(path: &Path, salvage: &Salvage, file_size: u64, messa
             t.reason,
         );
     }
-    if !salvage.skipped.is_empty() {
+    if !salvage.skipped.is_empty() || salvage.unknown_channel > 0 {
         tracing::warn!(
             "bag {}: {salvage}; read {messages} messages",
             path.display()
@@ -211,20 +211,22 @@ impl BagReader {
         for record in scanner.by_ref() {
             scan.take(record);
         }
-        warn_damaged(
-            &path,
-            &scanner.salvage,
-            bytes.len() as u64,
-            scan.messages.len(),
-        );
-        Ok(Self::assemble(
+        let reader = Self::assemble(
             path,
             bytes.len() as u64,
             scan,
             scanner.compression,
             scanner.chunk_count,
             scanner.salvage,
-        ))
+        );
+        let file_size = reader.file_size;
+        warn_damaged(
+            &reader.path,
+            &reader.salvage,
+            file_size,
+            reader.messages.len(),
+        );
+        Ok(reader)
     }
 
     fn assemble(
@@ -233,7 +235,7 @@ impl BagReader {
         mut scan: Scan,
         compression: BTreeSet<String>,
         chunk_count: usize,
-        salvage: Salvage,
+        mut salvage: Salvage,
     ) -> Self {
         let mut counts: HashMap<u16, u64> = HashMap::new();
         let unknown: Arc<str> = Arc::from("");
@@ -252,10 +254,11 @@ impl BagReader {
         let mut messages = Vec::with_capacity(scan.messages.len());
         for (channel_id, header, data) in std::mem::take(&mut scan.messages) {
             let Some(channel) = scan.channels.get(&channel_id) else {
-                tracing::warn!(
+                tracing::debug!(
                     "bag {}: message on unknown channel {channel_id} skipped",
                     path.display()
                 );
+                salvage.unknown_channel += 1;
                 continue;
             };
             *counts.entry(channel_id).or_default() += 1;

@@ -22,6 +22,8 @@ pub struct BagStream {
     schemas: HashMap<u16, Arc<str>>,
     channels: HashMap<u16, (Arc<str>, Arc<str>)>,
     yielded: usize,
+    /// Messages dropped on unknown channels, added to the salvage at the end.
+    unknown_channel: u64,
     warned: bool,
 }
 
@@ -52,6 +54,7 @@ impl BagStream {
             schemas: HashMap::new(),
             channels,
             yielded: 0,
+            unknown_channel: 0,
             warned: false,
         })
     }
@@ -85,11 +88,12 @@ impl Iterator for BagStream {
                 }
                 Record::Message { header, data } => {
                     let Some((topic, type_name)) = self.channels.get(&header.channel_id) else {
-                        tracing::warn!(
+                        tracing::debug!(
                             "bag {}: message on unknown channel {} skipped",
                             self.path.display(),
                             header.channel_id
                         );
+                        self.unknown_channel += 1;
                         continue;
                     };
                     self.yielded += 1;
@@ -106,6 +110,7 @@ impl Iterator for BagStream {
         }
         if !self.warned {
             self.warned = true;
+            self.scanner.salvage.unknown_channel += self.unknown_channel;
             warn_damaged(
                 &self.path,
                 &self.scanner.salvage,

@@ -104,7 +104,7 @@ fn damage_lines(salvage: &Salvage, read: usize, line: &mut impl FnMut(&str, Stri
     for (i, s) in salvage.skipped.iter().enumerate() {
         line(if i == 0 { "Skipped:" } else { "" }, s.to_string());
     }
-    if !salvage.skipped.is_empty() {
+    if !salvage.skipped.is_empty() || salvage.unknown_channel > 0 {
         let expected = salvage
             .expected_messages
             .map_or(String::new(), |n| format!(" of {n} (summary statistics)"));

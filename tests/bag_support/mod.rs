@@ -343,3 +343,16 @@ pub fn chunked_image_bag(
     assert_eq!(index.len(), chunks as usize);
     (bytes, index)
 }
+
+/// Damages a chunk's uncompressed CRC (the field after its start time, end time and
+/// uncompressed size), so the chunk fails its CRC check and nothing else.
+pub fn flip_chunk_crc(bytes: &mut [u8], chunk: &mcap::records::ChunkIndex) {
+    bytes[chunk.chunk_start_offset as usize + 9 + 24] ^= 0x5A;
+}
+
+/// Offset of the data end record of a complete bag: cutting there drops summary and footer.
+pub fn data_end(bytes: &[u8]) -> usize {
+    let at = mcap::read::footer(bytes).unwrap().summary_start as usize - 13;
+    assert_eq!(bytes[at], 0x0F, "data end record");
+    at
+}
