@@ -29,6 +29,8 @@ fn demo_bag_replays_into_an_avatar_and_rendered_frames() {
     let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
     // The demo bag holds 4 input views; all are distinct, so all are held and encoded once.
     assert_eq!(summary.stats.frames, 4);
+    // Each camera's mask follows its frame in the bag: every frame waited for and got its own.
+    assert_eq!(summary.stats.masked, 4);
     assert_eq!(summary.views_held, 4);
     assert_eq!(summary.encoded_views, 4);
     assert_eq!(summary.stats.reconstructions, 1);
@@ -56,11 +58,14 @@ fn only_subscribed_topics_reach_the_frame_store() {
         &[
             "inputs.image_topics=[/cam0/image_raw, /heldout0/image_raw]",
             "inputs.camera_info_topics=[]",
+            "inputs.mask_topics=[/cam0/mask]",
             "outputs.virtual_cameras=1",
         ],
     );
     let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
     assert_eq!(summary.stats.frames, 2);
+    // Only cam0 has a mask topic: the held-out camera's frame goes on whole.
+    assert_eq!(summary.stats.masked, 1);
     assert_eq!(summary.views_held, 2);
     assert_eq!(summary.stats.reconstructions, 1);
 }

@@ -89,6 +89,7 @@ fn moving_camera_bag_replays_through_the_node() {
             format!("replay.bag={}", bag.display()),
             "inputs.image_topics=[/cam0/image_raw]".into(),
             "inputs.camera_info_topics=[/cam0/camera_info]".into(),
+            "inputs.mask_topics=[/cam0/mask]".into(),
             "outputs.virtual_cameras=1".into(),
         ],
     )
@@ -96,6 +97,10 @@ fn moving_camera_bag_replays_through_the_node() {
     let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
     // Every frame of the one moving camera reaches the pipeline, which reconstructs.
     assert_eq!(summary.stats.frames, 4);
+    assert_eq!(
+        summary.stats.masked, 4,
+        "every frame is cropped by its own mask"
+    );
     assert!(summary.stats.reconstructions >= 1);
     assert!(summary.revision >= 1);
     assert!(out.join("avatar_person_0.ply").exists());

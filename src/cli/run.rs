@@ -43,11 +43,12 @@ pub fn run(args: RunArgs) -> Result<()> {
         v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
     };
     println!(
-        "frames {} (duplicates {}), rejected messages {}, views held {}, views encoded {}, \
+        "frames {} (cropped by mask {}, duplicates {}), rejected messages {}, views held {}, views encoded {}, \
          reconstructions {} (failed {}), revision {}, median latency {:.0} ms, \
          median reconstruction {:.0} ms, rendered frames {} (dropped {}, last {:.1} ms/frame), \
          wall {:.1} s",
         s.frames,
+        s.masked,
         s.duplicates,
         summary.rejections,
         summary.views_held,

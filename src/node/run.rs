@@ -76,11 +76,12 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
     // output directory, bag) is set up before the DDS participant is created, so such a
     // config fails with its own error and no DDS traffic or log.
     let mut pipeline = Pipeline::new(config, None)?;
+    let topics = ResolvedTopics::from_options(&options)?;
+    pipeline.set_masked_cameras(topics.camera_masks.iter().map(|(_, camera)| camera.clone()));
     let live = config.replay.bag.is_empty();
     let mut replay = if live {
         None
     } else {
-        let topics = ResolvedTopics::from_options(&options)?;
         Some(BagReplay::open(
             Path::new(&config.replay.bag),
             topics,

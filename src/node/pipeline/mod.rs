@@ -19,7 +19,8 @@ use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::ros::{CameraFrame, InputEvent};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::splat::Gaussians;
-use masks::MaskBuffer;
+use image::GrayImage;
+use masks::{MaskPairing, Paired};
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
 use outputs::{status_message, FileOutputs};
 use reconstructor::{ReconstructError, Reconstructor};
@@ -37,6 +38,8 @@ use std::time::Duration;
 const EMBEDDING_GRID: u32 = 12;
 /// Masks kept to pair with frames by stamp (and camera, for per-camera mask topics).
 const MASKS_KEPT: usize = 32;
+/// How long a frame of a camera with its own mask topic waits for its mask.
+const MASK_WAIT: Duration = Duration::from_millis(150);
 /// Latencies kept for the summary.
 const LATENCIES_KEPT: usize = 256;
 
@@ -102,6 +105,8 @@ pub struct PipelineStats {
     pub rejected: u64,
     /// Frames dropped as near-duplicates of held views.
     pub duplicates: u64,
+    /// Frames cropped to the person by a mask of the same stamp (the rest: whole frames).
+    pub masked: u64,
     /// Reconstructions run.
     pub reconstructions: u64,
     /// Reconstructions that failed.
@@ -139,7 +144,7 @@ pub struct Pipeline {
     store: FrameStore,
     scheduler: Scheduler,
     preprocess: PreprocessConfig,
-    masks: MaskBuffer,
+    masks: MaskPairing,
     pose: Option<Pose>,
     next_frame_id: u64,
     shape_changes: u64,
@@ -247,7 +252,7 @@ impl Pipeline {
                 out_width: w,
                 ..PreprocessConfig::default()
             },
-            masks: MaskBuffer::new(MASKS_KEPT),
+            masks: MaskPairing::new(MASKS_KEPT, Vec::new(), MASK_WAIT),
             pose: None,
             next_frame_id: 1,
             shape_changes: 0,
@@ -325,9 +330,17 @@ impl Pipeline {
         self.recon.encode_count()
     }
 
-    /// True when no reconstruction is pending or running.
+    /// Sets the camera topics (resolved) that have their own mask topic: their frames wait up
+    /// to 150 ms for their mask before going on as whole frames.
+    pub fn set_masked_cameras(&mut self, cameras: impl IntoIterator<Item = String>) {
+        self.masks.set_masked_cameras(cameras);
+    }
+
+    /// True when no frame waits for its mask and no reconstruction is pending or running.
     pub fn idle(&self) -> bool {
-        self.scheduler.next_deadline().is_none() && self.scheduler.in_flight(&self.person).is_none()
+        self.masks.waiting() == 0
+            && self.scheduler.next_deadline().is_none()
+            && self.scheduler.in_flight(&self.person).is_none()
     }
 
     /// When the next scheduled work is due (reconstruction debounce or frame rendering).
@@ -336,18 +349,27 @@ impl Pipeline {
             .render_period
             .filter(|_| self.current.is_some() && self.publisher.is_some())
             .map(|_| self.next_render);
-        match (self.scheduler.next_deadline(), render) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
+        [
+            self.scheduler.next_deadline(),
+            render,
+            self.masks.next_deadline(),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
     }
 
     /// Feeds one input event; `now` is the node clock.
     pub fn handle(&mut self, event: InputEvent, now: Duration) {
         match event {
-            InputEvent::Frame(frame) => self.on_frame(frame, now),
+            InputEvent::Frame(frame) => {
+                self.stats.frames += 1;
+                let ready = self.masks.frame(frame, now);
+                self.admit(ready, now);
+            }
             InputEvent::Mask(mask) => {
-                self.masks.push(mask);
+                let ready = self.masks.mask(mask);
+                self.admit(ready, now);
             }
             InputEvent::CameraInfo { .. } => {}
             InputEvent::BodyPose { topic, pose, .. } => match pose.to_pose() {
@@ -430,9 +452,15 @@ impl Pipeline {
         }
     }
 
-    fn on_frame(&mut self, frame: CameraFrame, now: Duration) {
-        self.stats.frames += 1;
-        let mask = self.masks.find(&frame);
+    /// Frames whose mask pairing is settled go on to preprocessing and the frame store.
+    fn admit(&mut self, ready: Vec<Paired>, now: Duration) {
+        for (frame, mask) in ready {
+            self.on_frame(frame, mask, now);
+        }
+    }
+
+    fn on_frame(&mut self, frame: CameraFrame, mask: Option<Arc<GrayImage>>, now: Duration) {
+        self.stats.masked += u64::from(mask.is_some());
         let subject = mask.as_deref().map_or(Subject::FullFrame, Subject::Mask);
         let image = match preprocess(&frame.image, subject, &self.preprocess) {
             Ok(image) => Arc::new(image),
@@ -469,6 +497,14 @@ impl Pipeline {
 
     /// Runs whatever is due at `now`: reconstructions whose debounce expired, frame rendering.
     pub fn step(&mut self, now: Duration, clock: impl Fn() -> Duration) {
+        let unmasked = self.masks.expired(now);
+        if !unmasked.is_empty() {
+            tracing::debug!(
+                frames = unmasked.len(),
+                "no mask within the wait: whole frames"
+            );
+        }
+        self.admit(unmasked, now);
         for job in self.scheduler.poll(now) {
             self.run_job(job, &clock);
         }
