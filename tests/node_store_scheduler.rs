@@ -3,7 +3,7 @@
 //! reconstruction that takes longer than the frame interval.
 
 use image::{Rgb, RgbImage};
-use lhmpp::node::frame_store::{thumbnail_embedding, FrameStore, FrameStoreConfig, View};
+use lhmpp::node::frame_store::{thumbnail_embedding, FrameStore, StoreLimits, View};
 use lhmpp::node::preprocess::{preprocess, BBox, PreprocessConfig, Subject};
 use lhmpp::node::scheduler::{Scheduler, SchedulerConfig};
 use std::sync::Arc;
@@ -32,10 +32,10 @@ fn frame(cam: usize, angle: f32) -> RgbImage {
 #[test]
 fn stream_of_400_frames_keeps_at_most_k_views_and_few_reconstructions() {
     let k = 16;
-    let mut store = FrameStore::new(FrameStoreConfig {
+    let mut store = FrameStore::new(StoreLimits {
         max_views: k,
         duplicate_similarity: 0.98,
-        ..FrameStoreConfig::default()
+        ..StoreLimits::default()
     });
     let mut sched = Scheduler::new(SchedulerConfig {
         debounce: Duration::from_millis(200),

@@ -41,9 +41,9 @@ pub enum DuplicatePolicy {
     ReplaceOlder,
 }
 
-/// Frame-store parameters.
+/// Bounds and duplicate handling of the frame store (built from the node's `frame_store.*`).
 #[derive(Debug, Clone, PartialEq)]
-pub struct FrameStoreConfig {
+pub struct StoreLimits {
     /// Most views held per person.
     pub max_views: usize,
     /// Cosine similarity above which two views of one camera are duplicates.
@@ -52,17 +52,14 @@ pub struct FrameStoreConfig {
     pub duplicate_policy: DuplicatePolicy,
 }
 
-impl Default for FrameStoreConfig {
+impl Default for StoreLimits {
+    /// The node's defaults (`frame_store.*` of [`crate::config::NodeConfig`]).
     fn default() -> Self {
-        Self {
-            max_views: 16,
-            duplicate_similarity: 0.995,
-            duplicate_policy: DuplicatePolicy::Drop,
-        }
+        Self::from(&crate::config::FrameStoreConfig::default())
     }
 }
 
-impl From<&crate::config::FrameStoreConfig> for FrameStoreConfig {
+impl From<&crate::config::FrameStoreConfig> for StoreLimits {
     fn from(c: &crate::config::FrameStoreConfig) -> Self {
         Self {
             max_views: c.max_views,
@@ -130,7 +127,7 @@ struct PersonViews {
 /// Views per person, bounded and diverse.
 #[derive(Debug)]
 pub struct FrameStore {
-    cfg: FrameStoreConfig,
+    cfg: StoreLimits,
     persons: BTreeMap<String, PersonViews>,
 }
 
@@ -153,7 +150,7 @@ pub fn cosine_similarity(a: &[f32], b: &[f32]) -> f32 {
 
 impl FrameStore {
     /// An empty store. `max_views` is raised to at least 1.
-    pub fn new(mut cfg: FrameStoreConfig) -> Self {
+    pub fn new(mut cfg: StoreLimits) -> Self {
         cfg.max_views = cfg.max_views.max(1);
         Self {
             cfg,
@@ -162,7 +159,7 @@ impl FrameStore {
     }
 
     /// The parameters in use.
-    pub fn config(&self) -> &FrameStoreConfig {
+    pub fn config(&self) -> &StoreLimits {
         &self.cfg
     }
 
@@ -346,7 +343,7 @@ mod tests {
     }
 
     fn store(max_views: usize, policy: DuplicatePolicy) -> FrameStore {
-        FrameStore::new(FrameStoreConfig {
+        FrameStore::new(StoreLimits {
             max_views,
             duplicate_similarity: 0.99,
             duplicate_policy: policy,

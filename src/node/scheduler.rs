@@ -24,11 +24,9 @@ pub struct SchedulerConfig {
 }
 
 impl Default for SchedulerConfig {
+    /// The node's default `frame_store.debounce_ms`.
     fn default() -> Self {
-        Self {
-            debounce: Duration::from_millis(200),
-            max_delay: Duration::from_millis(1000),
-        }
+        Self::from_debounce_ms(crate::config::FrameStoreConfig::default().debounce_ms)
     }
 }
 

@@ -18,8 +18,8 @@ pub use gaussians::{
 pub use nearest::nearest_vertex_skin;
 pub use ply::{read_ply, read_ply_from, write_ply, write_ply_to, PlyError, PlyGaussians};
 pub use render::{
-    blend_instruction_set, render, render_timed, Rasterizer, RenderOptions, RenderOutput,
-    StageTimes, TILE,
+    blend_instruction_set, render, render_timed, RasterStageTimes, Rasterizer, RenderOptions,
+    RenderOutput, TILE,
 };
 pub use sh::eval_sh;
 pub use voxel_skinning::{VoxelSkinning, VoxelSkinningError};

@@ -18,7 +18,7 @@ use glam::{Mat4, Quat, Vec3};
 use lhmpp::avatar::Avatar;
 use lhmpp::body::SkinWeights;
 use lhmpp::splat::synthetic::body_cloud;
-use lhmpp::splat::{Camera, Intrinsics, Rasterizer, RenderOptions, RenderOutput, StageTimes};
+use lhmpp::splat::{Camera, Intrinsics, RasterStageTimes, Rasterizer, RenderOptions, RenderOutput};
 use rand::{Rng, SeedableRng};
 use std::time::{Duration, Instant};
 
@@ -155,7 +155,7 @@ pub fn run(a: RenderBenchArgs) -> Result<()> {
                 })
             });
             let ms = t.median.as_secs_f64() * 1e3;
-            let median = |f: fn(&StageTimes) -> f64| {
+            let median = |f: fn(&RasterStageTimes) -> f64| {
                 let mut v: Vec<f64> = stages.iter().map(f).collect();
                 v.sort_by(f64::total_cmp);
                 v[v.len() / 2] * 1e3

@@ -110,7 +110,7 @@ impl RenderOutput {
 
 /// Wall-clock time of each stage of one render, with the work sizes (for benchmarks).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct StageTimes {
+pub struct RasterStageTimes {
     /// Projection and culling (seconds).
     pub project: f64,
     /// Tile binning and per-tile depth sort (seconds).
@@ -138,7 +138,7 @@ pub fn render_timed(
     gaussians: &Gaussians,
     camera: &Camera,
     options: &RenderOptions,
-) -> (RenderOutput, StageTimes) {
+) -> (RenderOutput, RasterStageTimes) {
     let mut out = RenderOutput::default();
     let times = Rasterizer::default().render_into(gaussians, camera, options, &mut out);
     (out, times)
@@ -175,8 +175,8 @@ impl Rasterizer {
         camera: &Camera,
         options: &RenderOptions,
         out: &mut RenderOutput,
-    ) -> StageTimes {
-        let mut times = StageTimes::default();
+    ) -> RasterStageTimes {
+        let mut times = RasterStageTimes::default();
         let clock = std::time::Instant::now();
         let _span = tracing::debug_span!("render", n = gaussians.len()).entered();
         if let Err(e) = gaussians.validate() {
