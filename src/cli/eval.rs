@@ -1,7 +1,7 @@
 //! `lhmpp eval BAG`: held-out-view PSNR / SSIM / mask IoU of reconstructions from a synthetic bag.
 
+use super::config_source::ConfigSource;
 use anyhow::{Context, Result};
-use lhmpp::config::NodeConfig;
 use lhmpp::eval::heldout::{evaluate_bag, InputCrop};
 use std::path::PathBuf;
 
@@ -23,23 +23,14 @@ pub struct EvalArgs {
     /// node does when `inputs.mask_topics` are set.
     #[arg(long)]
     full_frame: bool,
-    /// Parameter file for the model settings; omitted = built-in defaults.
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Override a parameter: `--set model.checkpoint=x.safetensors` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    overrides: Vec<String>,
+    /// The model settings (`--set model.checkpoint=x.safetensors`).
+    #[command(flatten)]
+    pub source: ConfigSource,
 }
 
 /// Prints one table row per bag and view count.
 pub fn run(args: EvalArgs) -> Result<()> {
-    let config = match &args.config {
-        Some(path) => NodeConfig::load(path, &args.overrides)?,
-        None => {
-            let text = NodeConfig::default().to_param_file();
-            NodeConfig::from_yaml(&text, "<defaults>".as_ref(), &args.overrides)?
-        }
-    };
+    let config = args.source.load()?;
     println!(
         "| bag | input views | held-out views | PSNR (dB) | SSIM | mask IoU |\n| --- | ---: | ---: | ---: | ---: | ---: |"
     );

@@ -6,6 +6,7 @@ mod bag;
 mod bench;
 mod body;
 mod config_cmd;
+mod config_source;
 mod eval;
 mod model;
 mod model_parity;
@@ -49,7 +50,7 @@ enum Command {
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`), recover damaged ones
     /// (`bag recover IN -o OUT`).
     Bag(bag::BagArgs),
-    /// Record the node's input and output topics into an MCAP bag (`record --config FILE`).
+    /// Record the node's input and output topics into an MCAP bag (`record [--config FILE]`).
     Record(record::RecordArgs),
     /// Body template: summary, posed point clouds, asset conversion.
     Body(body::BodyArgs),
@@ -119,4 +120,45 @@ fn init_logging(default: &str) {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .init();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The `--config/--set` group each config-reading subcommand parsed, if it takes one.
+    fn source(args: &[&str]) -> config_source::ConfigSource {
+        let cli = Cli::try_parse_from(args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
+        match cli.command {
+            Command::Run(a) => a.source,
+            Command::Replay(a) => a.source,
+            Command::Eval(a) => a.source,
+            Command::Config(a) => a.source,
+            Command::Record(a) => a.source,
+            other => panic!("{other:?} takes no config"),
+        }
+    }
+
+    #[test]
+    fn every_command_that_reads_the_config_takes_config_and_set() {
+        let tail = ["--config", "c.yaml", "--set", "model.seed=7"];
+        for cmd in [
+            &["lhmpp", "run"][..],
+            &["lhmpp", "replay", "b.mcap"],
+            &["lhmpp", "eval", "b.mcap"],
+            &["lhmpp", "config"],
+            &["lhmpp", "record"],
+        ] {
+            let args: Vec<&str> = cmd.iter().chain(&tail).copied().collect();
+            let s = source(&args);
+            assert_eq!(s.config.as_deref(), Some(std::path::Path::new("c.yaml")));
+            assert_eq!(s.overrides, ["model.seed=7"], "{cmd:?}");
+        }
+    }
+
+    #[test]
+    fn the_set_overrides_reach_the_loaded_config() {
+        let s = source(&["lhmpp", "record", "--set", "person_id=alice"]);
+        assert_eq!(s.load().unwrap().person_id, "alice");
+    }
 }

@@ -1,9 +1,9 @@
 //! `lhmpp record`: record the node's input and output topics into an MCAP bag until
 //! SIGINT/SIGTERM or `--duration`.
 
+use super::config_source::ConfigSource;
 use anyhow::{Context, Result};
 use lhmpp::bag::{BagWriter, BagWriterOptions};
-use lhmpp::config::NodeConfig;
 use lhmpp::node::record::{self, RecordOptions};
 use lhmpp::node::ros::{InputQos, ResolvedTopics, RosNodeOptions};
 use std::collections::BTreeMap;
@@ -14,9 +14,9 @@ use std::time::Duration;
 /// Arguments of `lhmpp record`.
 #[derive(clap::Args, Debug)]
 pub struct RecordArgs {
-    /// Parameter file (`launch_configs/*.yaml`) naming the topics and the domain.
-    #[arg(long)]
-    config: PathBuf,
+    /// The parameters naming the topics and the domain.
+    #[command(flatten)]
+    pub source: ConfigSource,
     /// Bag to write: a `.mcap` file, or a rosbag2 directory (default `lhmpp_<unix time>`).
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,
@@ -43,7 +43,7 @@ fn seconds(value: f64, flag: &str) -> Result<Duration> {
 
 /// Records until stopped and prints the messages written per topic.
 pub fn run(args: RecordArgs) -> Result<()> {
-    let config = NodeConfig::load(&args.config, &[])?;
+    let config = args.source.load()?;
     let domain_env = std::env::var("ROS_DOMAIN_ID").ok();
     let mut ros = RosNodeOptions::from_config(&config, BTreeMap::new(), domain_env.as_deref())?;
     if args.loopback {

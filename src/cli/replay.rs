@@ -1,5 +1,6 @@
 //! `lhmpp replay BAG`: run the node on a bag (shorthand for `run` with `replay.bag` set).
 
+use super::config_source::ConfigSource;
 use anyhow::Result;
 use std::path::PathBuf;
 
@@ -14,17 +15,15 @@ pub struct ReplayArgs {
     /// Play as fast as the node consumes the messages (no pacing, nothing dropped).
     #[arg(long)]
     fast: bool,
-    /// Parameter file for everything else (topics, model, outputs); omitted = built-in defaults.
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Override a parameter: `--set outputs.dir=out/replay` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    overrides: Vec<String>,
+    /// Everything else (topics, model, outputs).
+    #[command(flatten)]
+    pub source: ConfigSource,
 }
 
 /// Runs the node on the bag and prints the run summary.
 pub fn run(args: ReplayArgs) -> Result<()> {
-    let mut overrides = args.overrides;
+    let mut source = args.source;
+    let overrides = &mut source.overrides;
     overrides.push(format!("replay.bag={}", args.bag.display()));
     overrides.push(format!(
         "replay.rate={}",
@@ -32,8 +31,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     ));
     overrides.push("replay.exit_when_done=true".into());
     super::run::run(super::run::RunArgs {
-        config: args.config,
-        overrides,
+        source,
         remaps: Vec::new(),
     })
 }

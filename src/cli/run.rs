@@ -1,19 +1,14 @@
 //! `lhmpp run`: run the node with a launch config (live ROS 2 topics, or a bag replay).
 
+use super::config_source::ConfigSource;
 use anyhow::{Context, Result};
-use lhmpp::config::NodeConfig;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 
 /// Arguments of `lhmpp run`.
 #[derive(clap::Args, Debug)]
 pub struct RunArgs {
-    /// Parameter file (`launch_configs/*.yaml`); omitted = built-in defaults.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Override a parameter: `--set model.device=cpu` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub overrides: Vec<String>,
+    #[command(flatten)]
+    pub source: ConfigSource,
     /// Remap a topic: `--remap /camera/image_raw:=/cam0/image_raw` (repeatable).
     #[arg(long = "remap", value_name = "FROM:=TO")]
     pub remaps: Vec<String>,
@@ -21,13 +16,7 @@ pub struct RunArgs {
 
 /// Loads the config, runs the node until it finishes or is stopped, prints a summary.
 pub fn run(args: RunArgs) -> Result<()> {
-    let config = match &args.config {
-        Some(path) => NodeConfig::load(path, &args.overrides)?,
-        None => {
-            let text = NodeConfig::default().to_param_file();
-            NodeConfig::from_yaml(&text, "<defaults>".as_ref(), &args.overrides)?
-        }
-    };
+    let config = args.source.load()?;
     let mut remap = BTreeMap::new();
     for r in &args.remaps {
         let (from, to) = r
