@@ -152,6 +152,33 @@ def make_points(n, rng):
     return pts, nrm, int(inv.max() + 1)
 
 
+def save_weights(state, out, shard_bytes=512 << 20):
+    """`model.safetensors`, or shards `model-0000i-of-0000n.safetensors` with the hub index
+    when the state dict is larger than `shard_bytes` (safetensors copies what it writes)."""
+    from safetensors.torch import save_file
+
+    total = sum(v.numel() * v.element_size() for v in state.values())
+    if total <= shard_bytes:
+        save_file(state, str(out / "model.safetensors"))
+        return
+    shards, cur, size = [], {}, 0
+    for k, v in state.items():
+        b = v.numel() * v.element_size()
+        if cur and size + b > shard_bytes:
+            shards.append(cur)
+            cur, size = {}, 0
+        cur[k] = v
+        size += b
+    shards.append(cur)
+    weight_map = {}
+    for i, shard in enumerate(shards):
+        name = f"model-{i + 1:05d}-of-{len(shards):05d}.safetensors"
+        save_file(shard, str(out / name))
+        weight_map.update({k: name for k in shard})
+    index = {"metadata": {"total_size": total}, "weight_map": weight_map}
+    (out / "model.safetensors.index.json").write_text(json.dumps(index, indent=1) + "\n")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--official", required=True, help="checkout of the official code (core/)")
@@ -159,12 +186,22 @@ def main():
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--points", type=int, help="query points (default: per size)")
+    ap.add_argument("--image", help="view size HxW (default: per size; multiples of 14)")
+    ap.add_argument("--feature-image", help="feature image HxW (default: per size; multiples of 7)")
+    ap.add_argument(
+        "--threads", type=int, default=1, help="torch threads (spconv always runs on one)"
+    )
     args = ap.parse_args()
 
     edit, dino, dpt, views, H, W, n, fh, fw = SIZES[args.size]
     n = args.points or n
+    if args.image:
+        H, W = map(int, args.image.split("x"))
+    if args.feature_image:
+        fh, fw = map(int, args.feature_image.split("x"))
     shims.install(args.official, dinov2_widths=dino, dpt_widths=dpt)
-    torch.set_num_threads(1)  # spconv 2.3.8's CPU SubMConv3d is wrong with more threads
+    shims.spconv_single_thread()
+    torch.set_num_threads(args.threads)
 
     cfg = edit(json.loads(RELEASED.read_text()))
     # The ArcFace identity net is a training loss (it loads its own weights file); off.
@@ -210,6 +247,7 @@ def main():
         )
         neural_s = time.time() - start
     gs = gs[0]
+    print(f"official forward {forward_s:.1f} s, neural renderer {neural_s:.1f} s", flush=True)
 
     def ours(t, layout):
         # Official [1, V, H, W, c] -> ours [V, c, H, W].
@@ -229,7 +267,7 @@ def main():
         for k, v in model.state_dict().items()
         if v.dtype.is_floating_point
     }
-    save_file(state, str(out / "model.safetensors"))
+    save_weights(state, out)
     tensors = {
         "images": images,
         "anchors": coords,

@@ -258,6 +258,24 @@ def install(official_dir, dinov2_widths=None, dpt_widths=None):
     base.SMPLXVoxelSkinning = FakeSkinning
 
 
+def spconv_single_thread():
+    """spconv 2.3.8's CPU `SubMConv3d` gives wrong, run-dependent results with more than one
+    torch thread: each call runs on one thread, the rest of the forward on the caller's count."""
+    import spconv.pytorch as spconv
+
+    forward = spconv.SubMConv3d.forward
+
+    def single(self, *args, **kwargs):
+        n = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return forward(self, *args, **kwargs)
+        finally:
+            torch.set_num_threads(n)
+
+    spconv.SubMConv3d.forward = single
+
+
 def spconv_train_mode(model):
     """spconv's CPU kernel cannot add the bias in eval mode; in train mode it adds it in Python
     (the layer has no other train/eval difference)."""
