@@ -23,6 +23,17 @@ fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
+/// Runs `lhmpp bag recover INPUT -o OUTPUT`.
+fn recover(input: &Path, output: &Path) -> Output {
+    lhmpp(&[
+        "bag".as_ref(),
+        "recover".as_ref(),
+        input,
+        "-o".as_ref(),
+        output,
+    ])
+}
+
 /// A 16-chunk bag whose 8th chunk fails its CRC, cut at its data end (no summary, no footer).
 fn damaged_bag(dir: &Path) -> PathBuf {
     let (mut bytes, index) = chunked_image_bag(&dir.join("full.mcap"), 16, 4);
@@ -71,13 +82,7 @@ fn bag_recover_writes_a_clean_bag_and_never_overwrites_its_input() {
     let dir = tempfile::tempdir().unwrap();
     let damaged = damaged_bag(dir.path());
     let before = std::fs::read(&damaged).unwrap();
-    let out = lhmpp(&[
-        "bag".as_ref(),
-        "recover".as_ref(),
-        &damaged,
-        "-o".as_ref(),
-        &damaged,
-    ]);
+    let out = recover(&damaged, &damaged);
     assert_eq!(out.status.code(), Some(1));
     assert!(
         text(&out.stderr).contains("will not write"),
@@ -87,13 +92,7 @@ fn bag_recover_writes_a_clean_bag_and_never_overwrites_its_input() {
     assert_eq!(std::fs::read(&damaged).unwrap(), before, "input untouched");
 
     let recovered = dir.path().join("recovered");
-    let out = lhmpp(&[
-        "bag".as_ref(),
-        "recover".as_ref(),
-        &damaged,
-        "-o".as_ref(),
-        &recovered,
-    ]);
+    let out = recover(&damaged, &recovered);
     let stdout = text(&out.stdout);
     println!("{stdout}{}", text(&out.stderr));
     assert!(out.status.success(), "{}", text(&out.stderr));
@@ -127,37 +126,14 @@ fn bag_recover_writes_a_clean_bag_and_never_overwrites_its_input() {
 
 #[test]
 fn python_readers_decode_the_recovered_bag() {
-    let python = std::env::var("LHMPP_TEST_PYTHON").expect(
-        "LHMPP_TEST_PYTHON is not set: run scripts/test (it installs the Python bag readers)",
-    );
+    bag_support::python();
     let dir = tempfile::tempdir().unwrap();
     let damaged = damaged_bag(dir.path());
     let recovered = dir.path().join("recovered");
-    let out = lhmpp(&[
-        "bag".as_ref(),
-        "recover".as_ref(),
-        &damaged,
-        "-o".as_ref(),
-        &recovered,
-    ]);
+    let out = recover(&damaged, &recovered);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let first = numbered_image(0);
     let expected = serde_json::json!({"/img": {"type": Image::TYPE_NAME, "count": 60,
         "fields": {"height": 8, "encoding": "mono8", "data": first.data}}});
-    let expected_path = dir.path().join("expected.json");
-    std::fs::write(&expected_path, expected.to_string()).unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/check_bag.py");
-    let out = Command::new(&python)
-        .arg(&script)
-        .arg(&recovered)
-        .arg(&expected_path)
-        .output()
-        .unwrap();
-    let stdout = text(&out.stdout);
-    println!("{stdout}");
-    assert!(
-        out.status.success() && stdout.contains("OK"),
-        "{stdout}\n{}",
-        text(&out.stderr)
-    );
+    bag_support::check_with_python_readers(&recovered, &expected);
 }

@@ -7,7 +7,7 @@
 
 mod bag_support;
 
-use lhmpp::bag::{BagReader, BagWriter, BagWriterOptions};
+use lhmpp::bag::{BagReader, BagWriter};
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{
     BodyPose, BodyShape, Header, Image, Quaternion, ReconstructionStatus, RosMessage, Transform,
@@ -20,7 +20,7 @@ use lhmpp::synth::capture::{image_topic, POSE_TOPIC, SHAPE_TOPIC, START_NS};
 use lhmpp::synth::{write_synthetic_bag, SynthOptions};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -113,6 +113,16 @@ fn overrides(bag: &Path) -> Vec<String> {
     ]
 }
 
+/// Runs `lhmpp replay --fast` on `bag` with the [`overrides`].
+fn replay_cli(bag: &Path) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
+    command.args(["replay", "--fast"]).arg(bag);
+    for o in overrides(bag).iter().filter(|o| !o.starts_with("replay.")) {
+        command.args(["--set", o]);
+    }
+    command.output().unwrap()
+}
+
 /// Keeps every status published.
 #[derive(Clone, Default)]
 struct Statuses(Arc<Mutex<Vec<ReconstructionStatus>>>);
@@ -172,12 +182,7 @@ fn rejections_agree_across_log_summary_pipeline_and_status() {
     assert_eq!(in_status, planted(), "{last:?}");
 
     // `lhmpp replay`: the summary line and the warnings logged.
-    let mut command = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
-    command.args(["replay", "--fast"]).arg(&bag);
-    for o in overrides(&bag).iter().filter(|o| !o.starts_with("replay.")) {
-        command.args(["--set", o]);
-    }
-    let out = command.output().unwrap();
+    let out = replay_cli(&bag);
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
@@ -205,12 +210,7 @@ fn a_damaged_bag_replays_the_other_views_and_the_summary_says_what_was_skipped()
     // Everything but the images in the first chunk, then one chunk per image.
     let source = BagReader::open(&synth).unwrap();
     let path = dir.path().join("one_chunk_per_view.mcap");
-    let options = BagWriterOptions {
-        chunk_size: 1 << 30,
-        flush_interval: None,
-        ..Default::default()
-    };
-    let mut bag = BagWriter::create_with(&path, options).unwrap();
+    let mut bag = BagWriter::create_with(&path, bag_support::flushed_chunks()).unwrap();
     let (images, others): (Vec<_>, Vec<_>) = source
         .messages()
         .iter()
@@ -222,22 +222,13 @@ fn a_damaged_bag_replays_the_other_views_and_the_summary_says_what_was_skipped()
     }
     bag.finish().unwrap();
     let mut bytes = std::fs::read(&path).unwrap();
-    let mut index = mcap::Summary::read(&bytes).unwrap().unwrap().chunk_indexes;
-    index.sort_by_key(|c| c.chunk_start_offset);
+    let index = bag_support::chunk_index(&bytes);
     assert_eq!(index.len(), others.len() + VIEWS);
     let lost = &index[others.len() + 1];
     bag_support::flip_chunk_crc(&mut bytes, lost);
     std::fs::write(&path, &bytes).unwrap();
 
-    let mut command = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
-    command.args(["replay", "--fast"]).arg(&path);
-    for o in overrides(&path)
-        .iter()
-        .filter(|o| !o.starts_with("replay."))
-    {
-        command.args(["--set", o]);
-    }
-    let out = command.output().unwrap();
+    let out = replay_cli(&path);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),

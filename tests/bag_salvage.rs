@@ -6,7 +6,10 @@
 
 mod bag_support;
 
-use bag_support::{chunked_image_bag, data_end, flip_chunk_crc, image_time, numbered_image};
+use bag_support::{
+    chunk_index, chunked_image_bag, data_end, flip_chunk_crc, flushed_chunks, image_time,
+    numbered_image,
+};
 use lhmpp::bag::{BagReader, BagStream, Resync};
 use lhmpp::msgs::Image;
 use mcap::records::ChunkIndex;
@@ -166,12 +169,7 @@ fn two_damaged_chunks_in_a_row_are_one_skip_each_or_one_scan() {
 fn messages_on_a_channel_defined_in_the_lost_chunk_need_the_summary() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("late.mcap");
-    let options = lhmpp::bag::BagWriterOptions {
-        chunk_size: 1 << 30,
-        flush_interval: None,
-        ..Default::default()
-    };
-    let mut writer = lhmpp::bag::BagWriter::create_with(&path, options).unwrap();
+    let mut writer = lhmpp::bag::BagWriter::create_with(&path, flushed_chunks()).unwrap();
     // Chunk 0: /img; chunk 1 defines /late (damaged below); chunk 2: /late again.
     for (chunk, topics) in [["/img", "/img"], ["/late", "/img"], ["/late", "/img"]]
         .iter()
@@ -187,8 +185,7 @@ fn messages_on_a_channel_defined_in_the_lost_chunk_need_the_summary() {
     }
     writer.finish().unwrap();
     let mut bytes = std::fs::read(&path).unwrap();
-    let mut index = mcap::Summary::read(&bytes).unwrap().unwrap().chunk_indexes;
-    index.sort_by_key(|c| c.chunk_start_offset);
+    let index = chunk_index(&bytes);
     Damage::Crc.apply(&mut bytes, &index[1]);
     let bag = BagReader::from_bytes("late.mcap".into(), &bytes).unwrap();
     assert_eq!(bag.messages().len(), 4, "the summary names /late");

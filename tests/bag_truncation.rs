@@ -13,15 +13,7 @@ const T0: u64 = 1_000_000_000;
 /// each flush (chunk boundaries).
 fn chunked_bag(dir: &std::path::Path) -> (Vec<u8>, Vec<u64>) {
     let path = dir.join("full.mcap");
-    let mut writer = BagWriter::create_with(
-        &path,
-        BagWriterOptions {
-            chunk_size: 1 << 30,
-            flush_interval: None,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let mut writer = BagWriter::create_with(&path, bag_support::flushed_chunks()).unwrap();
     let mut boundaries = Vec::new();
     for chunk in 0..4u32 {
         for k in 0..10u32 {

@@ -6,6 +6,10 @@ use clap::{Args, Subcommand};
 use lhmpp::bag::{BagReader, Salvage};
 use std::io::Write;
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// Time between progress lines of `bag recover`.
+const PROGRESS_PERIOD: Duration = Duration::from_millis(250);
 
 /// Exit status of `bag info` for a damaged bag: it was read, but unreadable ranges were
 /// skipped or the file is cut short.
@@ -62,9 +66,14 @@ pub fn run(args: BagArgs) -> Result<()> {
             .into())
         }
         BagCommand::Recover { input, output } => {
+            let mut last = None::<Instant>;
             let recovery = lhmpp::bag::recover(&input, &output, |done, total| {
-                eprint!("\rrecovering: {done}/{total} messages");
-                let _ = std::io::stderr().flush();
+                // At most four progress lines a second, and the last one.
+                if done == total || last.is_none_or(|t| t.elapsed() >= PROGRESS_PERIOD) {
+                    last = Some(Instant::now());
+                    eprint!("\rrecovering: {done}/{total} messages");
+                    let _ = std::io::stderr().flush();
+                }
             })?;
             eprintln!();
             println!(

@@ -321,12 +321,7 @@ pub fn chunked_image_bag(
     chunks: u32,
     per_chunk: u32,
 ) -> (Vec<u8>, Vec<mcap::records::ChunkIndex>) {
-    let options = lhmpp::bag::BagWriterOptions {
-        chunk_size: 1 << 30,
-        flush_interval: None,
-        ..Default::default()
-    };
-    let mut writer = BagWriter::create_with(path, options).unwrap();
+    let mut writer = BagWriter::create_with(path, flushed_chunks()).unwrap();
     for i in 0..chunks * per_chunk {
         writer
             .write("/img", image_time(i), &numbered_image(i))
@@ -338,10 +333,25 @@ pub fn chunked_image_bag(
     let file = writer.path().to_path_buf();
     writer.finish().unwrap();
     let bytes = std::fs::read(file).unwrap();
-    let mut index = mcap::Summary::read(&bytes).unwrap().unwrap().chunk_indexes;
-    index.sort_by_key(|c| c.chunk_start_offset);
+    let index = chunk_index(&bytes);
     assert_eq!(index.len(), chunks as usize);
     (bytes, index)
+}
+
+/// Writer options whose chunks close only at a flush (no size limit, no timer).
+pub fn flushed_chunks() -> lhmpp::bag::BagWriterOptions {
+    lhmpp::bag::BagWriterOptions {
+        chunk_size: 1 << 30,
+        flush_interval: None,
+        ..Default::default()
+    }
+}
+
+/// The chunk index of a complete bag, sorted by offset.
+pub fn chunk_index(bytes: &[u8]) -> Vec<mcap::records::ChunkIndex> {
+    let mut index = mcap::Summary::read(bytes).unwrap().unwrap().chunk_indexes;
+    index.sort_by_key(|c| c.chunk_start_offset);
+    index
 }
 
 /// Damages a chunk's uncompressed CRC (the field after its start time, end time and
@@ -355,4 +365,43 @@ pub fn data_end(bytes: &[u8]) -> usize {
     let at = mcap::read::footer(bytes).unwrap().summary_start as usize - 13;
     assert_eq!(bytes[at], 0x0F, "data end record");
     at
+}
+
+/// The Python interpreter with the bag readers, from `LHMPP_TEST_PYTHON` (set by
+/// `scripts/test`, which installs them).
+pub fn python() -> String {
+    std::env::var("LHMPP_TEST_PYTHON").unwrap_or_else(|_| {
+        panic!(
+            "LHMPP_TEST_PYTHON is not set: run the tests with `scripts/test`, which installs the \
+             Python bag readers (scripts/setup-test-deps) and sets it"
+        )
+    })
+}
+
+/// Runs `tests/python/check_bag.py` (the `mcap_ros2` and `rosbags` readers) on the bag
+/// directory `bag` against `expected` (topic → type, count, fields); panics with its output
+/// unless it prints OK.
+pub fn check_with_python_readers(bag: &std::path::Path, expected: &Value) {
+    let python = python();
+    let expected_path = bag.with_extension("expected.json");
+    std::fs::write(
+        &expected_path,
+        serde_json::to_string_pretty(expected).unwrap(),
+    )
+    .unwrap();
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/check_bag.py");
+    let output = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(bag)
+        .arg(&expected_path)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {python}: {e}"));
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    println!("{stdout}");
+    assert!(
+        output.status.success() && stdout.contains("OK"),
+        "check_bag.py rejected {}:\n{stdout}\n{stderr}",
+        bag.display()
+    );
 }
