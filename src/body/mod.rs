@@ -35,7 +35,7 @@ pub use anchors::AnchorPoints;
 pub use error::BodyError;
 pub use geometry::{generalized_winding_number, point_triangle_distance, vertex_normals};
 pub use nearest::PointGrid;
-pub use ply::write_point_ply;
+pub use ply::{write_point_ply, PlyScalar};
 pub use pose::Pose;
 pub use shape::{MakeHumanShape, MAKEHUMAN_SHAPE_RANGE};
 pub use skeleton::Skeleton;

@@ -1,9 +1,82 @@
-//! Coloured point clouds as binary little-endian PLY files.
+//! PLY files: coloured point clouds written as binary little-endian, and the scalar types
+//! every PLY reader of the crate decodes.
 
 use super::BodyError;
 use glam::Vec3;
 use std::io::Write;
 use std::path::Path;
+
+/// A PLY scalar property type (`char`/`int8` ... `double`/`float64`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlyScalar {
+    /// `char` / `int8`.
+    I8,
+    /// `uchar` / `uint8`.
+    U8,
+    /// `short` / `int16`.
+    I16,
+    /// `ushort` / `uint16`.
+    U16,
+    /// `int` / `int32`.
+    I32,
+    /// `uint` / `uint32`.
+    U32,
+    /// `float` / `float32`.
+    F32,
+    /// `double` / `float64`.
+    F64,
+}
+
+impl PlyScalar {
+    /// The type named `s` in a `property` line, if known.
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "char" | "int8" => Self::I8,
+            "uchar" | "uint8" => Self::U8,
+            "short" | "int16" => Self::I16,
+            "ushort" | "uint16" => Self::U16,
+            "int" | "int32" => Self::I32,
+            "uint" | "uint32" => Self::U32,
+            "float" | "float32" => Self::F32,
+            "double" | "float64" => Self::F64,
+            _ => return None,
+        })
+    }
+
+    /// Bytes of one value.
+    pub fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+
+    /// The value at the start of `b` (at least [`PlyScalar::size`] bytes), little- or
+    /// big-endian.
+    pub fn read(self, b: &[u8], little_endian: bool) -> f64 {
+        fn bytes<const N: usize>(b: &[u8], little_endian: bool) -> [u8; N] {
+            let mut a = [0u8; N];
+            a.copy_from_slice(&b[..N]);
+            if !little_endian {
+                a.reverse();
+            }
+            a
+        }
+        let le = little_endian;
+        match self {
+            Self::I8 => f64::from(b[0] as i8),
+            Self::U8 => f64::from(b[0]),
+            Self::I16 => f64::from(i16::from_le_bytes(bytes(b, le))),
+            Self::U16 => f64::from(u16::from_le_bytes(bytes(b, le))),
+            Self::I32 => f64::from(i32::from_le_bytes(bytes(b, le))),
+            Self::U32 => f64::from(u32::from_le_bytes(bytes(b, le))),
+            Self::F32 => f64::from(f32::from_le_bytes(bytes(b, le))),
+            Self::F64 => f64::from_le_bytes(bytes(b, le)),
+        }
+    }
+}
 
 /// Writes `points` with one RGB colour each as a binary PLY point cloud.
 pub fn write_point_ply(path: &Path, points: &[Vec3], colors: &[[u8; 3]]) -> Result<(), BodyError> {
@@ -45,5 +118,29 @@ mod tests {
         let body = bytes.len() - (text.find("end_header\n").unwrap() + "end_header\n".len());
         assert_eq!(body, 30);
         assert_eq!(&bytes[bytes.len() - 3..], &[4, 5, 6]);
+    }
+}
+
+#[cfg(test)]
+mod scalar_tests {
+    use super::PlyScalar;
+
+    #[test]
+    fn scalars_read_in_either_byte_order() {
+        let cases: [(&str, Vec<u8>, f64); 5] = [
+            ("char", vec![0xFE], -2.0),
+            ("ushort", 513u16.to_le_bytes().to_vec(), 513.0),
+            ("int", (-70_000i32).to_le_bytes().to_vec(), -70_000.0),
+            ("float", 1.5f32.to_le_bytes().to_vec(), 1.5),
+            ("double", (-0.25f64).to_le_bytes().to_vec(), -0.25),
+        ];
+        for (name, le, value) in cases {
+            let t = PlyScalar::parse(name).unwrap();
+            assert_eq!(t.size(), le.len(), "{name}");
+            assert_eq!(t.read(&le, true), value, "{name}");
+            let be: Vec<u8> = le.iter().rev().copied().collect();
+            assert_eq!(t.read(&be, false), value, "{name}");
+        }
+        assert_eq!(PlyScalar::parse("half"), None);
     }
 }

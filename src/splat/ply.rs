@@ -8,7 +8,7 @@
 //! model id in a `comment lhmpp body_model <id>` header line.
 
 use super::gaussians::{sh_coeff_count, GaussianError, Gaussians, MAX_SH_DEGREE};
-use crate::body::{SkinWeights, MAX_INFLUENCES};
+use crate::body::{PlyScalar, SkinWeights, MAX_INFLUENCES};
 use glam::{Quat, Vec3};
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -200,61 +200,10 @@ pub fn read_ply(path: &Path) -> Result<PlyGaussians, PlyError> {
     read_ply_from(BufReader::new(file), path)
 }
 
-/// A scalar PLY property type.
-#[derive(Debug, Clone, Copy)]
-enum Scalar {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    F32,
-    F64,
-}
-
-impl Scalar {
-    fn parse(s: &str) -> Option<Self> {
-        Some(match s {
-            "char" | "int8" => Self::I8,
-            "uchar" | "uint8" => Self::U8,
-            "short" | "int16" => Self::I16,
-            "ushort" | "uint16" => Self::U16,
-            "int" | "int32" => Self::I32,
-            "uint" | "uint32" => Self::U32,
-            "float" | "float32" => Self::F32,
-            "double" | "float64" => Self::F64,
-            _ => return None,
-        })
-    }
-
-    fn size(self) -> usize {
-        match self {
-            Self::I8 | Self::U8 => 1,
-            Self::I16 | Self::U16 => 2,
-            Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::F64 => 8,
-        }
-    }
-
-    fn read(self, b: &[u8]) -> f32 {
-        match self {
-            Self::I8 => b[0] as i8 as f32,
-            Self::U8 => b[0] as f32,
-            Self::I16 => i16::from_le_bytes([b[0], b[1]]) as f32,
-            Self::U16 => u16::from_le_bytes([b[0], b[1]]) as f32,
-            Self::I32 => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
-            Self::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
-            Self::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-            Self::F64 => f64::from_le_bytes(b[..8].try_into().expect("8 bytes")) as f32,
-        }
-    }
-}
-
 /// The parsed header: vertex count, properties (name, type, byte offset), record size.
 struct Header {
     count: usize,
-    properties: Vec<(String, Scalar, usize)>,
+    properties: Vec<(String, PlyScalar, usize)>,
     stride: usize,
     body_model: Option<String>,
 }
@@ -328,7 +277,7 @@ fn parse_header<R: BufRead>(r: &mut R, path: &Path) -> Result<Header, PlyError> 
             }
             ["property", ty, name] => {
                 if element.as_deref() == Some("vertex") {
-                    let scalar = Scalar::parse(ty)
+                    let scalar = PlyScalar::parse(ty)
                         .ok_or_else(|| bad(format!("property `{name}` has unknown type `{ty}`")))?;
                     header
                         .properties
@@ -437,8 +386,8 @@ pub fn read_ply_from<R: BufRead>(mut r: R, path: &Path) -> Result<PlyGaussians, 
     };
     let mut skin = skin_cols.as_ref().map(|_| SkinWeights::default());
     for rec in body.chunks_exact(header.stride.max(1)).take(n) {
-        let get = |(t, o): (Scalar, usize)| t.read(&rec[o..]);
-        let v3 = |c: &[(Scalar, usize)]| Vec3::new(get(c[0]), get(c[1]), get(c[2]));
+        let get = |(t, o): (PlyScalar, usize)| t.read(&rec[o..], true) as f32;
+        let v3 = |c: &[(PlyScalar, usize)]| Vec3::new(get(c[0]), get(c[1]), get(c[2]));
         g.positions.push(v3(&pos));
         g.scales.push(v3(&scale).to_array().map(f32::exp).into());
         let q = Quat::from_xyzw(get(rot[1]), get(rot[2]), get(rot[3]), get(rot[0]));

@@ -6,42 +6,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use crate::body::BodyError;
-
-/// Byte size of a PLY scalar type, or `None` if unknown.
-fn type_size(t: &str) -> Option<usize> {
-    match t {
-        "char" | "uchar" | "int8" | "uint8" => Some(1),
-        "short" | "ushort" | "int16" | "uint16" => Some(2),
-        "int" | "uint" | "int32" | "uint32" | "float" | "float32" => Some(4),
-        "double" | "float64" => Some(8),
-        _ => None,
-    }
-}
-
-/// Decodes one scalar of type `t` from `b` (exactly its size).
-fn decode(t: &str, b: &[u8], little: bool) -> f64 {
-    macro_rules! get {
-        ($ty:ty) => {{
-            let a = b.try_into().unwrap_or_default();
-            if little {
-                <$ty>::from_le_bytes(a) as f64
-            } else {
-                <$ty>::from_be_bytes(a) as f64
-            }
-        }};
-    }
-    match t {
-        "char" | "int8" => b[0] as i8 as f64,
-        "uchar" | "uint8" => b[0] as f64,
-        "short" | "int16" => get!(i16),
-        "ushort" | "uint16" => get!(u16),
-        "int" | "int32" => get!(i32),
-        "uint" | "uint32" => get!(u32),
-        "float" | "float32" => get!(f32),
-        _ => get!(f64),
-    }
-}
+use crate::body::{BodyError, PlyScalar};
 
 /// Reads the `x y z` of every vertex of the PLY file at `path`.
 pub fn read_ply_points(path: &Path) -> Result<Vec<Vec3>, BodyError> {
@@ -134,10 +99,10 @@ pub fn read_ply_points(path: &Path) -> Result<Vec<Vec3>, BodyError> {
         let mut offsets = Vec::with_capacity(props.len());
         let mut stride = 0;
         for (t, name) in &props {
-            let size = type_size(t)
+            let scalar = PlyScalar::parse(t)
                 .ok_or_else(|| bad(format!("property `{name}` has unknown type `{t}`")))?;
-            offsets.push((stride, size));
-            stride += size;
+            offsets.push((stride, scalar));
+            stride += scalar.size();
         }
         let data = &bytes[body.min(bytes.len())..];
         if data.len() < n * stride {
@@ -149,8 +114,8 @@ pub fn read_ply_points(path: &Path) -> Result<Vec<Vec3>, BodyError> {
         }
         for row in data.chunks_exact(stride).take(n) {
             let get = |k: usize| {
-                let (o, s) = offsets[k];
-                decode(&props[k].0, &row[o..o + s], little) as f32
+                let (o, scalar) = offsets[k];
+                scalar.read(&row[o..], little) as f32
             };
             points.push(Vec3::new(get(axes[0]), get(axes[1]), get(axes[2])));
         }
