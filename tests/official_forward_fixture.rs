@@ -199,6 +199,39 @@ fn a_wrong_replay_of_the_official_draws_fails_the_comparison() {
 }
 
 #[test]
+fn frame_blocks_wired_to_the_wrong_levels_fail_the_comparison() {
+    // The weights of frame blocks 1 and 2 swapped: the second and third multi-modal levels
+    // read the wrong frame block, and the decoder merges on the wrong block's keys.
+    let cfg = fixture_config();
+    let weights =
+        tensor_file::read_safetensors(&dir().join("model.safetensors"), &Device::Cpu).unwrap();
+    let prefix = |i: usize| format!("transformer.image_backbone.frame_blocks.{i}.");
+    let swapped: HashMap<String, Tensor> = weights
+        .into_iter()
+        .map(|(k, v)| {
+            let k = if let Some(rest) = k.strip_prefix(&prefix(1)) {
+                prefix(2) + rest
+            } else if let Some(rest) = k.strip_prefix(&prefix(2)) {
+                prefix(1) + rest
+            } else {
+                k
+            };
+            (k, v.to_dtype(DType::F32).unwrap())
+        })
+        .collect();
+    let vb = candle_nn::VarBuilder::from_tensors(swapped, DType::F32, &Device::Cpu);
+    let m = Lhmpp::new(&cfg, vb).unwrap();
+    let io = io();
+    let draws = ForwardDraws::from_tensors(&io).unwrap();
+    let w = worst(
+        &forward(&m, &io, &draws),
+        &io,
+        "frame blocks 1 and 2 swapped",
+    );
+    assert!(w > LIMIT, "swapped frame blocks: {w:.2e} passes");
+}
+
+#[test]
 fn lhmpp_model_forward_reads_bool_masks_and_draws_and_writes_every_output() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg_path = tmp.path().join("config.json");

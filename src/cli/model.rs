@@ -43,8 +43,9 @@ enum ModelCommand {
     },
     /// Compare our blocks with PyTorch reference fixtures (scripts/parity): max abs / rel error.
     Parity(super::model_parity::ParityArgs),
-    /// Run the whole network on `images`, `anchors`, `normals` from a safetensors file and
-    /// write the Gaussian-head outputs (parity with the PyTorch twin, scripts/train).
+    /// Run the whole network on `images`, `anchors`, `normals` (optional part masks, official
+    /// draws to replay, a feature image) from a safetensors file and write every output
+    /// (parity with the PyTorch twin and the official code; names in docs/model-forward.md).
     Forward(model_forward::ForwardArgs),
 }
 

@@ -25,7 +25,7 @@ pub struct ForwardArgs {
     #[arg(long, required_unless_present = "dump_anchors")]
     checkpoint: Option<String>,
     /// Preset (default: the one in the checkpoint's metadata, else `tiny`).
-    #[arg(long)]
+    #[arg(long, alias = "config")]
     preset: Option<String>,
     /// Our network config as JSON (`LhmppConfig`), for a safetensors file at widths that no
     /// preset or official config.json expresses (the official fixture's reduced DINOv2 and DPT).
