@@ -100,6 +100,18 @@ fn node_reconstructs_frames_from_a_cyclonedds_peer_and_publishes_avatars_and_ren
     let status = wait_timeout(&mut node.0, Duration::from_secs(30));
     assert_eq!(status, Some(0), "node exit status; summary: {summary}");
     assert!(summary.contains("reconstructions"), "{summary}");
+    println!("node summary: {summary}");
+    // The peer's bad-step frames are in the summary's rejections, by reason.
+    let rejected = summary
+        .split("rejected messages ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .unwrap_or_else(|| panic!("no rejections in the summary: {summary}"));
+    assert!(
+        rejected.ends_with(&format!("(image {})", rejected.split(' ').next().unwrap())),
+        "only bad images, at least one: {rejected}"
+    );
+    assert!(!rejected.starts_with('0'), "{summary}");
 }
 
 fn wait_timeout(child: &mut Child, limit: Duration) -> Option<i32> {

@@ -197,10 +197,13 @@ fn run_live(
     stop: &AtomicBool,
     clock: &impl Fn() -> Duration,
 ) {
-    while !stop.load(Ordering::SeqCst) {
+    let sync = |pipeline: &mut Pipeline| {
         if let Some(node) = inputs {
             pipeline.set_input_rejections(node.input_stats().rejections);
         }
+    };
+    while !stop.load(Ordering::SeqCst) {
+        sync(pipeline);
         let now = clock();
         let wait = pipeline
             .next_deadline()
@@ -212,6 +215,8 @@ fn run_live(
         }
         pipeline.step(clock(), clock);
     }
+    // The run summary counts what the subscriptions rejected up to the stop.
+    sync(pipeline);
 }
 
 /// Plays the bag into the pipeline (paced by `rate`, or as fast as consumed when 0), counting
