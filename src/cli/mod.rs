@@ -75,6 +75,20 @@ pub struct ExitStatus {
     pub message: String,
 }
 
+/// The error and its causes on one line (`a: b: c`), leaving out a cause that the message
+/// before it already ends with (errors that print their source, as most here do).
+pub fn error_line(error: &anyhow::Error) -> String {
+    let mut line = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !line.ends_with(&cause) {
+            line.push_str(": ");
+            line.push_str(&cause);
+        }
+    }
+    line
+}
+
 /// The exit status for an error returned by [`main`]: an [`ExitStatus`]'s code, else 1.
 pub fn exit_code(error: &anyhow::Error) -> u8 {
     error.downcast_ref::<ExitStatus>().map_or(1, |s| s.code)
