@@ -248,3 +248,38 @@ fn a_damaged_bag_replays_the_other_views_and_the_summary_says_what_was_skipped()
     );
     assert!(stdout.contains(&expected), "{stdout}");
 }
+
+#[test]
+fn rejections_reach_the_status_within_a_second_without_a_state_change() {
+    let text = NodeConfig::default().to_param_file();
+    let cfg =
+        NodeConfig::from_yaml(&text, "<defaults>".as_ref(), &["outputs.dir=''".into()]).unwrap();
+    let statuses = Statuses::default();
+    let mut pipeline = Pipeline::new(&cfg, Some(Box::new(statuses.clone()))).unwrap();
+    let at = |ms: u64| std::time::Duration::from_millis(ms);
+    pipeline.step(at(0), || at(0));
+    assert!(statuses.0.lock().unwrap().is_empty(), "nothing to say yet");
+    pipeline.reject("/camera/image_raw", RejectReason::Cdr, "garbage");
+    pipeline.step(at(10), || at(10));
+    pipeline.reject("/camera/image_raw", RejectReason::Image, "step");
+    pipeline.step(at(500), || at(500));
+    pipeline.step(at(1010), || at(1010));
+    pipeline.step(at(1500), || at(1500));
+    let sent = statuses.0.lock().unwrap().clone();
+    let counts: Vec<(Vec<String>, Vec<u64>)> = sent
+        .iter()
+        .map(|s| (s.rejected_reasons.clone(), s.rejected_counts.clone()))
+        .collect();
+    let names = |n: &[&str]| n.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    assert_eq!(
+        counts,
+        [
+            (names(&["cdr"]), vec![1]),
+            (names(&["cdr", "image"]), vec![1, 1])
+        ],
+        "one status at the first rejection, the next a second later, none without news"
+    );
+    assert!(sent
+        .iter()
+        .all(|s| s.state == ReconstructionStatus::STATE_IDLE && s.revision == 0));
+}

@@ -42,6 +42,8 @@ const MASKS_KEPT: usize = 32;
 const MASK_WAIT: Duration = Duration::from_millis(150);
 /// Latencies kept for the summary.
 const LATENCIES_KEPT: usize = 256;
+/// Shortest time between statuses republished only because the rejection counts changed.
+const STATUS_REFRESH: Duration = Duration::from_secs(1);
 
 /// A new avatar revision as handed to publishers.
 pub struct AvatarUpdate<'a> {
@@ -166,6 +168,10 @@ pub struct Pipeline {
     stats: PipelineStats,
     /// Rejections counted by the live subscriptions, as last reported.
     input_rejections: Rejections,
+    /// The last status published, republished with new counts when only they change.
+    last_status: Option<ReconstructionStatus>,
+    /// When rejections may next republish the status (node clock).
+    status_refresh_due: Duration,
 }
 
 /// Errors that stop the pipeline from starting.
@@ -272,6 +278,8 @@ impl Pipeline {
             neural_renderer_id,
             stats: PipelineStats::default(),
             input_rejections: Rejections::default(),
+            last_status: None,
+            status_refresh_due: Duration::ZERO,
         })
     }
 
@@ -523,6 +531,61 @@ impl Pipeline {
                 self.next_preview = now + period;
             }
         }
+        self.refresh_status(now);
+    }
+
+    /// Republishes the status (the last one, or an idle one before any) when the rejection
+    /// counts changed, at most once per [`STATUS_REFRESH`], so they show without a state
+    /// change.
+    fn refresh_status(&mut self, now: Duration) {
+        if self.publisher.is_none() || now < self.status_refresh_due {
+            return;
+        }
+        let (reasons, counts) = self.rejection_fields();
+        let Some(mut msg) = self.last_status.clone().or_else(|| {
+            (!counts.is_empty()).then(|| {
+                let state = if self.views_held() == 0 {
+                    ReconstructionStatus::STATE_IDLE
+                } else {
+                    ReconstructionStatus::STATE_WAITING
+                };
+                let render_ms = self.stats.last_render_ms;
+                let views = self.views_held();
+                status_message(
+                    &self.person,
+                    views,
+                    self.revision(),
+                    0.0,
+                    render_ms,
+                    state,
+                    "",
+                    0,
+                )
+            })
+        }) else {
+            return;
+        };
+        if msg.rejected_counts == counts && msg.rejected_reasons == reasons {
+            return;
+        }
+        (msg.rejected_reasons, msg.rejected_counts) = (reasons, counts);
+        self.status_refresh_due = now + STATUS_REFRESH;
+        self.send_status(msg);
+    }
+
+    /// The rejection counts as `ReconstructionStatus` carries them.
+    fn rejection_fields(&self) -> (Vec<String>, Vec<u64>) {
+        self.rejections()
+            .nonzero()
+            .map(|(r, n)| (r.as_str().to_owned(), n))
+            .unzip()
+    }
+
+    fn send_status(&mut self, msg: ReconstructionStatus) {
+        if let Some(p) = &self.publisher {
+            p.status(msg.clone());
+            self.last_status = Some(msg);
+        }
     }
 
     /// Poses the avatar at the pose the frames use and hands it to the publishers' preview.
@@ -661,30 +724,24 @@ impl Pipeline {
     }
 
     fn publish_status(
-        &self,
+        &mut self,
         revision: u64,
         latency_ms: f64,
         state: u8,
         message: impl Into<String>,
     ) {
-        if let Some(p) = &self.publisher {
-            let mut msg = status_message(
-                &self.person,
-                self.views_held(),
-                revision,
-                latency_ms,
-                self.stats.last_render_ms,
-                state,
-                message,
-                0,
-            );
-            (msg.rejected_reasons, msg.rejected_counts) = self
-                .rejections()
-                .nonzero()
-                .map(|(r, n)| (r.as_str().to_owned(), n))
-                .unzip();
-            p.status(msg);
-        }
+        let mut msg = status_message(
+            &self.person,
+            self.views_held(),
+            revision,
+            latency_ms,
+            self.stats.last_render_ms,
+            state,
+            message,
+            0,
+        );
+        (msg.rejected_reasons, msg.rejected_counts) = self.rejection_fields();
+        self.send_status(msg);
     }
 
     fn publish_frames(&mut self, now: Duration) {
