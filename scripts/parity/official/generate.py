@@ -187,6 +187,12 @@ def main():
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--points", type=int, help="query points (default: per size)")
     ap.add_argument("--image", help="view size HxW (default: per size; multiples of 14)")
+    ap.add_argument(
+        "--patch-divisor",
+        type=int,
+        default=1,
+        help="divide the PTv3 attention patch sizes by this (more patches per stage in less memory)",
+    )
     ap.add_argument("--feature-image", help="feature image HxW (default: per size; multiples of 7)")
     ap.add_argument(
         "--threads", type=int, default=1, help="torch threads (spconv always runs on one)"
@@ -204,6 +210,9 @@ def main():
     torch.set_num_threads(args.threads)
 
     cfg = edit(json.loads(RELEASED.read_text()))
+    pb = cfg["transformer_decoder"]["point_backbone"]
+    for key in ("enc_patch_size", "dec_patch_size"):
+        pb[key] = [p // args.patch_divisor for p in pb[key]]
     # The ArcFace identity net is a training loss (it loads its own weights file); off.
     cfg["use_face_id"] = False
     model = build(copy.deepcopy(cfg), args.seed, args.size == "small")  # it pops keys
