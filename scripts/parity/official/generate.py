@@ -258,7 +258,7 @@ def main():
     gs = gs[0]
     print(f"official forward {forward_s:.1f} s, neural renderer {neural_s:.1f} s", flush=True)
 
-    def ours(t, layout):
+    def ours(t):
         # Official [1, V, H, W, c] -> ours [V, c, H, W].
         return t.reshape(-1, fh, fw, t.shape[-1]).permute(0, 3, 1, 2).contiguous()
 
@@ -291,10 +291,9 @@ def main():
         "rotations": gs.rotation.contiguous(),
         "opacities": gs.opacity.contiguous(),
         "colors": gs.shs.reshape(n, 3).contiguous(),
-        "neural_rgb": ours(rgb, "rgb"),
-        "neural_mask": ours(mask, "mask"),
+        "neural_rgb": ours(rgb),
+        "neural_mask": ours(mask),
     }
-    sk = model.transformer.point_backbone
     meta = {
         "size": args.size,
         "seed": args.seed,
