@@ -1,10 +1,13 @@
 //! LHM++ streaming human-avatar reconstruction node.
 //!
 //! Data flows one way:
-//! `node` (messages in) → frame store → `model` (reconstruction) → `avatar` → `splat`
-//! (render) → `node` / `transport` / `bag` (publish, record).
+//! `node` (messages in) → `reconstruct` (decode, preprocess) → frame store → `reconstruct`
+//! (`Reconstructor`: `model` + `body`) → `avatar` → `splat` (render) → `node` / `transport` /
+//! `bag` (publish, record).
 //!
-//! `body`, `model` and `splat` are synchronous and never import `node`, `transport` or `bag`.
+//! [`reconstruct`] is the synchronous "frames → avatar" API that the node, [`eval`] and the
+//! tests share. `reconstruct`, `body`, `model` and `splat` are synchronous and never import
+//! `node`, `transport` or `bag`.
 
 pub mod avatar;
 pub mod bag;
@@ -14,6 +17,7 @@ pub mod eval;
 pub mod model;
 pub mod msgs;
 pub mod node;
+pub mod reconstruct;
 pub mod splat;
 pub mod synth;
 pub mod transport;

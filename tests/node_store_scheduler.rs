@@ -4,8 +4,8 @@
 
 use image::{Rgb, RgbImage};
 use lhmpp::node::frame_store::{thumbnail_embedding, FrameStore, StoreLimits, View};
-use lhmpp::node::preprocess::{preprocess, BBox, PreprocessConfig, Subject};
 use lhmpp::node::scheduler::{Scheduler, SchedulerConfig};
+use lhmpp::reconstruct::preprocess::{preprocess, BBox, PreprocessConfig, Subject};
 use std::sync::Arc;
 use std::time::Duration;
 

@@ -12,7 +12,7 @@ use std::time::Instant;
 use lhmpp::config::ModelConfig;
 use lhmpp::model::dpt::NeuralRenderer;
 use lhmpp::model::hub;
-use lhmpp::node::pipeline::reconstructor::Reconstructor;
+use lhmpp::reconstruct::Reconstructor;
 
 /// Official LHMPP-700M state-dict keys and shapes (converted from the reference enumeration).
 const OFFICIAL_KEYS: &str = include_str!("fixtures/lhmpp_700m_state_dict_keys.tsv");

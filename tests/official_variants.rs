@@ -15,8 +15,8 @@ use lhmpp::config::ModelConfig;
 use lhmpp::model::checkpoint::{expected_tensors, init_checkpoint, IGNORED_PREFIXES};
 use lhmpp::model::hub::{self, HubFolder};
 use lhmpp::model::{Lhmpp, LhmppConfig, RgbKind};
-use lhmpp::node::pipeline::reconstructor::Reconstructor;
-use lhmpp::node::pipeline::shape::AcceptedShape;
+use lhmpp::reconstruct::shape::AcceptedShape;
+use lhmpp::reconstruct::Reconstructor;
 
 use serde_json::json;
 

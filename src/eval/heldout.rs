@@ -7,10 +7,10 @@ use crate::bag::{BagError, BagReader};
 use crate::body::Pose;
 use crate::config::ModelConfig;
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, Image, TFMessage};
-use crate::node::image_decode::{decode_raw, RawImage};
-use crate::node::pipeline::reconstructor::{ReconstructError, Reconstructor};
-use crate::node::pipeline::shape::check_shape;
-use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::reconstruct::image_decode::{decode_raw, RawImage};
+use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::reconstruct::shape::check_shape;
+use crate::reconstruct::{ReconstructError, Reconstructor};
 use crate::splat::{render, Camera, RenderOptions};
 use crate::synth::capture::{
     image_topic, info_topic, mask_topic, POSE_TOPIC, SHAPE_TOPIC, TF_STATIC_TOPIC,

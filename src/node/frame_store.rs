@@ -9,7 +9,7 @@
 //!
 //! Every change of a person's set bumps its `version`, which the scheduler watches.
 
-use crate::node::preprocess::Preprocessed;
+use crate::reconstruct::preprocess::Preprocessed;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
@@ -314,7 +314,7 @@ mod tests {
             height: 2,
             width: 2,
             chw: vec![0.5; 12],
-            region: crate::node::preprocess::BBox {
+            region: crate::reconstruct::preprocess::BBox {
                 x0: 0,
                 y0: 0,
                 x1: 2,

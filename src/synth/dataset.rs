@@ -12,7 +12,7 @@ use super::random_pose::grounded_random_pose;
 use super::scene::{Rig, RigCamera};
 use crate::avatar::Avatar;
 use crate::body::{motion, Pose, MAKEHUMAN_MODEL_ID};
-use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::splat::{render, Camera, Gaussians, RenderOptions};
 use glam::{Affine3A, Quat, Vec3};
 use image::{GrayImage, RgbImage};
@@ -107,7 +107,7 @@ pub const HIDDEN_ANCHOR: u16 = u16::MAX;
 /// An input view as rendered before preprocessing, kept to locate the anchors in it.
 struct RenderedInput {
     camera: Camera,
-    region: crate::node::preprocess::BBox,
+    region: crate::reconstruct::preprocess::BBox,
     width: u32,
     height: u32,
     alpha: Vec<f32>,

@@ -262,7 +262,7 @@ pub fn write_tensors(
 
 /// A small encoder input: white with a coloured block moved right by `shift` pixels (RGB in
 /// [0, 1], channel-major).
-pub fn view(size: u32, shift: usize) -> lhmpp::node::preprocess::Preprocessed {
+pub fn view(size: u32, shift: usize) -> lhmpp::reconstruct::preprocess::Preprocessed {
     let s = size as usize;
     let mut chw = vec![1.0f32; 3 * s * s];
     for c in 0..3 {
@@ -272,11 +272,11 @@ pub fn view(size: u32, shift: usize) -> lhmpp::node::preprocess::Preprocessed {
             }
         }
     }
-    lhmpp::node::preprocess::Preprocessed {
+    lhmpp::reconstruct::preprocess::Preprocessed {
         height: size,
         width: size,
         chw,
-        region: lhmpp::node::preprocess::BBox {
+        region: lhmpp::reconstruct::preprocess::BBox {
             x0: 0,
             y0: 0,
             x1: i64::from(size),

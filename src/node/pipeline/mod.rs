@@ -5,25 +5,23 @@
 pub mod masks;
 pub mod neural_frames;
 pub mod outputs;
-pub mod reconstructor;
 pub mod render;
-pub mod shape;
 
 use crate::avatar::Avatar;
 use crate::body::Pose;
 use crate::config::NodeConfig;
 use crate::msgs::{BodyShape, ReconstructionStatus};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
-use crate::node::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::ros::{CameraFrame, InputEvent};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
+use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::reconstruct::{shape, ReconstructError, Reconstructor};
 use crate::splat::Gaussians;
 use image::GrayImage;
 use masks::{MaskPairing, Paired};
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
 use outputs::{status_message, FileOutputs};
-use reconstructor::{ReconstructError, Reconstructor};
 pub use render::RenderedFrame;
 use render::{
     display_pose, render_frames, FrameRasterizer, FrameRasterizerError, FrameRenderer,
@@ -647,7 +645,7 @@ impl Pipeline {
             ReconstructionStatus::STATE_RECONSTRUCTING,
             "reconstructing",
         );
-        let views: Vec<(u64, &crate::node::preprocess::Preprocessed)> = set
+        let views: Vec<(u64, &crate::reconstruct::preprocess::Preprocessed)> = set
             .views
             .iter()
             .map(|v| (v.frame_id, v.image.as_ref()))

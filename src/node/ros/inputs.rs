@@ -2,7 +2,7 @@
 //! all delivered as [`InputEvent`]s through one bounded queue.
 
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image};
-use crate::node::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
+use crate::reconstruct::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
 use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 use std::time::Duration;

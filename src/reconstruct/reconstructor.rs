@@ -1,7 +1,8 @@
-//! The reconstruction step of the node: owns the network, the per-view token cache and the
+//! The reconstruction step: owns the network, the per-view token cache and the
 //! anchor points on the body template (shaped by the latest accepted body shape), and turns a
 //! set of held views into an [`Avatar`].
 
+use super::preprocess::Preprocessed;
 use super::shape::AcceptedShape;
 use crate::avatar::Avatar;
 use crate::body::official::{OfficialPrior, PriorPaths, SMPLX_MODEL_ID};
@@ -17,7 +18,6 @@ use crate::model::dpt::{DptConfig, NeuralRenderer};
 use crate::model::hub::load_checkpoint;
 use crate::model::rgb_kind::LATENT_RGB_RENDERER_TYPE;
 use crate::model::{Lhmpp, LhmppConfig, RgbKind};
-use crate::node::preprocess::Preprocessed;
 use crate::splat::Gaussians;
 use candle_core::{DType, Device, Tensor};
 use glam::{Quat, Vec3};

@@ -1,0 +1,14 @@
+//! The synchronous "frames → avatar" API, independent of ROS: decode camera images
+//! ([`image_decode`]), crop and resize them around the person ([`preprocess`]), check body
+//! shapes against the body model ([`shape`]) and turn a set of views into an animatable
+//! [`Avatar`](crate::avatar::Avatar) with the network ([`Reconstructor`]).
+//!
+//! The node (`crate::node`), the held-out evaluation (`crate::eval`), the synthetic data sets
+//! and the official-checkpoint tests all reconstruct through this module.
+
+pub mod image_decode;
+pub mod preprocess;
+pub mod reconstructor;
+pub mod shape;
+
+pub use reconstructor::{select_device, ReconstructError, Reconstructor};
