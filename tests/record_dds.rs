@@ -53,7 +53,7 @@ fn write_config(dir: &Path, domain: u16) -> PathBuf {
     cfg.inputs.camera_info_topics = Vec::new();
     cfg.inputs.mask_topic = String::new();
     cfg.inputs.pose_topic = "body_pose".into();
-    cfg.inputs.image_qos = "reliable".into();
+    cfg.inputs.image_qos = lhmpp::config::ImageQos::Reliable;
     let path = dir.join("record.yaml");
     std::fs::write(&path, cfg.to_param_file()).unwrap();
     path

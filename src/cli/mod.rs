@@ -37,7 +37,8 @@ struct Cli {
 enum Command {
     /// Run the node: live ROS 2 topics, or replay a bag (`run --config launch_configs/demo.yaml`).
     Run(run::RunArgs),
-    /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters.
+    /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters
+    /// (`--markdown`: the parameter reference table).
     Config(config_cmd::ConfigArgs),
     /// Play a bag into the node as if live (`replay BAG [--rate X | --fast]`).
     Replay(replay::ReplayArgs),

@@ -5,7 +5,7 @@ use super::config_source::ConfigSource;
 use anyhow::{Context, Result};
 use lhmpp::bag::{BagWriter, BagWriterOptions};
 use lhmpp::node::record::{self, RecordOptions};
-use lhmpp::node::ros::{InputQos, ResolvedTopics, RosNodeOptions};
+use lhmpp::node::ros::{ResolvedTopics, RosNodeOptions};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::PathBuf;
@@ -50,8 +50,10 @@ pub fn run(args: RecordArgs) -> Result<()> {
         ros = ros.loopback_only();
     }
     let resolved = ResolvedTopics::from_options(&ros)?;
-    let image_qos = InputQos::parse(&config.inputs.image_qos)?;
-    let topics = record::select(record::plan(&resolved, image_qos), &args.topics)?;
+    let topics = record::select(
+        record::plan(&resolved, config.inputs.image_qos),
+        &args.topics,
+    )?;
     let options = RecordOptions {
         flush_interval: Duration::from_secs(1),
         progress_period: seconds(args.progress, "--progress")?,

@@ -13,13 +13,14 @@
 //! subscribes with, which is the QoS the node uses on that topic.
 
 use crate::bag::{self, BagError, BagWriter};
+use crate::config::ImageQos;
 use crate::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus,
     RosMessage,
 };
 use crate::node::names::split_fully_qualified;
 use crate::node::ros::{
-    create_context, frame_output_qos, latched_output_qos, reliable_input_qos, InputQos,
+    create_context, frame_output_qos, image_input_qos, latched_output_qos, reliable_input_qos,
     ParticipantOptions, ResolvedTopics, RosError,
 };
 use futures::StreamExt;
@@ -125,7 +126,7 @@ fn bag_qos(qos: &QosProfile) -> bag::QosProfile {
 
 /// Every topic the node uses, with the QoS the node uses on it: inputs first (images, compressed
 /// images, camera infos, masks, pose, shape), then outputs (avatar, status, rendered frames).
-pub fn plan(topics: &ResolvedTopics, image_qos: InputQos) -> Vec<RecordTopic> {
+pub fn plan(topics: &ResolvedTopics, image_qos: ImageQos) -> Vec<RecordTopic> {
     let topic = |name: &str, kind, qos| RecordTopic {
         name: name.to_owned(),
         kind,
@@ -133,19 +134,23 @@ pub fn plan(topics: &ResolvedTopics, image_qos: InputQos) -> Vec<RecordTopic> {
     };
     let mut out = Vec::new();
     for t in &topics.images {
-        out.push(topic(t, RecordType::Image, image_qos.profile()));
+        out.push(topic(t, RecordType::Image, image_input_qos(image_qos)));
     }
     for t in &topics.compressed_images {
-        out.push(topic(t, RecordType::CompressedImage, image_qos.profile()));
+        out.push(topic(
+            t,
+            RecordType::CompressedImage,
+            image_input_qos(image_qos),
+        ));
     }
     for t in &topics.camera_infos {
         out.push(topic(t, RecordType::CameraInfo, reliable_input_qos()));
     }
     if let Some(t) = &topics.mask {
-        out.push(topic(t, RecordType::Image, image_qos.profile()));
+        out.push(topic(t, RecordType::Image, image_input_qos(image_qos)));
     }
     for (t, _) in &topics.camera_masks {
-        out.push(topic(t, RecordType::Image, image_qos.profile()));
+        out.push(topic(t, RecordType::Image, image_input_qos(image_qos)));
     }
     if let Some(t) = &topics.pose {
         out.push(topic(t, RecordType::BodyPose, reliable_input_qos()));
@@ -500,7 +505,7 @@ mod tests {
 
     #[test]
     fn plan_covers_inputs_and_outputs_with_the_nodes_qos() {
-        let p = plan(&topics(), InputQos::SensorData);
+        let p = plan(&topics(), ImageQos::SensorData);
         let names: Vec<_> = p.iter().map(|t| t.name.as_str()).collect();
         assert_eq!(
             names,
@@ -532,7 +537,7 @@ mod tests {
 
     #[test]
     fn selecting_an_unknown_topic_names_it_and_the_known_ones() {
-        let p = plan(&topics(), InputQos::Reliable);
+        let p = plan(&topics(), ImageQos::Reliable);
         let kept = select(p.clone(), &["/pose".into(), "/avatar".into()]).unwrap();
         assert_eq!(kept.len(), 2);
         let e = select(p, &["/nope".into()]).unwrap_err().to_string();

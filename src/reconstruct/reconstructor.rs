@@ -7,7 +7,7 @@ use super::shape::AcceptedShape;
 use crate::avatar::Avatar;
 use crate::body::official::{OfficialPrior, PriorPaths, SMPLX_MODEL_ID};
 use crate::body::{BodyTemplate, SkinWeights, MAKEHUMAN_MODEL_ID};
-use crate::config::ModelConfig;
+use crate::config::{ComputeDevice, ModelConfig};
 use crate::model::cache::ViewTokenCache;
 use crate::model::checkpoint::seeded_var_builder;
 use crate::model::default_weights::{
@@ -49,34 +49,17 @@ pub enum ReconstructError {
     NoViews,
 }
 
-/// Picks the compute device named in the config.
-pub fn select_device(name: &str) -> Result<Device, ReconstructError> {
-    if name == "cpu" {
+/// Opens the compute device named in the config.
+pub fn select_device(device: ComputeDevice) -> Result<Device, ReconstructError> {
+    let Some(index) = device.cuda_index() else {
         return Ok(Device::Cpu);
-    }
-    let index = match name.strip_prefix("cuda") {
-        Some("") => 0,
-        Some(rest) => rest
-            .strip_prefix(':')
-            .and_then(|n| n.parse().ok())
-            .ok_or_else(|| ReconstructError::Model(format!("unknown device `{name}`")))?,
-        None => return Err(ReconstructError::Model(format!("unknown device `{name}`"))),
     };
     if !candle_core::utils::cuda_is_available() {
         return Err(ReconstructError::Model(format!(
-            "device `{name}`: this binary was built without the `cuda` feature (see scripts/build-cuda)"
+            "device `{device}`: this binary was built without the `cuda` feature (see scripts/build-cuda)"
         )));
     }
-    Device::new_cuda(index).map_err(|e| ReconstructError::Model(format!("device `{name}`: {e}")))
-}
-
-fn parse_dtype(name: &str) -> Result<DType, ReconstructError> {
-    match name {
-        "f32" => Ok(DType::F32),
-        "f16" => Ok(DType::F16),
-        "bf16" => Ok(DType::BF16),
-        other => Err(ReconstructError::Model(format!("unknown dtype `{other}`"))),
-    }
+    Device::new_cuda(index).map_err(|e| ReconstructError::Model(format!("device `{device}`: {e}")))
 }
 
 /// Network + token cache + anchor points.
@@ -114,8 +97,8 @@ impl Reconstructor {
     pub fn new(config: &ModelConfig, max_views: usize) -> Result<Self, ReconstructError> {
         let mut cfg = LhmppConfig::preset(&config.preset)
             .map_err(|e| ReconstructError::Model(e.to_string()))?;
-        let device = select_device(&config.device)?;
-        let dtype = parse_dtype(&config.dtype)?;
+        let device = select_device(config.device)?;
+        let dtype = config.dtype.candle();
         // The prior first: a missing prior file fails before gigabytes of weights are read.
         let official = cfg.preset == "lhmpp-700m"
             || (!config.checkpoint.is_empty() && Path::new(&config.checkpoint).is_dir());

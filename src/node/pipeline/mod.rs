@@ -210,7 +210,7 @@ impl Pipeline {
             config.outputs.render_size,
             recon.template().height(),
         );
-        let rasterizer = FrameRasterizer::new(&config.outputs.render_device)?;
+        let rasterizer = FrameRasterizer::new(config.outputs.render_device)?;
         let neural_renderer_id = recon.neural_renderer_id();
         let decision = choose_renderer(
             config.outputs.renderer,

@@ -400,7 +400,7 @@ mod tests {
         assert_eq!(padded.intrinsics.fx, cam.intrinsics.fx);
         assert_eq!(padded.intrinsics.cx, cam.intrinsics.cx);
 
-        let mut rasterizer = FrameRasterizer::new("cpu").unwrap();
+        let mut rasterizer = FrameRasterizer::new(crate::config::RenderDevice::Cpu).unwrap();
         let out = frames.render(&mut rasterizer, &g, &[cam]);
         assert_eq!(out.len(), 1);
         let f = &out[0];

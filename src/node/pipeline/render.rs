@@ -9,6 +9,7 @@
 use super::neural_frames::NeuralFrames;
 use crate::avatar::Avatar;
 use crate::body::{motion, BodyTemplate, Pose};
+use crate::config::RenderDevice;
 #[cfg(feature = "cuda")]
 use crate::splat::cuda::{CudaRasterizer, CudaScene};
 use crate::splat::{Camera, Gaussians, Intrinsics, Rasterizer, RenderOptions, RenderOutput};
@@ -137,17 +138,18 @@ pub enum FrameRasterizer {
 
 impl FrameRasterizer {
     /// The rasteriser for `outputs.render_device` (`cpu` or `cuda`).
-    pub fn new(device: &str) -> Result<Self, FrameRasterizerError> {
+    pub fn new(device: RenderDevice) -> Result<Self, FrameRasterizerError> {
         match device {
-            "cpu" => Ok(Self::Cpu(Rasterizer::new())),
+            RenderDevice::Cpu => Ok(Self::Cpu(Rasterizer::new())),
             #[cfg(feature = "cuda")]
-            "cuda" => {
+            RenderDevice::Cuda => {
                 let dev = candle_core::Device::new_cuda(0)
                     .map_err(|e| FrameRasterizerError::Cuda(e.to_string()))?;
                 let r = CudaRasterizer::new(&dev)
                     .map_err(|e| FrameRasterizerError::Cuda(e.to_string()))?;
                 Ok(Self::Cuda(Box::new(r)))
             }
+            #[cfg(not(feature = "cuda"))]
             other => Err(FrameRasterizerError::Unsupported(other.to_string())),
         }
     }

@@ -3,7 +3,7 @@
 //! socket buffer sizes, and the QoS profiles the node uses.
 
 use super::RosError;
-use crate::config::FrameQos;
+use crate::config::{FrameQos, ImageQos};
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
 use ros2_client::qos::{Durability, History, QosProfile, Reliability, WhenFull};
 use ros2_client::Context;
@@ -62,36 +62,15 @@ pub fn create_context(opts: &ParticipantOptions) -> Result<Context, RosError> {
         .map_err(|e| RosError::Create(format!("ROS 2 context in domain {}: {e}", opts.domain_id)))
 }
 
-/// Image QoS names accepted by the config (`inputs.image_qos`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum InputQos {
-    /// `sensor_data`: best effort, volatile, keep last 5 (as rclcpp's SensorDataQoS).
-    SensorData,
-    /// `reliable`: reliable, volatile, keep last 5.
-    Reliable,
-}
-
-impl InputQos {
-    /// Parses the config value.
-    pub fn parse(name: &str) -> Result<Self, RosError> {
-        match name {
-            "sensor_data" => Ok(Self::SensorData),
-            "reliable" => Ok(Self::Reliable),
-            other => Err(RosError::Config(format!(
-                "inputs.image_qos `{other}` is not `sensor_data` or `reliable`"
-            ))),
-        }
-    }
-
-    /// The subscription QoS profile.
-    pub fn profile(self) -> QosProfile {
-        let base = QosProfile::subscription_default().history(History::KeepLast { depth: 5 });
-        match self {
-            Self::SensorData => base.reliability(Reliability::BestEffort),
-            Self::Reliable => base.reliability(Reliability::Reliable {
-                when_full: WhenFull::DEFAULT,
-            }),
-        }
+/// The image subscriptions' QoS for `inputs.image_qos`: keep last 5, volatile; best effort
+/// for `sensor_data` (as rclcpp's SensorDataQoS), reliable for `reliable`.
+pub fn image_input_qos(qos: ImageQos) -> QosProfile {
+    let base = QosProfile::subscription_default().history(History::KeepLast { depth: 5 });
+    match qos {
+        ImageQos::SensorData => base.reliability(Reliability::BestEffort),
+        ImageQos::Reliable => base.reliability(Reliability::Reliable {
+            when_full: WhenFull::DEFAULT,
+        }),
     }
 }
 
@@ -165,14 +144,11 @@ mod tests {
 
     #[test]
     fn sensor_data_is_best_effort_keep_last_5() {
-        let q = InputQos::parse("sensor_data").unwrap().profile();
+        let q = image_input_qos(ImageQos::SensorData);
         assert_eq!(q.reliability, Reliability::BestEffort);
         assert_eq!(q.history, History::KeepLast { depth: 5 });
-        let r = InputQos::parse("reliable").unwrap().profile();
+        let r = image_input_qos(ImageQos::Reliable);
         assert!(matches!(r.reliability, Reliability::Reliable { .. }));
-        assert!(InputQos::parse("fast")
-            .unwrap_err()
-            .to_string()
-            .contains("fast"));
+        assert_eq!(r.history, History::KeepLast { depth: 5 });
     }
 }

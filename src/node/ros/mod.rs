@@ -16,14 +16,14 @@ mod outputs;
 mod sink;
 
 pub use context::{
-    create_context, frame_output_qos, latched_output_qos, reliable_input_qos, resolve_domain_id,
-    InputQos, ParticipantOptions,
+    create_context, frame_output_qos, image_input_qos, latched_output_qos, reliable_input_qos,
+    resolve_domain_id, ParticipantOptions,
 };
 pub use inputs::{CameraFrame, InputEvent, MaskFrame};
 pub use outputs::{rgb8_image, OutputTopics, PublishOutcome};
 pub use sink::InputStats;
 
-use crate::config::{FrameQos, NodeConfig};
+use crate::config::{FrameQos, ImageQos, NodeConfig};
 use crate::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, PointCloud2,
     ReconstructionStatus, RosMessage, TFMessage,
@@ -48,9 +48,6 @@ pub enum RosError {
     /// The domain id (config or `ROS_DOMAIN_ID`) is invalid.
     #[error("domain id: {0}")]
     DomainId(String),
-    /// A configuration value is invalid.
-    #[error("config: {0}")]
-    Config(String),
     /// A topic name, namespace or remapping rule is invalid.
     #[error(transparent)]
     Name(#[from] NameError),
@@ -93,7 +90,7 @@ pub struct RosNodeOptions {
     /// Optional BodyShape topic.
     pub shape_topic: Option<String>,
     /// QoS of image and mask subscriptions.
-    pub image_qos: InputQos,
+    pub image_qos: ImageQos,
     /// Largest accepted image side (pixels).
     pub max_image_side: u32,
     /// Capacity of the input queue.
@@ -141,7 +138,7 @@ impl RosNodeOptions {
             mask_topics: cfg.inputs.mask_topics.clone(),
             pose_topic: non_empty(&cfg.inputs.pose_topic),
             shape_topic: non_empty(&cfg.inputs.shape_topic),
-            image_qos: InputQos::parse(&cfg.inputs.image_qos)?,
+            image_qos: cfg.inputs.image_qos,
             max_image_side: cfg.inputs.max_image_side,
             queue_capacity: 32,
             overflow: OverflowPolicy::DropOldest,
@@ -296,7 +293,7 @@ impl RosNode {
 
         let mut tasks = Vec::new();
         let max_side = opts.max_image_side;
-        let image_qos = opts.image_qos.profile();
+        let image_qos = image_input_qos(opts.image_qos);
         for topic in &topics.images {
             let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
             tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {

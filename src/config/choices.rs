@@ -1,0 +1,214 @@
+//! The closed sets of the node's string parameters, as enums whose serde names are the values
+//! written in parameter files.
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// A parameter value from a closed set of names.
+pub trait Choice: Copy + 'static {
+    /// Every value, in the order the docs list them.
+    const ALL: &'static [Self];
+    /// The value as written in a parameter file.
+    fn as_str(self) -> &'static str;
+}
+
+/// Implements `Display` through [`Choice::as_str`].
+macro_rules! display_choice {
+    ($($t:ty),*) => {$(
+        impl fmt::Display for $t {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(self.as_str())
+            }
+        }
+    )*};
+}
+display_choice!(ImageQos, Dtype, RenderDevice, RendererChoice, FrameQos);
+
+/// `inputs.image_qos`: QoS of the image subscriptions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ImageQos {
+    /// `sensor_data`: best effort, volatile, keep last 5 (as rclcpp's SensorDataQoS).
+    #[default]
+    SensorData,
+    /// `reliable`: reliable, volatile, keep last 5.
+    Reliable,
+}
+
+impl Choice for ImageQos {
+    const ALL: &'static [Self] = &[Self::SensorData, Self::Reliable];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::SensorData => "sensor_data",
+            Self::Reliable => "reliable",
+        }
+    }
+}
+
+/// `model.dtype`: the network's compute dtype.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Dtype {
+    /// 32-bit floats.
+    #[default]
+    F32,
+    /// 16-bit floats.
+    F16,
+    /// bfloat16.
+    Bf16,
+}
+
+impl Choice for Dtype {
+    const ALL: &'static [Self] = &[Self::F32, Self::F16, Self::Bf16];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::F32 => "f32",
+            Self::F16 => "f16",
+            Self::Bf16 => "bf16",
+        }
+    }
+}
+
+impl Dtype {
+    /// The candle dtype.
+    pub fn candle(self) -> candle_core::DType {
+        match self {
+            Self::F32 => candle_core::DType::F32,
+            Self::F16 => candle_core::DType::F16,
+            Self::Bf16 => candle_core::DType::BF16,
+        }
+    }
+}
+
+/// `outputs.render_device`: where the rendered frames are rasterised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RenderDevice {
+    /// The CPU rasteriser.
+    #[default]
+    Cpu,
+    /// The CUDA rasteriser on GPU 0 (needs a build with the `cuda` feature).
+    Cuda,
+}
+
+impl Choice for RenderDevice {
+    const ALL: &'static [Self] = &[Self::Cpu, Self::Cuda];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Cpu => "cpu",
+            Self::Cuda => "cuda",
+        }
+    }
+}
+
+/// `outputs.renderer`: how the node makes its frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RendererChoice {
+    /// `neural` for checkpoints whose Gaussian RGB is not display-ready, else `gaussians`.
+    #[default]
+    Auto,
+    /// Splat the Gaussians' RGB.
+    Gaussians,
+    /// Splat the latent features and decode them with the DPT neural renderer.
+    Neural,
+}
+
+impl Choice for RendererChoice {
+    const ALL: &'static [Self] = &[Self::Auto, Self::Gaussians, Self::Neural];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Gaussians => "gaussians",
+            Self::Neural => "neural",
+        }
+    }
+}
+
+/// `outputs.frame_qos`: reliability of the rendered-frame publishers (keep last 2 either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameQos {
+    /// Reliable: RViz2, rqt and best-effort subscribers all match.
+    #[default]
+    Reliable,
+    /// Best effort: a reliable subscriber does not match (incompatible RELIABILITY).
+    BestEffort,
+}
+
+impl Choice for FrameQos {
+    const ALL: &'static [Self] = &[Self::Reliable, Self::BestEffort];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Reliable => "reliable",
+            Self::BestEffort => "best_effort",
+        }
+    }
+}
+
+/// `model.device`: `cpu`, `cuda` (GPU 0) or `cuda:N`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum ComputeDevice {
+    /// The CPU.
+    #[default]
+    Cpu,
+    /// A CUDA GPU: `None` as written `cuda` (GPU 0), `Some(n)` as written `cuda:n`.
+    Cuda(Option<usize>),
+}
+
+impl ComputeDevice {
+    /// The accepted forms, as the docs list them.
+    pub const FORMS: [&'static str; 3] = ["cpu", "cuda", "cuda:N"];
+
+    /// The CUDA ordinal (`None` for the CPU).
+    pub fn cuda_index(self) -> Option<usize> {
+        match self {
+            Self::Cpu => None,
+            Self::Cuda(n) => Some(n.unwrap_or(0)),
+        }
+    }
+}
+
+/// A `model.device` value that is not `cpu`, `cuda` or `cuda:N`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("`{0}` is not cpu, cuda or cuda:N")]
+pub struct UnknownDevice(pub String);
+
+impl std::str::FromStr for ComputeDevice {
+    type Err = UnknownDevice;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "cuda" => Ok(Self::Cuda(None)),
+            _ => s
+                .strip_prefix("cuda:")
+                .and_then(|n| n.parse().ok())
+                .map(|n| Self::Cuda(Some(n)))
+                .ok_or_else(|| UnknownDevice(s.to_string())),
+        }
+    }
+}
+
+impl TryFrom<String> for ComputeDevice {
+    type Error = UnknownDevice;
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        s.parse()
+    }
+}
+
+impl From<ComputeDevice> for String {
+    fn from(d: ComputeDevice) -> Self {
+        d.to_string()
+    }
+}
+
+impl fmt::Display for ComputeDevice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Cpu => f.write_str("cpu"),
+            Self::Cuda(None) => f.write_str("cuda"),
+            Self::Cuda(Some(n)) => write!(f, "cuda:{n}"),
+        }
+    }
+}

@@ -1,0 +1,141 @@
+//! Value checks that the types cannot express: ranges (the constants next to the fields),
+//! non-empty names, and settings that depend on each other or on the build.
+
+use super::{
+    ConfigError, FrameStoreConfig, ModelConfig, NodeConfig, OutputConfig, RenderDevice, RATE_RANGE,
+};
+use std::fmt::Display;
+use std::ops::RangeInclusive;
+use std::path::Path;
+
+/// `Err(message)` when `value` is outside `range`.
+fn in_range<T: PartialOrd + Display>(value: T, range: &RangeInclusive<T>) -> Result<(), String> {
+    if range.contains(&value) {
+        Ok(())
+    } else {
+        Err(format!(
+            "{value} is not in {}..={}",
+            range.start(),
+            range.end()
+        ))
+    }
+}
+
+/// `Err(message)` when a rate is not finite or below [`RATE_RANGE`].
+fn rate(value: f64) -> Result<(), String> {
+    if value.is_finite() && RATE_RANGE.contains(&value) {
+        Ok(())
+    } else {
+        Err(format!(
+            "{value} must be finite and >= {}",
+            RATE_RANGE.start
+        ))
+    }
+}
+
+impl NodeConfig {
+    /// Checks value ranges; the error names the offending key.
+    pub fn validate(&self, origin: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &str, message: String| ConfigError::Invalid {
+            path: origin.to_path_buf(),
+            key: key.into(),
+            message,
+        };
+        let check = |key: &str, result: Result<(), String>| result.map_err(|m| bad(key, m));
+        check("domain_id", in_range(self.domain_id, &Self::DOMAIN_ID))?;
+        if let Some(address) = self
+            .dds_interfaces
+            .iter()
+            .find(|a| a.parse::<std::net::IpAddr>().is_err())
+        {
+            return Err(bad(
+                "dds_interfaces",
+                format!("`{address}` is not an IP address"),
+            ));
+        }
+        if self.person_id.is_empty() {
+            return Err(bad("person_id", "must not be empty".into()));
+        }
+        if self.inputs.image_topics.is_empty() && self.inputs.compressed_image_topics.is_empty() {
+            return Err(bad(
+                "inputs.image_topics",
+                "no image topic configured (set image_topics or compressed_image_topics)".into(),
+            ));
+        }
+        let cameras = self.inputs.image_topics.len() + self.inputs.compressed_image_topics.len();
+        if self.inputs.mask_topics.len() > cameras {
+            return Err(bad(
+                "inputs.mask_topics",
+                format!(
+                    "{} mask topics for {cameras} camera topics (one mask topic per camera, by position)",
+                    self.inputs.mask_topics.len()
+                ),
+            ));
+        }
+        let store = &self.frame_store;
+        check(
+            "frame_store.max_views",
+            in_range(store.max_views, &FrameStoreConfig::MAX_VIEWS),
+        )?;
+        check(
+            "frame_store.duplicate_similarity",
+            in_range(
+                store.duplicate_similarity,
+                &FrameStoreConfig::DUPLICATE_SIMILARITY,
+            ),
+        )?;
+        if crate::model::LhmppConfig::preset(&self.model.preset).is_err() {
+            return Err(bad(
+                "model.preset",
+                format!(
+                    "`{}` is not one of {}",
+                    self.model.preset,
+                    crate::model::LhmppConfig::PRESETS.join(", ")
+                ),
+            ));
+        }
+        check(
+            "model.num_points",
+            in_range(self.model.num_points, &ModelConfig::NUM_POINTS),
+        )?;
+        if !self.model.smplx_model.is_empty() && self.model.prior_dir.is_empty() {
+            return Err(bad(
+                "model.smplx_model",
+                "is only used with model.prior_dir (the official LHMPP-Prior body)".to_string(),
+            ));
+        }
+        let out = &self.outputs;
+        check("outputs.render_rate_hz", rate(out.render_rate_hz))?;
+        check(
+            "outputs.render_size",
+            in_range(out.render_size, &OutputConfig::RENDER_SIZE),
+        )?;
+        check("outputs.preview_rate_hz", rate(out.preview_rate_hz))?;
+        for (key, frame) in [
+            ("outputs.preview_frame", &out.preview_frame),
+            ("outputs.world_frame", &out.world_frame),
+        ] {
+            if frame.trim().is_empty() || frame.contains(char::is_whitespace) {
+                return Err(bad(key, format!("`{frame}` is not a TF frame name")));
+            }
+        }
+        if out.preview_frame == out.world_frame {
+            return Err(bad(
+                "outputs.preview_frame",
+                format!(
+                    "`{}` is also outputs.world_frame; the preview needs a frame of its own",
+                    out.preview_frame
+                ),
+            ));
+        }
+        if out.render_device == RenderDevice::Cuda && !cfg!(feature = "cuda") {
+            return Err(bad(
+                "outputs.render_device",
+                "`cuda` needs a binary built with the `cuda` feature (scripts/build-cuda)"
+                    .to_string(),
+            ));
+        }
+        check("replay.rate", rate(self.replay.rate))?;
+        Ok(())
+    }
+}
