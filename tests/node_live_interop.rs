@@ -2,10 +2,11 @@
 //! only) and the PyPI `cyclonedds` peer of tests/python/dds_peer.py. The peer publishes camera
 //! frames of a synthetic person (raw and PNG, some malformed); the node reconstructs and
 //! publishes GaussianAvatar revisions and rendered frames, which the peer checks (field layout,
-//! sizes, finite values, unit rotations, skin weights, revisions increasing). Bounded in time.
+//! sizes, finite values, unit rotations, skin weights, revisions increasing). The peer then
+//! vanishes and a new one comes back: the node serves it newer revisions. Bounded in time.
 
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
@@ -57,31 +58,19 @@ fn node_reconstructs_frames_from_a_cyclonedds_peer_and_publishes_avatars_and_ren
             .spawn()
             .expect("lhmpp starts"),
     );
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/python/dds_peer.py");
-    let peer = Command::new(&python)
-        .arg(&script)
-        .args(["--domain", &domain.to_string()])
-        .args(["--image-topic", "/live_test/cam0/image_raw"])
-        .args(["--compressed-topic", "/live_test/cam1/image_raw/compressed"])
-        .args(["--avatar-topic", "/live_test/avatar"])
-        .args(["--render-topic", "/live_test/render/cam0/image_raw"])
-        .args(["--width", "64", "--height", "96", "--render-side", "64"])
-        .args(["--gaussians", "1024", "--person", "person_0"])
-        .args(["--min-revisions", "2", "--timeout", "150"])
-        .env("CYCLONEDDS_URI", CYCLONE_LOOPBACK)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {}: {e}", python.display()));
-    let mut peer = KillOnDrop(peer);
-    let stdout = peer.0.stdout.take().unwrap();
-    let result = BufReader::new(stdout)
-        .lines()
-        .map_while(Result::ok)
-        .find(|l| l.starts_with("RESULT"))
-        .unwrap_or_else(|| "RESULT fail peer exited without a result".into());
-    eprintln!("peer: {result}");
-    assert!(result.starts_with("RESULT ok"), "{result}");
+    let first = run_peer(&python, domain, 0);
+    eprintln!("peer: {first}");
+    assert!(first.starts_with("RESULT ok"), "{first}");
+    // The peer vanishes (its process has exited) and a new one comes back with new views: the
+    // node, still running, takes them and publishes newer revisions to it.
+    let again = run_peer(&python, domain, 128);
+    eprintln!("peer that came back: {again}");
+    assert!(again.starts_with("RESULT ok"), "{again}");
+    let (before, after) = (last_revision(&first), last_revision(&again));
+    assert!(
+        after > before,
+        "revision {after} after the peer came back, {before} before"
+    );
 
     // SIGINT stops the node cleanly: it exits 0 and prints its summary.
     let mut node = node;
@@ -112,6 +101,45 @@ fn node_reconstructs_frames_from_a_cyclonedds_peer_and_publishes_avatars_and_ren
         "only bad images, at least one: {rejected}"
     );
     assert!(!rejected.starts_with('0'), "{summary}");
+}
+
+/// Runs one cyclonedds peer to its RESULT line: it sends frames from index `first_frame` on
+/// and waits for two avatar revisions and a rendered frame.
+fn run_peer(python: &Path, domain: u32, first_frame: u32) -> String {
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/python/dds_peer.py");
+    let peer = Command::new(python)
+        .arg(&script)
+        .args(["--domain", &domain.to_string()])
+        .args(["--image-topic", "/live_test/cam0/image_raw"])
+        .args(["--compressed-topic", "/live_test/cam1/image_raw/compressed"])
+        .args(["--avatar-topic", "/live_test/avatar"])
+        .args(["--render-topic", "/live_test/render/cam0/image_raw"])
+        .args(["--width", "64", "--height", "96", "--render-side", "64"])
+        .args(["--gaussians", "1024", "--person", "person_0"])
+        .args(["--first-frame", &first_frame.to_string()])
+        .args(["--min-revisions", "2", "--timeout", "150"])
+        .env("CYCLONEDDS_URI", CYCLONE_LOOPBACK)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start {}: {e}", python.display()));
+    let mut peer = KillOnDrop(peer);
+    let stdout = peer.0.stdout.take().unwrap();
+    BufReader::new(stdout)
+        .lines()
+        .map_while(Result::ok)
+        .find(|l| l.starts_with("RESULT"))
+        .unwrap_or_else(|| "RESULT fail peer exited without a result".into())
+}
+
+/// The highest avatar revision of a peer's `RESULT ok ... revisions=[a, b]` line.
+fn last_revision(result: &str) -> u64 {
+    result
+        .split("revisions=[")
+        .nth(1)
+        .and_then(|rest| rest.split(']').next())
+        .and_then(|list| list.split(',').filter_map(|r| r.trim().parse().ok()).max())
+        .unwrap_or_else(|| panic!("no revisions in {result}"))
 }
 
 fn wait_timeout(child: &mut Child, limit: Duration) -> Option<i32> {

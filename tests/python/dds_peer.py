@@ -154,6 +154,8 @@ def main():
     ap.add_argument("--gaussians", type=int, default=100)
     ap.add_argument("--person", default="person_0")
     ap.add_argument("--timeout", type=float, default=40.0)
+    ap.add_argument("--first-frame", type=int, default=0,
+                    help="index of the first frame sent (a peer that comes back sends new views)")
     ap.add_argument("--min-revisions", type=int, default=1,
                     help="distinct avatar revisions to receive, each higher than the last")
     args = ap.parse_args()
@@ -192,15 +194,15 @@ def main():
             )
             writer.write(bad)
         # Pixels first, stamp last: the stamp-to-arrival delay then measures transport.
-        pixels = person_frame(args.width, args.height, sent)
+        pixels = person_frame(args.width, args.height, args.first_frame + sent)
         png = png_rgb8(args.width, args.height, pixels)
         writer.write(Image(
-            header=Header(stamp=stamp_now(), frame_id=f"frame_{sent}"),
+            header=Header(stamp=stamp_now(), frame_id=f"frame_{args.first_frame + sent}"),
             height=args.height, width=args.width, encoding="rgb8", is_bigendian=0,
             step=args.width * 3, data=pixels,
         ))
         compressed_writer.write(CompressedImage(
-            header=Header(stamp=stamp_now(), frame_id=f"frame_{sent}"),
+            header=Header(stamp=stamp_now(), frame_id=f"frame_{args.first_frame + sent}"),
             format="rgb8; png compressed rgb8", data=png,
         ))
         sent += 1
