@@ -83,7 +83,7 @@ pub fn run(args: RecordArgs) -> Result<()> {
         &topics,
         bag,
         &options,
-        record::interrupt_or_terminate(),
+        lhmpp::node::signal::interrupt_or_terminate(),
     ))?;
     // The bag is complete at this point: a closed stdout (e.g. `| head`) must not turn the
     // summary into a panic, so write errors are ignored.

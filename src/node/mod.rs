@@ -1,12 +1,23 @@
-//! The node's ROS 2 face and the pure state machines behind it.
+//! The node's ROS 2 face and the synchronous state machines behind it.
 //!
-//! Messages come in through [`ros`] (subscriptions → one bounded [`input_queue`] of
-//! `InputEvent`s), images are decoded and cropped/resized by [`crate::reconstruct`], views are
-//! kept per person by [`frame_store`], and [`scheduler`] decides when to reconstruct. Only [`ros`] is async; everything else is sans-io and driven by the caller.
+//! Messages come in through [`ros`] (live subscriptions) or [`replay`] (a bag) as the
+//! [`inputs`] events, through one bounded [`input_queue`]; images are decoded and
+//! cropped/resized by [`crate::reconstruct`], views are kept per person by [`frame_store`],
+//! [`scheduler`] decides when to reconstruct, and [`pipeline`] runs it all and fans the avatar
+//! and frames out through [`publishers`].
+//!
+//! What is async: [`ros`] (ros2-client subscription tasks on tokio), [`record`] (the recorder
+//! is one future), [`signal`] (the SIGINT/SIGTERM future) and the receiving side of
+//! [`input_queue`] (`recv().await`; sending and `try_recv` are plain calls). [`run`] starts the
+//! tokio runtime for those and drives the synchronous [`pipeline`] on the calling thread.
+//! Everything else is synchronous: [`inputs`], [`frame_store`], [`scheduler`], [`names`] and
+//! [`rejections`] are sans-io, driven by the caller; [`pipeline`] (which writes the output
+//! files), [`replay`] (which reads the bag) and [`publishers`] make plain blocking calls.
 
 pub mod frame_store;
 pub mod input_errors;
 pub mod input_queue;
+pub mod inputs;
 pub mod names;
 pub mod pipeline;
 pub mod preview;
@@ -17,3 +28,4 @@ pub mod replay;
 pub mod ros;
 pub mod run;
 pub mod scheduler;
+pub mod signal;

@@ -4,8 +4,9 @@
 
 use crate::bag::{BagError, BagMessage, BagReader, Salvage};
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image, RosMessage};
+use crate::node::inputs::{self, InputEvent};
 use crate::node::rejections::RejectReason;
-use crate::node::ros::{inputs, InputEvent, ResolvedTopics};
+use crate::node::ros::ResolvedTopics;
 use std::path::Path;
 use std::time::Duration;
 

@@ -3,10 +3,11 @@
 //! (`replay.exit_when_done`) or SIGINT/SIGTERM. The tokio runtime hosts only the DDS endpoint
 //! and the signal handlers.
 
+use super::inputs::InputEvent;
 use super::pipeline::{Fanout, Pipeline, PipelineError, PipelineStats, Publisher};
 use super::publishers::{RosPublisher, ShmOutputs};
 use super::replay::{BagReplay, Replayed};
-use super::ros::{InputEvent, ResolvedTopics, RosError, RosNode, RosNodeOptions};
+use super::ros::{ResolvedTopics, RosError, RosNode, RosNodeOptions};
 use crate::bag::Salvage;
 use crate::config::NodeConfig;
 use crate::node::rejections::Rejections;
@@ -97,7 +98,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
     {
         let stop = stop.clone();
         runtime.spawn(async move {
-            wait_for_signal().await;
+            super::signal::interrupt_or_terminate().await;
             tracing::info!("shutdown requested");
             stop.store(true, Ordering::SeqCst);
         });
@@ -164,28 +165,6 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
     }
     runtime.shutdown_timeout(Duration::from_secs(2));
     Ok(summary)
-}
-
-async fn wait_for_signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        match signal(SignalKind::terminate()) {
-            Ok(mut term) => {
-                tokio::select! {
-                    _ = tokio::signal::ctrl_c() => {}
-                    _ = term.recv() => {}
-                }
-            }
-            Err(_) => {
-                let _ = tokio::signal::ctrl_c().await;
-            }
-        }
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = tokio::signal::ctrl_c().await;
-    }
 }
 
 /// Feeds live events until a stop is requested; runs due work in between. `inputs`: the

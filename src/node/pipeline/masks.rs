@@ -2,7 +2,7 @@
 //! frames of cameras with a mask topic waiting (briefly) for their masks. Both are bounded;
 //! matching is by stamp, size and camera.
 
-use crate::node::ros::{CameraFrame, MaskFrame};
+use crate::node::inputs::{CameraFrame, MaskFrame};
 use image::GrayImage;
 use std::collections::{HashSet, VecDeque};
 use std::sync::Arc;

@@ -11,15 +11,13 @@
 //! reports also go to `/rosout` (and always to `tracing`).
 
 mod context;
-pub(crate) mod inputs;
-mod outputs;
+pub(crate) mod outputs;
 mod sink;
 
 pub use context::{
     create_context, frame_output_qos, image_input_qos, latched_output_qos, reliable_input_qos,
     resolve_domain_id, ParticipantOptions,
 };
-pub use inputs::{CameraFrame, InputEvent, MaskFrame};
 pub use outputs::{rgb8_image, OutputTopics, PublishOutcome};
 pub use sink::InputStats;
 
@@ -29,6 +27,7 @@ use crate::msgs::{
     ReconstructionStatus, RosMessage, TFMessage,
 };
 use crate::node::input_queue::{bounded, OverflowPolicy, QueueReceiver};
+use crate::node::inputs::{self, InputEvent};
 use crate::node::names::{split_fully_qualified, NameError, NameResolver};
 use crate::splat::Gaussians;
 use outputs::OutputPort;

@@ -1,6 +1,6 @@
 //! The receiving end shared by all subscription tasks: converts each message into an
-//! [`InputEvent`](super::InputEvent), pushes it into the one bounded input queue, and counts and
-//! reports (rate-limited, per topic) the messages that could not be used.
+//! [`InputEvent`](crate::node::inputs::InputEvent), pushes it into the one bounded input
+//! queue, and counts and reports (rate-limited, per topic) the messages that could not be used.
 
 use crate::node::input_errors::InputErrors;
 use crate::node::input_queue::QueueSender;

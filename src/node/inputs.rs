@@ -1,5 +1,7 @@
 //! What the node receives: decoded camera frames, masks, camera calibration, body poses and shapes,
-//! all delivered as [`InputEvent`]s through one bounded queue.
+//! all delivered as [`InputEvent`]s through one bounded queue, and the conversions from the
+//! messages that live subscriptions ([`super::ros`]) and bag replay ([`super::replay`]) share.
+//! Synchronous: no ROS 2 endpoint and no runtime.
 
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image};
 use crate::reconstruct::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
