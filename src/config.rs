@@ -116,8 +116,14 @@ pub struct InputConfig {
     pub shape_topic: String,
     /// Image QoS: `sensor_data` (best effort, keep last) or `reliable`.
     pub image_qos: ImageQos,
-    /// Largest accepted image side in pixels; larger frames are rejected.
+    /// Largest accepted image side in pixels; larger frames are rejected (compressed ones from
+    /// their header, before their pixels are decoded).
     pub max_image_side: u32,
+}
+
+impl InputConfig {
+    /// Accepted `inputs.max_image_side` values (65535 is the largest side a JPEG can declare).
+    pub const MAX_IMAGE_SIDE: RangeInclusive<u32> = 16..=65535;
 }
 
 /// Frame store bounds.
@@ -177,7 +183,9 @@ impl ModelConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
-    /// Directory for PLY avatars and rendered PNG frames; empty disables file output.
+    /// Directory for PLY avatars and rendered PNG frames; empty disables file output. One that
+    /// cannot be written (or fills up) is logged as an error and costs only the files: the
+    /// ROS 2 and shared-memory outputs go on.
     pub dir: String,
     /// Rendered-frame rate per virtual camera (Hz, finite, >= 0); 0 disables rendering.
     pub render_rate_hz: f64,

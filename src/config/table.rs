@@ -3,8 +3,8 @@
 //! uses. `lhmpp config --markdown` prints it as the README's table (a test keeps them equal).
 
 use super::{
-    Choice, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, ModelConfig, NodeConfig,
-    OutputConfig, RenderDevice, RendererChoice, RATE_RANGE,
+    Choice, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, InputConfig, ModelConfig,
+    NodeConfig, OutputConfig, RenderDevice, RendererChoice, RATE_RANGE,
 };
 use crate::model::LhmppConfig;
 use std::fmt::Display;
@@ -131,7 +131,11 @@ pub fn parameters() -> Vec<Parameter> {
             choice::<ImageQos>(),
             "image QoS (best effort keep-last, or reliable)",
         ),
-        p("inputs.max_image_side", int(), "larger frames are rejected"),
+        p(
+            "inputs.max_image_side",
+            int_in(&InputConfig::MAX_IMAGE_SIDE),
+            "larger frames are rejected (compressed ones from their header, before decoding)",
+        ),
         p(
             "frame_store.max_views",
             int_in(&FrameStoreConfig::MAX_VIEWS),

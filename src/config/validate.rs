@@ -2,7 +2,8 @@
 //! non-empty names, and settings that depend on each other or on the build.
 
 use super::{
-    ConfigError, FrameStoreConfig, ModelConfig, NodeConfig, OutputConfig, RenderDevice, RATE_RANGE,
+    ConfigError, FrameStoreConfig, InputConfig, ModelConfig, NodeConfig, OutputConfig,
+    RenderDevice, RATE_RANGE,
 };
 use std::fmt::Display;
 use std::ops::RangeInclusive;
@@ -72,6 +73,10 @@ impl NodeConfig {
                 ),
             ));
         }
+        check(
+            "inputs.max_image_side",
+            in_range(self.inputs.max_image_side, &InputConfig::MAX_IMAGE_SIDE),
+        )?;
         let store = &self.frame_store;
         check(
             "frame_store.max_views",

@@ -349,11 +349,56 @@ fn scan_files(
     for (file, map) in &maps {
         let st = map.deserialize().map_err(|e| CheckpointError::Format {
             path: file.to_path_buf(),
-            reason: e.to_string(),
+            reason: with_layout_detail(e.to_string(), file),
         })?;
         parsed.push((file.as_path(), st));
     }
     scan_tensors(&parsed, origin, cfg, load)
+}
+
+/// `reason` followed by the sizes behind it, read from the file's safetensors framing (an
+/// 8-byte little-endian header length, the JSON header, the tensor data): how many bytes the
+/// header length and the tensors' offsets need against how many the file has.
+fn with_layout_detail(reason: String, file: &Path) -> String {
+    match layout_detail(file) {
+        Some(detail) => format!("{reason} ({detail})"),
+        None => reason,
+    }
+}
+
+fn layout_detail(file: &Path) -> Option<String> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(file).ok()?;
+    let len = f.metadata().ok()?.len();
+    let mut prefix = [0u8; 8];
+    if f.read_exact(&mut prefix).is_err() {
+        return Some(format!(
+            "the file has {len} bytes, fewer than the 8-byte header length"
+        ));
+    }
+    let header_len = u64::from_le_bytes(prefix);
+    if header_len > len.saturating_sub(8) {
+        return Some(format!(
+            "the header length says {header_len} bytes, the file has {len} bytes in all"
+        ));
+    }
+    let mut header = vec![0u8; header_len as usize];
+    f.read_exact(&mut header).ok()?;
+    let json: serde_json::Value = serde_json::from_slice(&header).ok()?;
+    let data_end = json
+        .as_object()?
+        .iter()
+        .filter(|(name, _)| name.as_str() != "__metadata__")
+        .filter_map(|(_, t)| t.get("data_offsets")?.get(1)?.as_u64())
+        .max()
+        .unwrap_or(0);
+    let needed = 8 + header_len + data_end;
+    (needed != len).then(|| {
+        format!(
+            "header and tensors need {needed} bytes, the file has {len}{}",
+            if len < needed { ": truncated" } else { "" }
+        )
+    })
 }
 
 /// Validates embedded safetensors `bytes` (named `origin` in errors) against `cfg` like a

@@ -34,9 +34,27 @@ pub enum DecodeError {
         /// Configured limit (`inputs.max_image_side`).
         max_side: u32,
     },
+    /// Decoding would allocate more than the image decoder's memory limit (512 MiB).
+    #[error("topic {topic}: compressed image declares {width}x{height} pixels, more than the decoder's 512 MiB allocation limit allows")]
+    DecodeLimit {
+        /// Topic of the message.
+        topic: String,
+        /// Declared width.
+        width: u32,
+        /// Declared height.
+        height: u32,
+    },
     /// The encoding is not one this node reads.
     #[error("topic {topic}: unsupported encoding `{encoding}` (expected rgb8, bgr8, rgba8, bgra8 or mono8)")]
     UnsupportedEncoding {
+        /// Topic of the message.
+        topic: String,
+        /// Declared encoding.
+        encoding: String,
+    },
+    /// A person mask that is not one channel.
+    #[error("topic {topic}: mask encoding `{encoding}` is not mono8 (masks are mono8 or 8UC1)")]
+    MaskEncoding {
         /// Topic of the message.
         topic: String,
         /// Declared encoding.
@@ -226,9 +244,9 @@ pub fn decode_mask(
 ) -> Result<GrayImage, DecodeError> {
     let layout = check_raw(topic, img, max_side)?;
     if layout != Layout::Mono {
-        return Err(DecodeError::UnsupportedEncoding {
+        return Err(DecodeError::MaskEncoding {
             topic: topic.into(),
-            encoding: format!("{} (masks must be mono8)", img.encoding),
+            encoding: img.encoding.into(),
         });
     }
     let w = img.width as usize;
@@ -268,10 +286,11 @@ pub fn decode_compressed(
         topic: topic.into(),
         format: format.into(),
     })?;
+    // Decoder messages may span lines; the error is one line.
     let corrupt = |reason: String| DecodeError::Corrupt {
         topic: topic.into(),
         format: format.into(),
-        reason,
+        reason: reason.split_whitespace().collect::<Vec<_>>().join(" "),
     };
     let reader = image::ImageReader::with_format(std::io::Cursor::new(data), codec);
     let decoder_dims = reader
@@ -295,7 +314,14 @@ pub fn decode_compressed(
         });
     }
     let reader = image::ImageReader::with_format(std::io::Cursor::new(data), codec);
-    let decoded = reader.decode().map_err(|e| corrupt(e.to_string()))?;
+    let decoded = reader.decode().map_err(|e| match e {
+        image::ImageError::Limits(_) => DecodeError::DecodeLimit {
+            topic: topic.into(),
+            width,
+            height,
+        },
+        e => corrupt(e.to_string()),
+    })?;
     Ok(decoded.into_rgb8())
 }
 
@@ -382,7 +408,11 @@ mod tests {
         let data = [10, 20, 0, 30, 40, 0];
         let m = decode_mask("/mask", &raw(2, 2, "mono8", 3, &data), 64).unwrap();
         assert_eq!(m.as_raw(), &[10, 20, 30, 40]);
-        assert!(decode_mask("/mask", &raw(1, 1, "rgb8", 3, &[1, 2, 3]), 64).is_err());
+        let e = decode_mask("/mask", &raw(1, 1, "rgb8", 3, &[1, 2, 3]), 64).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "topic /mask: mask encoding `rgb8` is not mono8 (masks are mono8 or 8UC1)"
+        );
     }
 
     fn gradient(w: u32, h: u32) -> RgbImage {

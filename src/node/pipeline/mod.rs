@@ -178,9 +178,6 @@ pub enum PipelineError {
     /// The network or body template could not be set up.
     #[error(transparent)]
     Reconstruct(#[from] ReconstructError),
-    /// The output directory is unusable.
-    #[error(transparent)]
-    Output(#[from] outputs::OutputError),
     /// The frame rasteriser's device is unavailable.
     #[error(transparent)]
     Rasterizer(#[from] FrameRasterizerError),
@@ -198,9 +195,20 @@ impl Pipeline {
         let recon = Reconstructor::new(&config.model, config.frame_store.max_views)?;
         let (h, w) = recon.input_size();
         let rgb = recon.rgb_kind();
+        // An unusable output directory costs the files only: the ROS 2 and shared-memory
+        // outputs go on.
         let files = (!config.outputs.dir.is_empty())
             .then(|| FileOutputs::new(Path::new(&config.outputs.dir)))
-            .transpose()?
+            .and_then(|made| {
+                made.map_err(|e| {
+                    tracing::error!(
+                        "outputs.dir `{}`: {e}; no avatar PLY files or PNG frames will be \
+                         written, the ROS 2 and shared-memory outputs go on",
+                        config.outputs.dir
+                    )
+                })
+                .ok()
+            })
             .map(|f| match rgb.display_ready() {
                 true => f,
                 false => f.with_latent_rgb(recon.checkpoint_kind()),
@@ -772,7 +780,7 @@ impl Pipeline {
         let (Some(current), Some(files)) = (&self.current, &self.files) else {
             return 0;
         };
-        let mut written = 0;
+        let (mut written, mut failed) = (0, 0);
         for f in 0..frames {
             let pose = display_pose(None, f as f32 / 24.0);
             let started = std::time::Instant::now();
@@ -788,9 +796,21 @@ impl Pipeline {
             for (c, image) in images.iter().enumerate() {
                 match files.write_frame(&format!("{}_cam{c}_{f:03}", self.person), image.rgb8()) {
                     Ok(_) => written += 1,
-                    Err(e) => tracing::error!("frame file: {e}"),
+                    // The first failure is logged; the rest (a full disk fails them all) are
+                    // counted below.
+                    Err(e) if failed == 0 => {
+                        failed += 1;
+                        tracing::error!("frame file: {e}");
+                    }
+                    Err(_) => failed += 1,
                 }
             }
+        }
+        if failed > 1 {
+            tracing::error!(
+                "{failed} frame files of {} could not be written",
+                failed + written
+            );
         }
         self.stats.rendered_frames += written as u64;
         written

@@ -40,14 +40,20 @@ pub struct FileOutputs {
 }
 
 impl FileOutputs {
-    /// Creates `dir` and `dir/frames`.
+    /// Creates `dir` and `dir/frames` and checks that a file can be written there (a probe
+    /// file is created and removed), so that a read-only or unusable directory is found at
+    /// startup rather than at the first avatar.
     pub fn new(dir: &Path) -> Result<Self, OutputError> {
+        let failed = |path: &Path, e: std::io::Error| OutputError::File {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        };
         for d in [dir.to_path_buf(), dir.join("frames")] {
-            std::fs::create_dir_all(&d).map_err(|e| OutputError::File {
-                path: d.clone(),
-                message: e.to_string(),
-            })?;
+            std::fs::create_dir_all(&d).map_err(|e| failed(&d, e))?;
         }
+        let probe = dir.join(".lhmpp-write-probe");
+        std::fs::write(&probe, b"lhmpp").map_err(|e| failed(&probe, e))?;
+        std::fs::remove_file(&probe).map_err(|e| failed(&probe, e))?;
         Ok(Self {
             dir: dir.to_path_buf(),
             latent_rgb: None,
@@ -81,26 +87,41 @@ impl FileOutputs {
                 );
             }
         }
-        write_ply(
+        let written = write_ply(
             &versioned,
             &avatar.canonical,
             Some(&avatar.skin),
             Some(&avatar.body_model),
-        )?;
+        );
+        if let Err(e) = written {
+            // No partial avatar is left behind (a full disk cuts the file short).
+            let _ = std::fs::remove_file(&versioned);
+            return Err(e.into());
+        }
+        // The latest is replaced in one rename, so a reader never sees a partial file.
         let latest = self.dir.join(format!("avatar_{person}.ply"));
-        std::fs::copy(&versioned, &latest).map_err(|e| OutputError::File {
-            path: latest.clone(),
-            message: e.to_string(),
-        })?;
+        let partial = self.dir.join(format!(".avatar_{person}.ply.partial"));
+        let replaced =
+            std::fs::copy(&versioned, &partial).and_then(|_| std::fs::rename(&partial, &latest));
+        if let Err(e) = replaced {
+            let _ = std::fs::remove_file(&partial);
+            return Err(OutputError::File {
+                path: latest,
+                message: e.to_string(),
+            });
+        }
         Ok(latest)
     }
 
-    /// Writes `frames/<name>.png`.
+    /// Writes `frames/<name>.png` (removed again if it could not be written whole).
     pub fn write_frame(&self, name: &str, image: &RgbImage) -> Result<PathBuf, OutputError> {
         let path = self.dir.join("frames").join(format!("{name}.png"));
-        image.save(&path).map_err(|e| OutputError::File {
-            path: path.clone(),
-            message: e.to_string(),
+        image.save(&path).map_err(|e| {
+            let _ = std::fs::remove_file(&path);
+            OutputError::File {
+                path: path.clone(),
+                message: e.to_string(),
+            }
         })?;
         Ok(path)
     }
