@@ -11,7 +11,7 @@ use std::process::Command;
 
 use serde_json::Value;
 
-/// The f32 limit of issues 4 and 10.
+/// Largest relative error accepted for a block output against the PyTorch reference (f32).
 const MAX_REL_F32: f64 = 1e-4;
 
 /// The bf16 limit (1e-2), raised to twice PyTorch's own bf16 error where that is larger.

@@ -49,7 +49,7 @@ fn every_message_type_round_trips_and_rejects_every_truncation() {
         z: 3.0,
     });
     round_trip(Quaternion::default());
-    round_trip(lhmpp::msgs::Pose::default());
+    round_trip(lhmpp::msgs::GeometryPose::default());
     round_trip(transform_stamped().transform);
     round_trip(transform_stamped());
     round_trip(TFMessage {

@@ -92,7 +92,7 @@ fn every_rust_message_matches_its_msg_definition_field_by_field() {
         Vector3,
         Point,
         Quaternion,
-        Pose,
+        GeometryPose,
         Transform,
         TransformStamped,
         TFMessage,

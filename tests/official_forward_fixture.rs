@@ -1,4 +1,4 @@
-//! Our whole forward against the official LHM++ code itself (issue 21): the fixture in
+//! Our whole forward against the official LHM++ code itself: the fixture in
 //! `tests/fixtures/official/forward` was written by `scripts/parity/official/generate.py`
 //! running the official modules at small widths (reduced DINOv2 and DPT, slim PTv3 with
 //! several attention patches per stage, merge ratio 0.5, part masks, 2 views) with their random

@@ -29,7 +29,7 @@ use candle_nn::{Init, VarBuilder};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::config::{ConfigError, LhmppConfig};
+use super::config::{LhmppConfig, ModelConfigError};
 
 /// Key prefixes present in official checkpoints but unused at inference; ignored on load.
 /// `shape_head.*` is the betas head of the GS-supervised releases (LHMPP-700M-PixelShuffle,
@@ -76,7 +76,7 @@ pub enum CheckpointError {
     },
     /// The config is invalid.
     #[error(transparent)]
-    Config(#[from] ConfigError),
+    Config(#[from] ModelConfigError),
     /// A tensor operation failed.
     #[error("checkpoint tensor operation failed: {0}")]
     Candle(#[from] candle_core::Error),

@@ -11,7 +11,7 @@ use super::shape_head::ShapeHeadConfig;
 
 /// Errors from choosing or validating a configuration.
 #[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
+pub enum ModelConfigError {
     /// The preset name is not one of [`LhmppConfig::PRESETS`].
     #[error(
         "unknown model preset `{0}` (known: tiny, s, m, l, lhmpp-700m, lhmpp-700m-pixelshuffle)"
@@ -194,7 +194,7 @@ impl LhmppConfig {
     ];
 
     /// Looks a preset up by name.
-    pub fn preset(name: &str) -> Result<Self, ConfigError> {
+    pub fn preset(name: &str) -> Result<Self, ModelConfigError> {
         match name {
             "tiny" => Ok(Self::tiny()),
             "s" => Ok(Self::s()),
@@ -205,7 +205,7 @@ impl LhmppConfig {
                 Ok(Self::lhmpp_700m_pixelshuffle())
             }
             "lhmpp-700m-smplx-free" | "lhmpp_700m_smplx_free" => Ok(Self::lhmpp_700m_smplx_free()),
-            other => Err(ConfigError::UnknownPreset(other.to_string())),
+            other => Err(ModelConfigError::UnknownPreset(other.to_string())),
         }
     }
 
@@ -359,8 +359,8 @@ impl LhmppConfig {
     }
 
     /// Checks that the parts fit together (widths, depths, image size).
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        let bad = |reason: String| ConfigError::Invalid {
+    pub fn validate(&self) -> Result<(), ModelConfigError> {
+        let bad = |reason: String| ModelConfigError::Invalid {
             preset: self.preset.clone(),
             reason,
         };

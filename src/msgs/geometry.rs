@@ -70,16 +70,18 @@ impl Default for Quaternion {
     }
 }
 
-/// `geometry_msgs/msg/Pose`.
+/// `geometry_msgs/msg/Pose` (named apart from the body pose, [`crate::body::Pose`]; serde
+/// keeps the message's name).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct Pose {
+#[serde(rename = "Pose")]
+pub struct GeometryPose {
     /// Position.
     pub position: Point,
     /// Orientation.
     pub orientation: Quaternion,
 }
 ros_message!(
-    Pose,
+    GeometryPose,
     "geometry_msgs",
     "Pose",
     include_str!("defs/geometry_msgs/Pose.msg")

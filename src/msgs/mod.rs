@@ -26,7 +26,7 @@ pub use builtin::Time;
 pub use error::MsgError;
 pub use gaussian_avatar::GaussianAvatar;
 pub use gaussian_cloud::{GaussianCloud, GaussianColors};
-pub use geometry::{Point, Pose, Quaternion, Transform, TransformStamped, Vector3};
+pub use geometry::{GeometryPose, Point, Quaternion, Transform, TransformStamped, Vector3};
 pub use message::{dds_type_name, RosMessage, CDR_LE_HEADER};
 pub use reconstruction_status::{ReconstructionState, ReconstructionStatus};
 pub use sensor::{CameraInfo, CompressedImage, Image, PointCloud2, PointField, RegionOfInterest};

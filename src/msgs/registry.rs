@@ -15,7 +15,7 @@ pub const DEFINITIONS: &[(&str, &str)] = &[
     (Vector3::TYPE_NAME, Vector3::DEFINITION),
     (Point::TYPE_NAME, Point::DEFINITION),
     (Quaternion::TYPE_NAME, Quaternion::DEFINITION),
-    (Pose::TYPE_NAME, Pose::DEFINITION),
+    (GeometryPose::TYPE_NAME, GeometryPose::DEFINITION),
     (Transform::TYPE_NAME, Transform::DEFINITION),
     (TransformStamped::TYPE_NAME, TransformStamped::DEFINITION),
     (TFMessage::TYPE_NAME, TFMessage::DEFINITION),

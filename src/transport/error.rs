@@ -1,7 +1,7 @@
 //! The error type of the shared-memory ports; every variant names the service involved.
 
 use super::layout::LayoutError;
-use super::options::NameError;
+use super::options::ServiceNameError;
 
 /// Errors of [`ShmNode`](super::ShmNode), [`ShmPublisher`](super::ShmPublisher) and
 /// [`ShmSubscriber`](super::ShmSubscriber).
@@ -9,7 +9,7 @@ use super::options::NameError;
 pub enum ShmError {
     /// A person or camera name cannot be part of a service name.
     #[error(transparent)]
-    Name(#[from] NameError),
+    Name(#[from] ServiceNameError),
     /// The payload is inconsistent or not of this layout.
     #[error("service {service}: {source}")]
     Layout {

@@ -67,7 +67,7 @@ impl ShmOptions {
 /// Errors in person or camera names.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 #[error("{what} name {name:?}: must be 1..={max} bytes of [A-Za-z0-9_-]")]
-pub struct NameError {
+pub struct ServiceNameError {
     /// `person` or `camera`.
     pub what: &'static str,
     /// The rejected name.
@@ -76,7 +76,7 @@ pub struct NameError {
     pub max: usize,
 }
 
-fn check(what: &'static str, name: &str, max: usize) -> Result<(), NameError> {
+fn check(what: &'static str, name: &str, max: usize) -> Result<(), ServiceNameError> {
     let ok = !name.is_empty()
         && name.len() <= max
         && name
@@ -85,7 +85,7 @@ fn check(what: &'static str, name: &str, max: usize) -> Result<(), NameError> {
     if ok {
         Ok(())
     } else {
-        Err(NameError {
+        Err(ServiceNameError {
             what,
             name: name.to_owned(),
             max,
@@ -94,20 +94,20 @@ fn check(what: &'static str, name: &str, max: usize) -> Result<(), NameError> {
 }
 
 /// `lhmpp/<person>/avatar`.
-pub fn avatar_service(person: &str) -> Result<String, NameError> {
+pub fn avatar_service(person: &str) -> Result<String, ServiceNameError> {
     check("person", person, 32)?;
     Ok(format!("lhmpp/{person}/avatar"))
 }
 
 /// `lhmpp/<person>/frame/<camera>`.
-pub fn frame_service(person: &str, camera: &str) -> Result<String, NameError> {
+pub fn frame_service(person: &str, camera: &str) -> Result<String, ServiceNameError> {
     check("person", person, 32)?;
     check("camera", camera, 64)?;
     Ok(format!("lhmpp/{person}/frame/{camera}"))
 }
 
 /// `lhmpp/<person>/events`: the event service every stream of one person notifies.
-pub fn event_service(person: &str) -> Result<String, NameError> {
+pub fn event_service(person: &str) -> Result<String, ServiceNameError> {
     check("person", person, 32)?;
     Ok(format!("lhmpp/{person}/events"))
 }

@@ -127,7 +127,7 @@ pub fn write_every_type(writer: &mut BagWriter, copies: u64) -> Value {
             Quaternion::TYPE_NAME,
             json!({"z": 0.6, "w": 0.8}),
         );
-        let pose = lhmpp::msgs::Pose {
+        let pose = lhmpp::msgs::GeometryPose {
             position: Point {
                 x: 4.0,
                 y: 5.0,
@@ -138,7 +138,7 @@ pub fn write_every_type(writer: &mut BagWriter, copies: u64) -> Value {
         writer.write("/pose", t, &pose).unwrap();
         put(
             "/pose",
-            lhmpp::msgs::Pose::TYPE_NAME,
+            lhmpp::msgs::GeometryPose::TYPE_NAME,
             json!({"position.y": 5.0, "orientation.w": 1.0}),
         );
         writer.write("/transform", t, &ts.transform).unwrap();

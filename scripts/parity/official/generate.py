@@ -1,5 +1,5 @@
 """Runs the official LHM++ forward (the official modules, unchanged, through `shims.py`) on
-seeded random weights and records everything our port needs to replay it (issue 21):
+seeded random weights and records everything our port needs to replay it:
 
   OUT/config.json        the official model config the modules were built from
   OUT/model.safetensors  the official state dict under its own names (f32; for --size small

@@ -1,5 +1,5 @@
 """Math-preserving shims that let the official LHM++ modules run on a CPU, and the recorders of
-the official forward's two random choices (issue 21; shared/reference/official-forward.md).
+the official forward's two random choices (shared/reference/official-forward.md).
 
 No official file is edited. What is replaced is either never called on the forward path (import
 stubs: any call raises), a CUDA-only helper with a CPU equivalent of the same math
