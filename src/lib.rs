@@ -18,6 +18,9 @@ pub mod model;
 pub mod msgs;
 pub mod node;
 pub mod reconstruct;
+mod simd;
 pub mod splat;
 pub mod synth;
+#[doc(hidden)]
+pub mod testing;
 pub mod transport;

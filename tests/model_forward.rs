@@ -7,6 +7,7 @@ use lhmpp::model::cache::ViewTokenCache;
 use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::point::synthetic::body_surface_points;
 use lhmpp::model::{GaussianOutput, Lhmpp, LhmppConfig};
+use lhmpp::testing::max_abs_diff as max_diff;
 
 fn points(n: usize) -> (Tensor, Tensor) {
     let (p, nrm) = body_surface_points(n, 7);
@@ -28,17 +29,6 @@ fn image(seed: f32) -> Tensor {
         .map(|i| 0.5 + 0.5 * ((i as f32) * 0.013 + seed).sin())
         .collect();
     Tensor::from_vec(v, (3, h, w), &Device::Cpu).unwrap()
-}
-
-fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
-    (a - b)
-        .unwrap()
-        .abs()
-        .unwrap()
-        .max_all()
-        .unwrap()
-        .to_scalar::<f32>()
-        .unwrap()
 }
 
 fn all_diff(a: &GaussianOutput, b: &GaussianOutput) -> f32 {

@@ -101,6 +101,7 @@ pub fn merge_heads(x: &Tensor) -> Result<Tensor> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::max_abs_diff as max_diff;
     use candle_core::Device;
 
     /// Naive reference: explicit loops over every (b, h, i).
@@ -145,13 +146,6 @@ mod tests {
         out
     }
 
-    fn max_diff(a: &[f32], b: &[f32]) -> f32 {
-        a.iter()
-            .zip(b)
-            .map(|(x, y)| (x - y).abs())
-            .fold(0.0, f32::max)
-    }
-
     #[test]
     fn attention_equals_naive_reference() {
         let dev = Device::Cpu;
@@ -176,7 +170,7 @@ mod tests {
         let mask = Tensor::randn(0f32, 1.0, (1, 1, 10, 9), &dev).unwrap();
         let whole = attention_in_chunks(&q, &k, &v, Some(&mask), 10).unwrap();
         let chunked = attention_in_chunks(&q, &k, &v, Some(&mask), 3).unwrap();
-        let diff = crate::model::testing::max_abs_diff(&whole, &chunked);
+        let diff = crate::testing::max_abs_diff(&whole, &chunked);
         assert!(diff < 1e-6);
     }
 
@@ -197,7 +191,7 @@ mod tests {
             None,
         )
         .unwrap();
-        let diff = crate::model::testing::max_abs_diff(&got, &reference);
+        let diff = crate::testing::max_abs_diff(&got, &reference);
         assert!(diff < 1e-6);
         let naive_out = naive(&q, &k, &v, Some(&mask));
         let got = attention(&q, &k, &v, Some(&mask))

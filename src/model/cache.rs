@@ -104,8 +104,8 @@ impl ViewTokenCache {
 mod tests {
     use super::*;
     use crate::model::checkpoint::seeded_var_builder;
-    use crate::model::testing::max_abs_diff as max_diff;
     use crate::model::LhmppConfig;
+    use crate::testing::max_abs_diff as max_diff;
     use candle_core::{DType, Device};
 
     #[test]

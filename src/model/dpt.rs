@@ -22,22 +22,24 @@
 //! transposed convolutions as one gemm + scatter, each fusion block's 1×1 `out_conv` before its
 //! (commuting) bilinear resize, and the sigmoid before a single NCHW copy at the end. Other
 //! devices and dtypes, and [`NeuralRenderer::with_candle_ops`], run the stock candle ops.
+//!
+//! This module holds the configuration, the patchify front and [`NeuralRenderer`]; the head on
+//! stock candle ops is in `candle_head`, the same head packed for the CPU kernels in `cpu_head`.
+
+mod candle_head;
+mod cpu_head;
+#[cfg(test)]
+mod tests;
 
 use std::time::{Duration, Instant};
 
 use candle_core::{DType, Device, Module, Result, Tensor, D};
-use candle_nn::{
-    conv2d, conv2d_no_bias, conv_transpose2d, Conv2d, Conv2dConfig, ConvTranspose2d,
-    ConvTranspose2dConfig, VarBuilder,
-};
+use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
-use super::ops::conv2d::{Epilogue, PackedConv2d};
-use super::ops::conv_transpose::PackedConvTranspose2d;
-use super::ops::feature_map::FeatureMap;
-use super::ops::layer_norm::{layer_norm, LayerNorm};
 use super::ops::linear::{linear_no_bias, Linear};
-use super::ops::upsample::upsample_bilinear;
+use candle_head::DptHead;
+use cpu_head::CpuHead;
 
 /// Neural-renderer configuration (official `neural_renderer` block of the config).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -137,18 +139,6 @@ pub enum DptError {
     },
 }
 
-fn conv3x3(c_in: usize, c_out: usize, vb: VarBuilder) -> Result<Conv2d> {
-    let cfg = Conv2dConfig {
-        padding: 1,
-        ..Default::default()
-    };
-    conv2d(c_in, c_out, 3, cfg, vb)
-}
-
-fn conv1x1(c_in: usize, c_out: usize, vb: VarBuilder) -> Result<Conv2d> {
-    conv2d(c_in, c_out, 1, Conv2dConfig::default(), vb)
-}
-
 /// 1-D sin/cos embedding of `pos` with `dim` channels (`[sin | cos]`, ω = 1/100^(2i/dim)).
 fn sincos(dim: usize, pos: f64) -> impl Iterator<Item = f32> {
     let half = dim / 2;
@@ -220,12 +210,12 @@ pub fn uv_position_embedding(
 /// Wall-clock time of each stage of one neural-renderer forward, in order of first use
 /// (repeated stages, such as the four fusion blocks' units, add up under one name).
 #[derive(Debug, Default, Clone)]
-pub struct StageTimes {
+pub struct DptStageTimes {
     /// `(stage, time)` pairs.
     pub stages: Vec<(&'static str, Duration)>,
 }
 
-impl StageTimes {
+impl DptStageTimes {
     fn add(&mut self, name: &'static str, d: Duration) {
         match self.stages.iter_mut().find(|(n, _)| *n == name) {
             Some((_, t)) => *t += d,
@@ -234,9 +224,9 @@ impl StageTimes {
     }
 }
 
-/// Laps the stages of one forward into an optional [`StageTimes`].
+/// Laps the stages of one forward into an optional [`DptStageTimes`].
 struct Clock<'a> {
-    times: Option<&'a mut StageTimes>,
+    times: Option<&'a mut DptStageTimes>,
     last: Instant,
 }
 
@@ -251,112 +241,6 @@ impl Clock<'_> {
     }
 }
 
-/// DPT `ResidualConvUnit`: `conv2(relu(conv1(relu(x)))) + relu(x)` — the official ReLU is in
-/// place, so the skip adds the rectified input.
-#[derive(Debug, Clone)]
-struct ResidualConvUnit {
-    conv1: Conv2d,
-    conv2: Conv2d,
-}
-
-impl ResidualConvUnit {
-    fn new(features: usize, vb: VarBuilder) -> Result<Self> {
-        Ok(Self {
-            conv1: conv3x3(features, features, vb.pp("conv1"))?,
-            conv2: conv3x3(features, features, vb.pp("conv2"))?,
-        })
-    }
-
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        let x = x.relu()?;
-        let out = self.conv2.forward(&self.conv1.forward(&x)?.relu()?)?;
-        out + x
-    }
-}
-
-/// DPT `FeatureFusionBlock` (`scratch.refinenet{i}`).
-#[derive(Debug, Clone)]
-struct FusionBlock {
-    res1: Option<ResidualConvUnit>,
-    res2: ResidualConvUnit,
-    out_conv: Conv2d,
-}
-
-impl FusionBlock {
-    fn new(features: usize, has_residual: bool, vb: VarBuilder) -> Result<Self> {
-        Ok(Self {
-            res1: if has_residual {
-                Some(ResidualConvUnit::new(features, vb.pp("resConfUnit1"))?)
-            } else {
-                None
-            },
-            res2: ResidualConvUnit::new(features, vb.pp("resConfUnit2"))?,
-            out_conv: conv1x1(features, features, vb.pp("out_conv"))?,
-        })
-    }
-
-    /// `x` (+ `res1(skip)`) → `res2` → bilinear to `size` (or ×2) → `out_conv`.
-    fn forward(
-        &self,
-        x: &Tensor,
-        skip: Option<&Tensor>,
-        size: Option<(usize, usize)>,
-        clock: &mut Clock,
-    ) -> Result<Tensor> {
-        let mut out = x.clone();
-        if let (Some(res1), Some(skip)) = (&self.res1, skip) {
-            out = (out + res1.forward(skip)?)?;
-        }
-        let out = self.res2.forward(&out)?;
-        clock.lap("fusion residual units");
-        let (_, _, h, w) = out.dims4()?;
-        let (th, tw) = size.unwrap_or((2 * h, 2 * w));
-        let up = out.upsample_bilinear2d(th, tw, true)?;
-        clock.lap("fusion upsample");
-        let out = self.out_conv.forward(&up)?;
-        clock.lap("fusion out_conv");
-        Ok(out)
-    }
-}
-
-/// The resize layer of one DPT input.
-#[derive(Debug, Clone)]
-enum Resize {
-    Up(ConvTranspose2d),
-    Identity,
-    Down(Conv2d),
-}
-
-impl Resize {
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        match self {
-            Resize::Up(c) => c.forward(x),
-            Resize::Identity => Ok(x.clone()),
-            Resize::Down(c) => c.forward(x),
-        }
-    }
-}
-
-/// What follows the shared `refinenet4 → refinenet3 → refinenet2` trunk of the head.
-#[derive(Debug, Clone)]
-enum HeadTail {
-    /// `DPTHead`: `refinenet1` (×2 upsample), `output_conv1`, bilinear to (H, W), position
-    /// embedding, `output_conv2` (3×3, ReLU, 1×1 to 4).
-    Dpt {
-        refine1: Box<FusionBlock>,
-        output_conv1: Conv2d,
-        output_conv2a: Conv2d,
-        output_conv2b: Conv2d,
-    },
-    /// `MLPPixelShuffleDPTHead`: `+ l1_residual_fuse(layer1_rn)` (1×1), `refinenet1_ps_mlp`
-    /// (1×1 to 4·u²), `pixel_shuffle(u)`, bilinear to (H, W); no position embedding.
-    PixelShuffle {
-        l1_residual_fuse: Conv2d,
-        ps_mlp: Conv2d,
-        factor: usize,
-    },
-}
-
 /// `F.pixel_shuffle(x, u)`: `[B, C·u², H, W]` → `[B, C, H·u, W·u]`, with
 /// `out[c, y·u + i, x·u + j] = in[c·u² + i·u + j, y, x]`.
 pub fn pixel_shuffle(x: &Tensor, u: usize) -> Result<Tensor> {
@@ -368,452 +252,6 @@ pub fn pixel_shuffle(x: &Tensor, u: usize) -> Result<Tensor> {
     x.reshape((b, c, u, u, h, w))?
         .permute((0, 1, 4, 2, 5, 3))?
         .reshape((b, c, h * u, w * u))
-}
-
-/// [`pixel_shuffle`] on a channels-last map.
-fn pixel_shuffle_nhwc(x: &FeatureMap, u: usize) -> Result<FeatureMap> {
-    if u == 0 || x.channels % (u * u) != 0 {
-        candle_core::bail!(
-            "pixel_shuffle: {} channels are not a multiple of {u}²",
-            x.channels
-        );
-    }
-    let c = x.channels / (u * u);
-    let (h, w) = (x.height * u, x.width * u);
-    let mut out = FeatureMap::zeros(x.batch, h, w, c);
-    out.data
-        .par_chunks_mut(w * c)
-        .enumerate()
-        .for_each(|(row, dst)| {
-            let (bi, oy) = (row / h, row % h);
-            let (y, i) = (oy / u, oy % u);
-            for ox in 0..w {
-                let (xx, j) = (ox / u, ox % u);
-                let src = &x.data[((bi * x.height + y) * x.width + xx) * x.channels..];
-                for (ci, v) in dst[ox * c..(ox + 1) * c].iter_mut().enumerate() {
-                    *v = src[ci * u * u + i * u + j];
-                }
-            }
-        });
-    Ok(out)
-}
-
-/// The VGGT-style `DPTHead` (`neural_renderer.dense_predictor`), output_dim 4, or its
-/// `MLPPixelShuffleDPTHead` variant (same front and first three fusion blocks).
-#[derive(Debug, Clone)]
-struct DptHead {
-    norm: LayerNorm,
-    projects: Vec<Conv2d>,
-    resize: Vec<Resize>,
-    layer_rn: Vec<Conv2d>,
-    /// `refinenet4`, `refinenet3`, `refinenet2`, in the order they run.
-    trunk: Vec<FusionBlock>,
-    tail: HeadTail,
-}
-
-impl DptHead {
-    fn new(cfg: &DptConfig, vb: VarBuilder) -> Result<Self> {
-        let dim_in = cfg.head_dim();
-        let oc = cfg.out_channels;
-        let f = cfg.features;
-        let projects = (0..4)
-            .map(|i| conv1x1(dim_in, oc[i], vb.pp("projects").pp(i)))
-            .collect::<Result<Vec<_>>>()?;
-        let rl = vb.pp("resize_layers");
-        let up = |i: usize, k: usize| -> Result<Resize> {
-            let cfg = ConvTranspose2dConfig {
-                stride: k,
-                ..Default::default()
-            };
-            Ok(Resize::Up(conv_transpose2d(
-                oc[i],
-                oc[i],
-                k,
-                cfg,
-                rl.pp(i),
-            )?))
-        };
-        let down = Conv2dConfig {
-            padding: 1,
-            stride: 2,
-            ..Default::default()
-        };
-        let resize = vec![
-            up(0, 4)?,
-            up(1, 2)?,
-            Resize::Identity,
-            Resize::Down(conv2d(oc[3], oc[3], 3, down, rl.pp(3))?),
-        ];
-        let scratch = vb.pp("scratch");
-        let pad1 = Conv2dConfig {
-            padding: 1,
-            ..Default::default()
-        };
-        let layer_rn = (0..4)
-            .map(|i| conv2d_no_bias(oc[i], f, 3, pad1, scratch.pp(format!("layer{}_rn", i + 1))))
-            .collect::<Result<Vec<_>>>()?;
-        let trunk = [4usize, 3, 2]
-            .into_iter()
-            .map(|i| FusionBlock::new(f, i != 4, scratch.pp(format!("refinenet{i}"))))
-            .collect::<Result<Vec<_>>>()?;
-        let tail = match cfg.pixel_shuffle {
-            None => {
-                let oc2 = scratch.pp("output_conv2");
-                HeadTail::Dpt {
-                    refine1: Box::new(FusionBlock::new(f, true, scratch.pp("refinenet1"))?),
-                    output_conv1: conv3x3(f, f / 2, scratch.pp("output_conv1"))?,
-                    output_conv2a: conv3x3(f / 2, 32, oc2.pp("0"))?,
-                    output_conv2b: conv1x1(32, 4, oc2.pp("2"))?,
-                }
-            }
-            Some(u) => HeadTail::PixelShuffle {
-                l1_residual_fuse: conv1x1(f, f, vb.pp("l1_residual_fuse"))?,
-                ps_mlp: conv1x1(f, 4 * u * u, vb.pp("refinenet1_ps_mlp"))?,
-                factor: u,
-            },
-        };
-        Ok(Self {
-            norm: layer_norm(dim_in, 1e-5, vb.pp("norm"))?,
-            projects,
-            resize,
-            layer_rn,
-            trunk,
-            tail,
-        })
-    }
-
-    /// Four token groups `[B, hh·ww, dim_in]` → logits `[B, 4, H, W]` for an image of (H, W).
-    fn forward(
-        &self,
-        groups: &[Tensor],
-        hh: usize,
-        ww: usize,
-        image: (usize, usize),
-        clock: &mut Clock,
-    ) -> Result<Tensor> {
-        let (h_img, w_img) = image;
-        let aspect = w_img as f64 / h_img as f64;
-        let device = groups[0].device();
-        let mut feats = Vec::with_capacity(4);
-        for (i, g) in groups.iter().enumerate() {
-            let b = g.dim(0)?;
-            let x = self.norm.forward(g)?;
-            let x = x.transpose(1, 2)?.reshape((b, x.dim(2)?, hh, ww))?;
-            let x = self.projects[i].forward(&x)?;
-            let pe = uv_position_embedding(x.dim(1)?, hh, ww, aspect, 0.1, device)?;
-            let x = x.broadcast_add(&pe.to_dtype(x.dtype())?)?;
-            feats.push(self.resize[i].forward(&x)?);
-        }
-        clock.lap("norm, projects, resize");
-        let rn = feats
-            .iter()
-            .zip(&self.layer_rn)
-            .map(|(f, c)| c.forward(f))
-            .collect::<Result<Vec<_>>>()?;
-        clock.lap("layer_rn");
-        let size = |t: &Tensor| -> Result<(usize, usize)> {
-            let (_, _, h, w) = t.dims4()?;
-            Ok((h, w))
-        };
-        let out = self.trunk[0].forward(&rn[3], None, Some(size(&rn[2])?), clock)?;
-        let out = self.trunk[1].forward(&out, Some(&rn[2]), Some(size(&rn[1])?), clock)?;
-        let out = self.trunk[2].forward(&out, Some(&rn[1]), Some(size(&rn[0])?), clock)?;
-        match &self.tail {
-            HeadTail::Dpt {
-                refine1,
-                output_conv1,
-                output_conv2a,
-                output_conv2b,
-            } => {
-                let out = refine1.forward(&out, Some(&rn[0]), None, clock)?;
-                let out = output_conv1.forward(&out)?;
-                clock.lap("output_conv1");
-                let out = out.upsample_bilinear2d(h_img, w_img, true)?;
-                let pe = uv_position_embedding(out.dim(1)?, h_img, w_img, aspect, 0.1, device)?;
-                let out = out.broadcast_add(&pe.to_dtype(out.dtype())?)?;
-                clock.lap("full-size upsample + position");
-                let out = output_conv2b.forward(&output_conv2a.forward(&out)?.relu()?)?;
-                clock.lap("output_conv2");
-                Ok(out)
-            }
-            HeadTail::PixelShuffle {
-                l1_residual_fuse,
-                ps_mlp,
-                factor,
-            } => {
-                let out = (out + l1_residual_fuse.forward(&rn[0])?)?;
-                let out = pixel_shuffle(&ps_mlp.forward(&out)?, *factor)?;
-                clock.lap("pixel-shuffle tail");
-                let out = out.upsample_bilinear2d(h_img, w_img, true)?;
-                clock.lap("full-size upsample");
-                Ok(out)
-            }
-        }
-    }
-}
-
-/// `conv2(relu(conv1(relu(x)))) + relu(x)` packed for the channels-last CPU kernels.
-#[derive(Debug, Clone)]
-struct CpuResidualUnit {
-    conv1: PackedConv2d,
-    conv2: PackedConv2d,
-}
-
-impl CpuResidualUnit {
-    fn new(unit: &ResidualConvUnit) -> Result<Self> {
-        Ok(Self {
-            conv1: PackedConv2d::from_candle(&unit.conv1)?,
-            conv2: PackedConv2d::from_candle(&unit.conv2)?,
-        })
-    }
-
-    /// The unit on `x` (consumed: its ReLU is the skip), plus `extra` if given; the bias, ReLUs
-    /// and both additions ride in the convolutions' epilogues.
-    fn forward(&self, mut x: FeatureMap, extra: Option<&FeatureMap>) -> Result<FeatureMap> {
-        x.relu_in_place();
-        let hidden = self.conv1.forward(
-            &x,
-            Epilogue {
-                residual: None,
-                relu: true,
-            },
-        )?;
-        if let Some(e) = extra {
-            x.add_assign(e)?;
-        }
-        self.conv2.forward(
-            &hidden,
-            Epilogue {
-                residual: Some(&x),
-                relu: false,
-            },
-        )
-    }
-}
-
-/// A fusion block packed for the CPU kernels.
-#[derive(Debug, Clone)]
-struct CpuFusion {
-    res1: Option<CpuResidualUnit>,
-    res2: CpuResidualUnit,
-    out_conv: PackedConv2d,
-}
-
-impl CpuFusion {
-    fn new(block: &FusionBlock) -> Result<Self> {
-        Ok(Self {
-            res1: block.res1.as_ref().map(CpuResidualUnit::new).transpose()?,
-            res2: CpuResidualUnit::new(&block.res2)?,
-            out_conv: PackedConv2d::from_candle(&block.out_conv)?,
-        })
-    }
-
-    /// As [`FusionBlock::forward`]. The 1×1 `out_conv` and the bilinear resize commute (the
-    /// interpolation weights sum to one), so the convolution runs on the smaller of the two maps.
-    fn forward(
-        &self,
-        x: FeatureMap,
-        skip: Option<FeatureMap>,
-        size: Option<(usize, usize)>,
-        clock: &mut Clock,
-    ) -> Result<FeatureMap> {
-        let x = match (&self.res1, skip) {
-            (Some(res1), Some(skip)) => res1.forward(skip, Some(&x))?,
-            _ => x,
-        };
-        let out = self.res2.forward(x, None)?;
-        clock.lap("fusion residual units");
-        let (th, tw) = size.unwrap_or((2 * out.height, 2 * out.width));
-        if th * tw >= out.height * out.width {
-            let out = self.out_conv.forward(&out, Epilogue::default())?;
-            clock.lap("fusion out_conv");
-            let up = upsample_bilinear(&out, th, tw)?;
-            clock.lap("fusion upsample");
-            Ok(up)
-        } else {
-            let up = upsample_bilinear(&out, th, tw)?;
-            clock.lap("fusion upsample");
-            let out = self.out_conv.forward(&up, Epilogue::default())?;
-            clock.lap("fusion out_conv");
-            Ok(out)
-        }
-    }
-}
-
-/// The resize layer of one DPT input, packed for the CPU kernels.
-#[derive(Debug, Clone)]
-enum CpuResize {
-    Up(PackedConvTranspose2d),
-    Identity,
-    Down(PackedConv2d),
-}
-
-/// [`HeadTail`] packed for the CPU kernels.
-#[derive(Debug, Clone)]
-enum CpuTail {
-    Dpt {
-        refine1: Box<CpuFusion>,
-        output_conv1: PackedConv2d,
-        output_conv2a: PackedConv2d,
-        output_conv2b: PackedConv2d,
-    },
-    PixelShuffle {
-        l1_residual_fuse: PackedConv2d,
-        ps_mlp: PackedConv2d,
-        factor: usize,
-    },
-}
-
-/// The DPT head packed once for the channels-last f32 CPU kernels (used when the head's
-/// input is f32 on the CPU).
-#[derive(Debug, Clone)]
-struct CpuHead {
-    projects: Vec<PackedConv2d>,
-    resize: Vec<CpuResize>,
-    layer_rn: Vec<PackedConv2d>,
-    trunk: Vec<CpuFusion>,
-    tail: CpuTail,
-}
-
-impl CpuHead {
-    fn new(head: &DptHead) -> Result<Self> {
-        let packed = |convs: &[Conv2d]| -> Result<Vec<PackedConv2d>> {
-            convs.iter().map(PackedConv2d::from_candle).collect()
-        };
-        Ok(Self {
-            projects: packed(&head.projects)?,
-            resize: head
-                .resize
-                .iter()
-                .map(|r| {
-                    Ok(match r {
-                        Resize::Up(c) => CpuResize::Up(PackedConvTranspose2d::from_candle(c)?),
-                        Resize::Identity => CpuResize::Identity,
-                        Resize::Down(c) => CpuResize::Down(PackedConv2d::from_candle(c)?),
-                    })
-                })
-                .collect::<Result<Vec<_>>>()?,
-            layer_rn: packed(&head.layer_rn)?,
-            trunk: head
-                .trunk
-                .iter()
-                .map(CpuFusion::new)
-                .collect::<Result<Vec<_>>>()?,
-            tail: match &head.tail {
-                HeadTail::Dpt {
-                    refine1,
-                    output_conv1,
-                    output_conv2a,
-                    output_conv2b,
-                } => CpuTail::Dpt {
-                    refine1: Box::new(CpuFusion::new(refine1)?),
-                    output_conv1: PackedConv2d::from_candle(output_conv1)?,
-                    output_conv2a: PackedConv2d::from_candle(output_conv2a)?,
-                    output_conv2b: PackedConv2d::from_candle(output_conv2b)?,
-                },
-                HeadTail::PixelShuffle {
-                    l1_residual_fuse,
-                    ps_mlp,
-                    factor,
-                } => CpuTail::PixelShuffle {
-                    l1_residual_fuse: PackedConv2d::from_candle(l1_residual_fuse)?,
-                    ps_mlp: PackedConv2d::from_candle(ps_mlp)?,
-                    factor: *factor,
-                },
-            },
-        })
-    }
-
-    /// [`DptHead::forward`] + sigmoid on channels-last maps → (rgb, mask); `norm` is the head's LayerNorm (candle's
-    /// fused CPU op on the token rows, which already are channels-last).
-    fn forward(
-        &self,
-        norm: &LayerNorm,
-        groups: &[Tensor],
-        hh: usize,
-        ww: usize,
-        image: (usize, usize),
-        clock: &mut Clock,
-    ) -> Result<(Tensor, Tensor)> {
-        let (h_img, w_img) = image;
-        let aspect = w_img as f64 / h_img as f64;
-        let none = Epilogue::default();
-        let mut rn = Vec::with_capacity(4);
-        for (i, g) in groups.iter().enumerate() {
-            let x = FeatureMap::from_tokens(&norm.forward(g)?, hh, ww)?;
-            let mut x = self.projects[i].forward(&x, none)?;
-            let (columns, rows) = uv_embedding_tables(x.channels, hh, ww, aspect, 0.1);
-            x.add_separable(&columns, &rows)?;
-            let x = match &self.resize[i] {
-                CpuResize::Up(c) => c.forward(&x)?,
-                CpuResize::Identity => x,
-                CpuResize::Down(c) => c.forward(&x, none)?,
-            };
-            clock.lap("norm, projects, resize");
-            rn.push(self.layer_rn[i].forward(&x, none)?);
-            clock.lap("layer_rn");
-        }
-        let side = |m: &FeatureMap| Some((m.height, m.width));
-        let (s0, s1, s2) = (side(&rn[0]), side(&rn[1]), side(&rn[2]));
-        let mut rn = rn.into_iter().map(Some).collect::<Vec<_>>();
-        let mut take = |i: usize| {
-            rn[i]
-                .take()
-                .ok_or_else(|| candle_core::Error::Msg(format!("dpt: layer {i} used twice")))
-        };
-        let out = self.trunk[0].forward(take(3)?, None, s2, clock)?;
-        let out = self.trunk[1].forward(out, Some(take(2)?), s1, clock)?;
-        let out = self.trunk[2].forward(out, Some(take(1)?), s0, clock)?;
-        let mut out = match &self.tail {
-            CpuTail::Dpt {
-                refine1,
-                output_conv1,
-                output_conv2a,
-                output_conv2b,
-            } => {
-                let out = refine1.forward(out, Some(take(0)?), None, clock)?;
-                let out = output_conv1.forward(&out, none)?;
-                clock.lap("output_conv1");
-                let mut out = upsample_bilinear(&out, h_img, w_img)?;
-                let (columns, rows) = uv_embedding_tables(out.channels, h_img, w_img, aspect, 0.1);
-                out.add_separable(&columns, &rows)?;
-                clock.lap("full-size upsample + position");
-                let hidden = output_conv2a.forward(
-                    &out,
-                    Epilogue {
-                        residual: None,
-                        relu: true,
-                    },
-                )?;
-                let out = output_conv2b.forward(&hidden, none)?;
-                clock.lap("output_conv2");
-                out
-            }
-            CpuTail::PixelShuffle {
-                l1_residual_fuse,
-                ps_mlp,
-                factor,
-            } => {
-                let fused = l1_residual_fuse.forward(
-                    &take(0)?,
-                    Epilogue {
-                        residual: Some(&out),
-                        relu: false,
-                    },
-                )?;
-                let out = pixel_shuffle_nhwc(&ps_mlp.forward(&fused, none)?, *factor)?;
-                clock.lap("pixel-shuffle tail");
-                let out = upsample_bilinear(&out, h_img, w_img)?;
-                clock.lap("full-size upsample");
-                out
-            }
-        };
-        out.sigmoid_in_place();
-        let out = out.to_nchw(groups[0].device())?;
-        let rgb_mask = (out.narrow(1, 0, 3)?, out.narrow(1, 3, 1)?);
-        clock.lap("sigmoid, to NCHW");
-        Ok(rgb_mask)
-    }
 }
 
 /// The neural renderer (`neural_renderer`): patchify + DPT head.
@@ -955,7 +393,7 @@ impl NeuralRenderer {
     pub fn forward_timed(
         &self,
         features: &Tensor,
-        times: &mut StageTimes,
+        times: &mut DptStageTimes,
     ) -> Result<(Tensor, Tensor)> {
         self.forward_inner(features, Some(times))
     }
@@ -963,7 +401,7 @@ impl NeuralRenderer {
     fn forward_inner(
         &self,
         features: &Tensor,
-        times: Option<&mut StageTimes>,
+        times: Option<&mut DptStageTimes>,
     ) -> Result<(Tensor, Tensor)> {
         let mut clock = Clock {
             times,
@@ -1033,199 +471,5 @@ impl NeuralRenderer {
         let rgb_mask = (out.narrow(1, 0, 3)?, out.narrow(1, 3, 1)?);
         clock.lap("sigmoid");
         Ok(rgb_mask)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::model::testing::max_abs_diff;
-    use candle_nn::VarMap;
-
-    fn renderer() -> Result<NeuralRenderer> {
-        let vm = VarMap::new();
-        let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
-        NeuralRenderer::new(&DptConfig::tiny(), vb.pp("neural_renderer"))
-    }
-
-    #[test]
-    fn renders_rgb_and_mask_of_the_input_size_in_unit_range() -> Result<()> {
-        let r = renderer()?;
-        let feats = Tensor::randn(0f32, 1.0, (2, 32, 35, 21), &Device::Cpu)?;
-        let (rgb, mask) = r.forward(&feats)?;
-        assert_eq!(rgb.dims(), &[2, 3, 35, 21]);
-        assert_eq!(mask.dims(), &[2, 1, 35, 21]);
-        for t in [&rgb, &mask] {
-            let v = t.flatten_all()?.to_vec1::<f32>()?;
-            assert!(v.iter().all(|x| (0.0..=1.0).contains(x)));
-            // not a constant image: the features reach the output
-            let (lo, hi) = v
-                .iter()
-                .fold((1f32, 0f32), |(l, h), &x| (l.min(x), h.max(x)));
-            assert!(hi - lo > 1e-4, "flat output {lo}..{hi}");
-        }
-        let (rgb2, mask2) = r.forward(&feats)?;
-        let d = (rgb - rgb2)?
-            .abs()?
-            .flatten_all()?
-            .max(0)?
-            .to_scalar::<f32>()?
-            + (mask - mask2)?
-                .abs()?
-                .flatten_all()?
-                .max(0)?
-                .to_scalar::<f32>()?;
-        assert_eq!(d, 0.0, "two runs differ");
-        Ok(())
-    }
-
-    #[test]
-    fn channels_last_cpu_kernels_match_the_candle_op_path() -> Result<()> {
-        let fast = renderer()?;
-        assert!(fast.cpu_head.is_some());
-        let slow = fast.clone().with_candle_ops();
-        for dims in [(2, 32, 35, 21), (1, 32, 49, 56), (1, 32, 7, 7)] {
-            let feats = Tensor::randn(0f32, 1.0, dims, &Device::Cpu)?;
-            let mut times = StageTimes::default();
-            let (rgb, mask) = fast.forward_timed(&feats, &mut times)?;
-            let (rgb_ref, mask_ref) = slow.forward(&feats)?;
-            let d = max_abs_diff(&rgb, &rgb_ref).max(max_abs_diff(&mask, &mask_ref));
-            // f32 rounding of a different summation order (Winograd, patch column order)
-            assert!(d < 1e-4, "{dims:?}: {d}");
-            // the same map stored channels-last (as the rasteriser emits it)
-            let hwc = feats
-                .permute((0, 2, 3, 1))?
-                .contiguous()?
-                .permute((0, 3, 1, 2))?;
-            assert!(!hwc.is_contiguous());
-            let (rgb_hwc, _) = fast.forward(&hwc)?;
-            let d = max_abs_diff(&rgb_hwc, &rgb_ref);
-            assert!(d < 1e-4, "channels-last input {dims:?}: {d}");
-            let names: Vec<_> = times.stages.iter().map(|(n, _)| *n).collect();
-            assert!(names.contains(&"layer_rn") && names.contains(&"fusion residual units"));
-        }
-        Ok(())
-    }
-
-    #[test]
-    fn pixel_shuffle_moves_channel_blocks_to_pixel_blocks() -> Result<()> {
-        // [1, 2·2², 2, 3]: value = channel·100 + y·10 + x
-        let (c, u, h, w) = (2usize, 2usize, 2usize, 3usize);
-        let data: Vec<f32> = (0..c * u * u * h * w)
-            .map(|i| {
-                let (ch, y, x) = (i / (h * w), (i / w) % h, i % w);
-                (ch * 100 + y * 10 + x) as f32
-            })
-            .collect();
-        let t = Tensor::from_vec(data.clone(), (1, c * u * u, h, w), &Device::Cpu)?;
-        let out = pixel_shuffle(&t, u)?;
-        assert_eq!(out.dims(), &[1, c, h * u, w * u]);
-        // out[c=1, y=1·2+1, x=2·2+0] = in[1·4 + 1·2 + 0, 1, 2]
-        let v = out.get(0)?.get(1)?.get(3)?.get(4)?.to_scalar::<f32>()?;
-        assert_eq!(v, (6 * 100 + 10 + 2) as f32);
-        // the channels-last version agrees everywhere
-        let nhwc = FeatureMap::from_nchw(&t)?;
-        let back = pixel_shuffle_nhwc(&nhwc, u)?.to_nchw(&Device::Cpu)?;
-        assert_eq!(max_abs_diff(&back, &out), 0.0);
-        Ok(())
-    }
-
-    #[test]
-    fn pixel_shuffle_head_cpu_kernels_match_the_candle_op_path() -> Result<()> {
-        let cfg = DptConfig {
-            pixel_shuffle: Some(2),
-            ..DptConfig::tiny()
-        };
-        let vb = crate::model::checkpoint::seeded_var_builder(4, DType::F32, &Device::Cpu);
-        let fast = NeuralRenderer::new(&cfg, vb.pp("neural_renderer"))?;
-        assert!(fast.cpu_head.is_some());
-        let slow = fast.clone().with_candle_ops();
-        for dims in [(1, 32, 35, 21), (2, 32, 14, 28)] {
-            let feats = Tensor::randn(0f32, 1.0, dims, &Device::Cpu)?;
-            let (rgb, mask) = fast.forward(&feats)?;
-            let (rgb_ref, mask_ref) = slow.forward(&feats)?;
-            assert_eq!(rgb.dims(), &[dims.0, 3, dims.2, dims.3]);
-            assert_eq!(mask.dims(), &[dims.0, 1, dims.2, dims.3]);
-            let d = max_abs_diff(&rgb, &rgb_ref).max(max_abs_diff(&mask, &mask_ref));
-            assert!(d < 1e-4, "{dims:?}: {d}");
-        }
-        Ok(())
-    }
-
-    #[test]
-    fn rejects_sizes_that_are_not_patch_multiples() -> Result<()> {
-        let r = renderer()?;
-        let bad = Tensor::zeros((1, 32, 20, 21), DType::F32, &Device::Cpu)?;
-        let err = r.forward(&bad).unwrap_err().to_string();
-        assert!(err.contains("multiples of 7"), "{err}");
-        let wrong_c = Tensor::zeros((1, 8, 21, 21), DType::F32, &Device::Cpu)?;
-        assert!(r.forward(&wrong_c).is_err());
-        Ok(())
-    }
-
-    #[test]
-    fn patch_tokens_are_ordered_row_column_channel() -> Result<()> {
-        let r = renderer()?;
-        // value = c * 10000 + y * 100 + x, so each token entry names its source pixel
-        let (c, h, w) = (32usize, 14usize, 7usize);
-        let data: Vec<f32> = (0..c * h * w)
-            .map(|i| {
-                let (ci, y, x) = (i / (h * w), (i / w) % h, i % w);
-                (ci * 10000 + y * 100 + x) as f32
-            })
-            .collect();
-        let t = Tensor::from_vec(data, (1, c, h, w), &Device::Cpu)?;
-        let tok = r.patch_tokens(&t)?;
-        assert_eq!(tok.dims(), &[1, 2, 7 * 7 * 32]);
-        let second = tok.get(0)?.get(1)?.to_vec1::<f32>()?;
-        // second patch starts at row 7; entry (ph=1, pw=2, c=3)
-        let at = (7 + 2) * 32 + 3;
-        assert_eq!(second[at], (3 * 10000 + 8 * 100 + 2) as f32);
-        Ok(())
-    }
-
-    #[test]
-    fn channel_major_patches_are_ordered_channel_row_column() {
-        // value = c * 10000 + y * 100 + x over a [2, 3, 14, 21] map
-        let (b, c, h, w) = (2usize, 3usize, 14usize, 21usize);
-        let data: Vec<f32> = (0..b * c * h * w)
-            .map(|i| {
-                let (bi, ci, y, x) = (i / (c * h * w), (i / (h * w)) % c, (i / w) % h, i % w);
-                (bi * 100000 + ci * 10000 + y * 100 + x) as f32
-            })
-            .collect();
-        let rows = channel_major_patches(&data, (b, c, h, w), 7);
-        assert_eq!(rows.len(), b * 2 * 3 * c * 49);
-        // image 1, patch (1, 2) = token 5; entry (c=2, ph=3, pw=4)
-        let token = &rows[(6 + 5) * c * 49..(6 + 6) * c * 49];
-        assert_eq!(
-            token[2 * 49 + 3 * 7 + 4],
-            (100000 + 20000 + 10 * 100 + 18) as f32
-        );
-    }
-
-    #[test]
-    fn uv_embedding_is_sin_zero_cos_one_at_the_centre() -> Result<()> {
-        let pe = uv_position_embedding(8, 1, 1, 0.6, 0.1, &Device::Cpu)?;
-        let v = pe.flatten_all()?.to_vec1::<f32>()?;
-        // x half: sin(0) x2, cos(0) x2; y half the same; times 0.1
-        assert_eq!(v, vec![0.0, 0.0, 0.1, 0.1, 0.0, 0.0, 0.1, 0.1]);
-        let pe = uv_position_embedding(4, 2, 3, 1.5, 1.0, &Device::Cpu)?;
-        // x of the first column: -span_x * (w-1)/w with span_x = 1.5 / sqrt(1.5² + 1)
-        let x0 = -(1.5 / (1.5f64 * 1.5 + 1.0).sqrt()) * 2.0 / 3.0;
-        let got = pe.get(0)?.get(0)?.get(0)?.get(0)?.to_scalar::<f32>()?;
-        assert!((got as f64 - x0.sin()).abs() < 1e-6);
-        Ok(())
-    }
-
-    #[test]
-    fn bilinear_resize_aligns_corners() -> Result<()> {
-        let t = Tensor::new(&[[[[0f32, 2.0], [4.0, 6.0]]]], &Device::Cpu)?;
-        let u = t
-            .upsample_bilinear2d(3, 3, true)?
-            .flatten_all()?
-            .to_vec1::<f32>()?;
-        assert_eq!(u, vec![0.0, 1.0, 2.0, 2.0, 3.0, 4.0, 4.0, 5.0, 6.0]);
-        Ok(())
     }
 }

@@ -302,7 +302,7 @@ mod tests {
         let img = Tensor::rand(0f32, 1.0, (2, 3, 56, 56), &Device::Cpu).unwrap();
         let both = enc.forward(&img).unwrap();
         let second = enc.forward(&img.narrow(0, 1, 1).unwrap()).unwrap();
-        let diff = crate::model::testing::max_abs_diff(
+        let diff = crate::testing::max_abs_diff(
             &both.patch_tokens.narrow(0, 1, 1).unwrap(),
             &second.patch_tokens,
         );

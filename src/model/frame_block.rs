@@ -285,10 +285,8 @@ mod tests {
         for (a, b) in n(&x).iter().zip(n(&y)) {
             assert!((a - b).abs() < 1e-4);
         }
-        let special_diff = crate::model::testing::max_abs_diff(
-            &x.narrow(2, 0, 5).unwrap(),
-            &y.narrow(2, 0, 5).unwrap(),
-        );
+        let special_diff =
+            crate::testing::max_abs_diff(&x.narrow(2, 0, 5).unwrap(), &y.narrow(2, 0, 5).unwrap());
         assert_eq!(special_diff, 0.0);
     }
 

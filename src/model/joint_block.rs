@@ -357,7 +357,7 @@ mod tests {
         let c2 = Tensor::randn(0f32, 1.0, (5, 32), &Device::Cpu).unwrap();
         let (a, _) = b.forward(&p, &c1, &t).unwrap();
         let (b2, _) = b.forward(&p, &c2, &t).unwrap();
-        let diff = crate::model::testing::max_abs_diff(&a, &b2);
+        let diff = crate::testing::max_abs_diff(&a, &b2);
         assert!(diff > 1e-6);
     }
 }

@@ -434,7 +434,7 @@ mod tests {
         .unwrap();
         assert_eq!(p.dims(), &[50, pv]);
         assert_eq!(t.dims(), tokens.dims());
-        let specials = crate::model::testing::max_abs_diff(
+        let specials = crate::testing::max_abs_diff(
             &t.narrow(1, 0, 5).unwrap(),
             &tokens.narrow(1, 0, 5).unwrap(),
         );

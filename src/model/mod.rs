@@ -25,9 +25,6 @@ pub mod shape_head;
 pub mod tensor_file;
 pub mod token_merge;
 
-#[cfg(test)]
-mod testing;
-
 pub use config::LhmppConfig;
 pub use gs_head::GaussianOutput;
 pub use lhmpp::{Lhmpp, ViewTokens};

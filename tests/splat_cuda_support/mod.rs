@@ -14,11 +14,4 @@ pub fn camera(width: u32, height: u32) -> Camera {
     )
 }
 
-/// Largest absolute difference of two maps of the same length.
-pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
-}
+pub use lhmpp::testing::max_abs_diff;

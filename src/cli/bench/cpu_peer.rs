@@ -20,7 +20,7 @@ use clap::Args;
 use lhmpp::model::attention::{attention, attention_reference, merge_heads, split_heads};
 use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::config::EncoderConfig;
-use lhmpp::model::dpt::{DptConfig, NeuralRenderer, StageTimes};
+use lhmpp::model::dpt::{DptConfig, DptStageTimes, NeuralRenderer};
 use lhmpp::model::encoder::DinoEncoder;
 use lhmpp::model::ops::conv2d::{Epilogue, PackedConv2d};
 use lhmpp::model::ops::feature_map::FeatureMap;
@@ -246,7 +246,7 @@ fn dpt_piece(
                 dpt_gflop(cfg, size),
                 t,
             );
-            let mut times = StageTimes::default();
+            let mut times = DptStageTimes::default();
             renderer.forward_timed(&feats, &mut times)?;
             let total: f64 = times.stages.iter().map(|(_, d)| d.as_secs_f64()).sum();
             println!(

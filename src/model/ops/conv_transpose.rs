@@ -107,7 +107,7 @@ impl PackedConvTranspose2d {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::testing::max_abs_diff;
+    use crate::testing::max_abs_diff;
     use candle_core::Device;
     use candle_nn::{ConvTranspose2d, ConvTranspose2dConfig, Module};
 

@@ -46,37 +46,12 @@ pub fn exp_approx(x: f32) -> f32 {
     p * two_n
 }
 
-/// Replaces every `x` of `xs` by `exp(x − shift)` and returns the sum of the results
-/// (accumulated in 8 lanes so that the sum vectorises too). Uses AVX-512 or AVX2 when the CPU
-/// has them (detected at run time), the baseline x86-64 / portable build otherwise.
-pub fn exp_shifted_sum(xs: &mut [f32], shift: f32) -> f32 {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe { exp_shifted_sum_avx512(xs, shift) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-            return unsafe { exp_shifted_sum_avx2(xs, shift) };
-        }
-    }
-    exp_shifted_sum_portable(xs, shift)
-}
-
-/// [`exp_shifted_sum_portable`] compiled for AVX-512F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn exp_shifted_sum_avx512(xs: &mut [f32], shift: f32) -> f32 {
-    exp_shifted_sum_portable(xs, shift)
-}
-
-/// [`exp_shifted_sum_portable`] compiled for AVX2 + FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn exp_shifted_sum_avx2(xs: &mut [f32], shift: f32) -> f32 {
-    exp_shifted_sum_portable(xs, shift)
+crate::simd::simd_dispatch! {
+    avx2_fma;
+    /// Replaces every `x` of `xs` by `exp(x − shift)` and returns the sum of the results
+    /// (accumulated in 8 lanes so that the sum vectorises too). Uses AVX-512 or AVX2 when the
+    /// CPU has them (detected at run time), the baseline x86-64 / portable build otherwise.
+    pub fn exp_shifted_sum[](xs: &mut [f32], shift: f32) -> f32 = exp_shifted_sum_portable;
 }
 
 /// The loop of [`exp_shifted_sum`], inlined into each instruction-set variant.

@@ -67,37 +67,12 @@ pub fn gelu_in_place(xs: &mut [f32]) {
     map_in_place(xs, gelu_approx)
 }
 
-/// Applies `f` (a function item, so it is inlined into each variant) to every element, in a
-/// loop compiled for AVX-512 or AVX2 + FMA when the CPU has them (detected at run time), the
-/// baseline build otherwise.
-fn map_in_place<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe { map_avx512(xs, f) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-            return unsafe { map_avx2(xs, f) };
-        }
-    }
-    map_portable(xs, f)
-}
-
-/// [`map_portable`] compiled for AVX-512F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn map_avx512<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
-    map_portable(xs, f)
-}
-
-/// [`map_portable`] compiled for AVX2 + FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn map_avx2<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
-    map_portable(xs, f)
+crate::simd::simd_dispatch! {
+    avx2_fma;
+    /// Applies `f` (a function item, so it is inlined into each variant) to every element, in
+    /// a loop compiled for AVX-512 or AVX2 + FMA when the CPU has them (detected at run time),
+    /// the baseline build otherwise.
+    fn map_in_place[F: Fn(f32) -> f32](xs: &mut [f32], f: F) = map_portable;
 }
 
 /// The loop of [`map_in_place`], inlined into each instruction-set variant.
@@ -111,6 +86,7 @@ fn map_portable<F: Fn(f32) -> f32>(xs: &mut [f32], f: F) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::max_abs_diff;
 
     /// `erf` from the f64 series / continued fraction is not in std: integrate exactly enough
     /// with Simpson's rule (2·∫₀ˣ e^{-t²} dt / √π).
@@ -147,11 +123,7 @@ mod tests {
             .unwrap();
         let mut got = xs.clone();
         gelu_in_place(&mut got);
-        let worst = got
-            .iter()
-            .zip(&want)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0f32, f32::max);
+        let worst = max_abs_diff(&got, &want);
         assert!(worst < 2e-6, "worst abs diff {worst}");
         let mut ext = [f32::MAX, -f32::MAX, 100.0, -100.0, 0.0];
         gelu_in_place(&mut ext);
@@ -173,11 +145,7 @@ mod tests {
             .unwrap();
         let mut got = xs.clone();
         gelu_tanh_in_place(&mut got);
-        let worst = got
-            .iter()
-            .zip(&want)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0f32, f32::max);
+        let worst = max_abs_diff(&got, &want);
         assert!(worst < 2e-6, "worst abs diff {worst}");
         let mut ext = [1e4f32, -1e4, 0.0];
         gelu_tanh_in_place(&mut ext);
@@ -193,11 +161,7 @@ mod tests {
         map_portable(&mut a, gelu_approx);
         let mut b = xs;
         gelu_in_place(&mut b);
-        let worst = a
-            .iter()
-            .zip(&b)
-            .map(|(x, y)| (x - y).abs())
-            .fold(0f32, f32::max);
+        let worst = max_abs_diff(&a, &b);
         assert!(worst < 1e-6, "{worst}");
     }
 }

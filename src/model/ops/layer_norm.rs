@@ -190,7 +190,7 @@ impl CustomOp3 for LayerNormOp {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::testing::max_abs_diff;
+    use crate::testing::max_abs_diff;
     use candle_core::{Device, D};
 
     #[test]

@@ -423,7 +423,7 @@ impl CustomOp3 for FusedLinear<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::testing::max_abs_diff;
+    use crate::testing::max_abs_diff;
     use candle_core::Device;
 
     fn reference(x: &Tensor, w: &Tensor, b: Option<&Tensor>, act: Activation) -> Tensor {

@@ -56,7 +56,7 @@ mod tests {
             let x = (Tensor::randn(0f32, 4.0, (rows, c), &Device::Cpu).unwrap() - 20.0).unwrap();
             let got = softmax_last_dim(&x).unwrap();
             let want = candle_nn::ops::softmax_last_dim(&x).unwrap();
-            let d = crate::model::testing::max_abs_diff(&got, &want);
+            let d = crate::testing::max_abs_diff(&got, &want);
             assert!(d < 1e-6, "rows={rows} c={c}: {d}");
         }
     }

@@ -64,7 +64,7 @@ pub fn upsample_bilinear(x: &FeatureMap, out_h: usize, out_w: usize) -> Result<F
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::testing::max_abs_diff;
+    use crate::testing::max_abs_diff;
     use candle_core::{Device, Tensor};
 
     #[test]

@@ -564,7 +564,7 @@ fn run_blocks(blocks: &[PtBlock], mut feat: Tensor, level: &Level) -> Result<Ten
 mod tests {
     use super::*;
     use crate::model::checkpoint::seeded_var_builder;
-    use crate::model::testing::max_abs_diff;
+    use crate::testing::max_abs_diff;
 
     fn tiny_state(n: usize) -> (PointBackbone, PointState) {
         let cfg = PointBackboneConfig {

@@ -134,47 +134,23 @@ impl TileScratch {
 
 /// The instruction set [`blend_band`] uses on this CPU (unless told to stay portable).
 pub(crate) fn instruction_set() -> &'static str {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            return "AVX-512F";
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            return "AVX2";
-        }
-    }
-    "baseline"
+    crate::simd::Isa::widest(false).name()
 }
 
 /// Blends every tile of band `row` (tile row index) into `out`, with the widest SIMD the CPU
 /// has unless `portable` (the baseline build; same result bit for bit).
 pub(crate) fn blend_band(row: usize, input: &BlendInput, out: BandOut, portable: bool) {
-    #[cfg(target_arch = "x86_64")]
-    if !portable {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe { blend_band_avx512(row, input, out) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { blend_band_avx2(row, input, out) };
-        }
+    if portable {
+        blend_band_portable(row, input, out)
+    } else {
+        blend_band_simd(row, input, out)
     }
-    blend_band_portable(row, input, out)
 }
 
-/// [`blend_band_portable`] compiled for AVX-512F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn blend_band_avx512(row: usize, input: &BlendInput, out: BandOut) {
-    blend_band_portable(row, input, out)
-}
-
-/// [`blend_band_portable`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn blend_band_avx2(row: usize, input: &BlendInput, out: BandOut) {
-    blend_band_portable(row, input, out)
+crate::simd::simd_dispatch! {
+    avx2;
+    /// [`blend_band_portable`] compiled for the widest of AVX-512F and AVX2 the CPU has.
+    fn blend_band_simd[](row: usize, input: &BlendInput, out: BandOut) = blend_band_portable;
 }
 
 /// The band loop, inlined into each instruction-set variant.

@@ -6,6 +6,7 @@ use super::project::{project, MIN_ALPHA};
 use super::*;
 use crate::splat::synthetic::body_cloud;
 use crate::splat::Intrinsics;
+use crate::testing::max_abs_diff as max_diff;
 
 /// 3DGS compositing evaluated pixel by pixel over every visible splat in depth order (no
 /// tiles lists, no SIMD, `f32::exp`); a splat reaches the pixels of the tiles its 3σ square
@@ -68,14 +69,6 @@ fn reference(g: &Gaussians, camera: &Camera, options: &RenderOptions) -> RenderO
         }
     }
     out
-}
-
-fn max_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
 }
 
 fn scene() -> (Gaussians, Camera, RenderOptions) {

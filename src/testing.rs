@@ -1,0 +1,64 @@
+//! Helpers shared by the crate's unit tests, the integration tests and the benchmarks that
+//! compare two computations. Not part of the API.
+
+use candle_core::Tensor;
+
+/// Values that can be compared element by element: `f32` slices, vectors and tensors (any
+/// dtype and device, read as f32 in row-major order).
+pub trait Values {
+    /// The values, flattened.
+    fn values(&self) -> Vec<f32>;
+}
+
+impl Values for [f32] {
+    fn values(&self) -> Vec<f32> {
+        self.to_vec()
+    }
+}
+
+impl Values for Vec<f32> {
+    fn values(&self) -> Vec<f32> {
+        self.clone()
+    }
+}
+
+impl<const N: usize> Values for [f32; N] {
+    fn values(&self) -> Vec<f32> {
+        self.to_vec()
+    }
+}
+
+impl Values for Tensor {
+    fn values(&self) -> Vec<f32> {
+        self.flatten_all()
+            .and_then(|t| t.to_dtype(candle_core::DType::F32))
+            .and_then(|t| t.to_vec1())
+            .expect("tensor values")
+    }
+}
+
+/// `max |a − b|` over all elements; panics when `a` and `b` differ in shape.
+pub fn max_abs_diff<A: Values + ?Sized, B: Values + ?Sized>(a: &A, b: &B) -> f32 {
+    let (a, b) = (a.values(), b.values());
+    assert_eq!(a.len(), b.len(), "max_abs_diff: different sizes");
+    a.iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slices_vectors_and_tensors_compare_alike() {
+        let a = vec![1.0f32, -2.0, 3.0];
+        let b = [1.5f32, -2.0, 2.0];
+        assert_eq!(max_abs_diff(&a, &b), 1.0);
+        assert_eq!(max_abs_diff(&a[..], &b[..]), 1.0);
+        let ta = Tensor::from_vec(a, (3,), &candle_core::Device::Cpu).unwrap();
+        let tb = Tensor::from_slice(&b, (3,), &candle_core::Device::Cpu).unwrap();
+        assert_eq!(max_abs_diff(&ta, &tb), 1.0);
+    }
+}
