@@ -124,3 +124,79 @@ fn echo_process_prints_the_checksum_of_every_avatar_and_frame_sent() {
     let status = child.wait().unwrap();
     assert!(status.success(), "shm-echo exited with {status}");
 }
+
+/// Kills a child process when dropped (a failed assertion leaves no process behind).
+struct KillOnDrop(std::process::Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// The node's shared-memory side across a crash: `lhmpp run` on the demo bag is killed with
+/// SIGKILL while it publishes, and started again. The second node opens its publishers on the
+/// services the dead one left behind (iceoryx2 cleans the dead node's resources), and the
+/// `shm-echo` subscriber, which stayed up, receives the new node's avatar and frames, whose
+/// sequence numbers (render stamps) go on increasing past the dead node's.
+#[test]
+fn node_killed_and_restarted_publishes_again_to_a_subscriber_that_stayed() {
+    let person = unique_person("restart");
+    let mut echo = KillOnDrop(
+        Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+            .args(["shm-echo", "--person", &person, "--camera", "cam0"])
+            .args(["--timeout", "120"])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn lhmpp shm-echo"),
+    );
+    let mut lines = BufReader::new(echo.0.stdout.take().unwrap()).lines();
+    assert!(next_line(&mut lines).starts_with("ready "));
+    // The two nodes render at different sizes, so the frames tell which node sent them.
+    let start_node = |side: u32| {
+        KillOnDrop(
+            Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+                .args(["--log", "warn", "run", "--config"])
+                .arg(concat!(
+                    env!("CARGO_MANIFEST_DIR"),
+                    "/launch_configs/demo.yaml"
+                ))
+                .args(["--set", &format!("person_id={person}")])
+                .args(["--set", "outputs.shm=true", "--set", "outputs.ros=false"])
+                .args(["--set", "outputs.dir=''", "--set", "replay.exit_when_done=false"])
+                .args(["--set", &format!("outputs.render_size={side}")])
+                .stdout(Stdio::null())
+                .spawn()
+                .expect("spawn lhmpp run"),
+        )
+    };
+    // Reads echo lines until an avatar and then `frames` frames of `side`² pixels have
+    // arrived; returns the avatar's revision and the frames' sequence numbers.
+    let mut avatar_then_frames = |side: u32, frames: usize| {
+        let mut revision = None;
+        let mut sequence = Vec::new();
+        while sequence.len() < frames {
+            let line = next_line(&mut lines);
+            assert_eq!(field(&line, "person"), person, "{line}");
+            if line.starts_with("avatar ") {
+                revision = Some(field(&line, "rev").parse::<u64>().unwrap());
+            } else if revision.is_some() && line.contains(&format!(" {side}x{side}x3 ")) {
+                sequence.push(field(&line, "rev").parse::<u64>().unwrap());
+            }
+        }
+        (revision.unwrap(), sequence)
+    };
+
+    let first = start_node(64);
+    let (revision, before) = avatar_then_frames(64, 3);
+    assert_eq!(revision, 1, "the first node's first avatar");
+    drop(first);
+    let _second = start_node(48);
+    let (revision, after) = avatar_then_frames(48, 3);
+    assert_eq!(revision, 1, "the restarted node's first avatar");
+    assert!(
+        after[0] > *before.last().unwrap(),
+        "frame sequence {after:?} after the restart, {before:?} before"
+    );
+}
