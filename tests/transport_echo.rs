@@ -164,7 +164,12 @@ fn node_killed_and_restarted_publishes_again_to_a_subscriber_that_stayed() {
                 ))
                 .args(["--set", &format!("person_id={person}")])
                 .args(["--set", "outputs.shm=true", "--set", "outputs.ros=false"])
-                .args(["--set", "outputs.dir=''", "--set", "replay.exit_when_done=false"])
+                .args([
+                    "--set",
+                    "outputs.dir=''",
+                    "--set",
+                    "replay.exit_when_done=false",
+                ])
                 .args(["--set", &format!("outputs.render_size={side}")])
                 .stdout(Stdio::null())
                 .spawn()
