@@ -1260,6 +1260,33 @@ fn unusable_output_directories_cost_the_files_only_and_the_avatars_are_still_pub
         "{avatars:?}"
     );
     println!("  in process, the publishers (ROS 2, shared memory) got revisions {avatars:?}");
+    // And a shared-memory subscriber in another process receives the avatar.
+    let person = format!("badout{}", std::process::id());
+    let mut echo = Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+        .args(["shm-echo", "--person", &person, "--count", "1"])
+        .args(["--timeout", "120"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(echo.stdout.take().unwrap()));
+    let ready = lines.next().unwrap().unwrap();
+    assert!(ready.starts_with("ready"), "{ready}");
+    let mut sets = base.clone();
+    sets.extend([
+        format!("outputs.dir={shown}"),
+        "outputs.shm=true".into(),
+        format!("person_id={person}"),
+    ]);
+    let out = lhmpp(&replay, &sets);
+    assert!(out.status.success(), "{}", plain(&out.stderr));
+    let line = lines.next().unwrap().unwrap();
+    assert!(echo.wait().unwrap().success());
+    assert!(
+        line.contains(&format!("person={person}")) && line.contains("rev="),
+        "{line}"
+    );
+    println!("  with outputs.shm=true, `lhmpp shm-echo` in another process printed: {line}");
 
     // Read-only and full directories need a mount.
     let ro = d.join("ro");
