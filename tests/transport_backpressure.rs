@@ -107,6 +107,34 @@ fn killed_subscriber_does_not_block_the_publisher_and_others_still_receive() {
     assert_eq!(last, Some(1000));
 }
 
+/// A subscriber killed mid-stream, while it is reading (and may hold loaned samples), does not
+/// block the publisher, and a live subscriber receives the stream to its end.
+#[test]
+fn subscriber_killed_mid_stream_does_not_block_the_publisher() {
+    let person = unique_person("midstream");
+    let node = ShmNode::new(&format!("{person}-test"), ShmOptions::default()).unwrap();
+    let mut live = node.subscriber(&person, &["cam0"]).unwrap();
+    let publisher = node.frame_publisher(&person, "cam0").unwrap();
+    let mut echo = spawn_echo(&person);
+    let pixels = frame_pixels();
+    let started = Instant::now();
+    for revision in 1..=2000 {
+        if revision == 1000 {
+            sigkill(&mut echo);
+        }
+        publisher
+            .publish(Stamp::now(revision), &frame(&pixels))
+            .unwrap();
+    }
+    let took = started.elapsed();
+    assert!(took < 2 * GENEROUS, "2000 publishes took {took:?}");
+    let mut last = None;
+    while let Some(sample) = live.try_receive().unwrap() {
+        last = Some(sample.decode().unwrap().stamp.revision);
+    }
+    assert_eq!(last, Some(2000));
+}
+
 #[test]
 fn publisher_restarted_after_sigkill_starts_cleanly() {
     let person = unique_person("restart");
