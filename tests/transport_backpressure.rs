@@ -1,5 +1,6 @@
 //! A subscriber that never reads, or that is killed with SIGKILL, never blocks the publisher;
-//! a publisher restarted after a SIGKILL finds the service usable (stale resources cleaned).
+//! a publisher restarted after a SIGKILL finds the service usable (stale resources cleaned);
+//! the segments are readable only by their owner.
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
@@ -192,5 +193,37 @@ fn child_publisher_process() {
     println!("published");
     loop {
         std::thread::park(); // until SIGKILL
+    }
+}
+
+/// Shared-memory segments are readable only by their owner: every file the publishers and a
+/// subscriber add to /dev/shm has no group or other permission bits (iceoryx2's one shared
+/// management counter, `*.global_mgmt`, excepted; it holds no payload).
+#[test]
+fn shared_memory_segments_are_readable_only_by_their_owner() {
+    use std::os::unix::fs::PermissionsExt;
+    let listing = || -> std::collections::BTreeSet<String> {
+        std::fs::read_dir("/dev/shm")
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect()
+    };
+    let before = listing();
+    let person = unique_person("perm");
+    let node = ShmNode::new(&format!("{person}-test"), ShmOptions::default()).unwrap();
+    let mut subscriber = node.subscriber(&person, &["cam0"]).unwrap();
+    let publisher = node.frame_publisher(&person, "cam0").unwrap();
+    let _avatars = node.avatar_publisher(&person).unwrap();
+    let pixels = frame_pixels();
+    publisher.publish(Stamp::now(1), &frame(&pixels)).unwrap();
+    assert!(subscriber.try_receive().unwrap().is_some());
+    let added: Vec<String> = listing().difference(&before).cloned().collect();
+    assert!(!added.is_empty(), "no shared-memory file was created");
+    for name in added.iter().filter(|n| !n.ends_with(".global_mgmt")) {
+        let Ok(meta) = std::fs::metadata(format!("/dev/shm/{name}")) else {
+            continue; // removed meanwhile by a test running beside this one
+        };
+        let mode = meta.permissions().mode() & 0o777;
+        assert_eq!(mode & 0o077, 0, "/dev/shm/{name} has mode {mode:o}");
     }
 }
