@@ -212,3 +212,31 @@ impl fmt::Display for ComputeDevice {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every value of `T` is written and read back under its [`Choice::as_str`] name.
+    fn names_round_trip<T>()
+    where
+        T: Choice + PartialEq + fmt::Debug + fmt::Display + Serialize + serde::de::DeserializeOwned,
+    {
+        for &value in T::ALL {
+            let text = serde_yaml_ng::to_string(&value).unwrap();
+            assert_eq!(text.trim(), value.as_str(), "{value:?}");
+            let back: T = serde_yaml_ng::from_str(value.as_str()).unwrap();
+            assert_eq!(back, value);
+            assert_eq!(value.to_string(), value.as_str());
+        }
+    }
+
+    #[test]
+    fn serde_names_are_the_documented_names() {
+        names_round_trip::<ImageQos>();
+        names_round_trip::<Dtype>();
+        names_round_trip::<RenderDevice>();
+        names_round_trip::<RendererChoice>();
+        names_round_trip::<FrameQos>();
+    }
+}

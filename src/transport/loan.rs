@@ -9,8 +9,8 @@ use super::layout::{
     frame_slot, read_header, ArrayRef, LayoutError, PayloadHeader, PayloadKind, HEADER_LEN,
     TIMESTAMP_OFFSET,
 };
-use super::node::Svc;
 use super::publisher::ShmPublisher;
+use super::shm_node::Svc;
 
 /// A zero-filled shared-memory sample of a fixed byte length, loaned from a [`ShmPublisher`].
 /// The producer writes a complete payload (header first) into [`PayloadLoan::bytes_mut`];

@@ -12,17 +12,17 @@ mod error;
 pub mod footprint;
 pub mod layout;
 mod loan;
-mod node;
 pub mod options;
 mod publisher;
+mod shm_node;
 mod subscriber;
 
 pub use error::ShmError;
 pub use layout::{AvatarView, Decoded, FrameShape, FrameView, PayloadBody, PayloadKind, Stamp};
 pub use loan::{FrameArraysMut, FrameLoan, PayloadLoan};
-pub use node::ShmNode;
 pub use options::ShmOptions;
 pub use publisher::ShmPublisher;
+pub use shm_node::ShmNode;
 pub use subscriber::{ShmSample, ShmSubscriber};
 
 #[cfg(test)]

@@ -15,7 +15,7 @@ use tokio::io::Interest;
 
 use super::error::{iceoryx, ShmError};
 use super::layout::{decode, Decoded, LayoutError, PayloadKind};
-use super::node::{ShmNode, Svc};
+use super::shm_node::{ShmNode, Svc};
 
 /// One received payload, still in shared memory; released when dropped.
 #[derive(Debug)]
