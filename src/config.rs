@@ -119,6 +119,9 @@ pub struct InputConfig {
     /// Largest accepted image side in pixels; larger frames are rejected (compressed ones from
     /// their header, before their pixels are decoded).
     pub max_image_side: u32,
+    /// Most messages per second taken from one live input topic; faster ones are dropped
+    /// before they are decoded, and counted (0 disables the limit).
+    pub max_rate_hz: f64,
 }
 
 impl InputConfig {
@@ -266,6 +269,7 @@ impl Default for InputConfig {
             shape_topic: String::new(),
             image_qos: ImageQos::SensorData,
             max_image_side: 8192,
+            max_rate_hz: 120.0,
         }
     }
 }

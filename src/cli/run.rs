@@ -32,7 +32,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
     };
     println!(
-        "frames {} (cropped by mask {}, duplicates {}), rejected messages {}, views held {}, views encoded {}, \
+        "frames {} (cropped by mask {}, duplicates {}), rejected messages {}, rate-limited {}, views held {}, views encoded {}, \
          reconstructions {} (failed {}), revision {}, median latency {:.0} ms, \
          median reconstruction {:.0} ms, rendered frames {} (dropped {}, last {:.1} ms/frame), \
          wall {:.1} s",
@@ -40,6 +40,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         s.masked,
         s.duplicates,
         summary.rejections,
+        summary.rate_limited,
         summary.views_held,
         summary.encoded_views,
         s.reconstructions,

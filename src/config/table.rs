@@ -137,6 +137,12 @@ pub fn parameters() -> Vec<Parameter> {
             "larger frames are rejected (compressed ones from their header, before decoding)",
         ),
         p(
+            "inputs.max_rate_hz",
+            rate(),
+            "messages per second taken from each live input topic; faster ones are dropped \
+             before decoding and counted (`rate-limited` in the run summary); 0 = no limit",
+        ),
+        p(
             "frame_store.max_views",
             int_in(&FrameStoreConfig::MAX_VIEWS),
             "views held per person",

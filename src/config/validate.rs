@@ -77,6 +77,7 @@ impl NodeConfig {
             "inputs.max_image_side",
             in_range(self.inputs.max_image_side, &InputConfig::MAX_IMAGE_SIDE),
         )?;
+        check("inputs.max_rate_hz", rate(self.inputs.max_rate_hz))?;
         let store = &self.frame_store;
         check(
             "frame_store.max_views",

@@ -50,6 +50,8 @@ pub struct RunSummary {
     pub stats: PipelineStats,
     /// Input messages rejected on every path (live, replay, pipeline), by reason.
     pub rejections: Rejections,
+    /// Live messages dropped by the per-topic rate limit (`inputs.max_rate_hz`).
+    pub rate_limited: u64,
     /// What reading the replayed bag skipped (`None` for a live run).
     pub bag: Option<Salvage>,
     /// Views held at the end.
@@ -149,6 +151,9 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
     let summary = RunSummary {
         stats: pipeline.stats().clone(),
         rejections: pipeline.rejections(),
+        rate_limited: ros
+            .as_ref()
+            .map_or(0, |node| node.input_stats().rate_limited.values().sum()),
         bag: replay.as_ref().map(|r| r.salvage().clone()),
         views_held: pipeline.views_held(),
         revision: pipeline.revision(),

@@ -92,6 +92,8 @@ pub struct RosNodeOptions {
     pub image_qos: ImageQos,
     /// Largest accepted image side (pixels).
     pub max_image_side: u32,
+    /// Most messages per second taken from one input topic (0: no limit).
+    pub max_rate_hz: f64,
     /// Capacity of the input queue.
     pub queue_capacity: usize,
     /// What the input queue drops when full.
@@ -139,6 +141,7 @@ impl RosNodeOptions {
             shape_topic: non_empty(&cfg.inputs.shape_topic),
             image_qos: cfg.inputs.image_qos,
             max_image_side: cfg.inputs.max_image_side,
+            max_rate_hz: cfg.inputs.max_rate_hz,
             queue_capacity: 32,
             overflow: OverflowPolicy::DropOldest,
             error_report_period: Duration::from_secs(5),
@@ -288,7 +291,9 @@ impl RosNode {
         let start = Instant::now();
         let (tx, rx) = bounded(opts.queue_capacity, opts.overflow);
         let rosout = opts.rosout.then(|| node.logging_handle());
-        let sink = InputSink::new(tx, opts.error_report_period, start, rosout);
+        let min_interval =
+            (opts.max_rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / opts.max_rate_hz));
+        let sink = InputSink::new(tx, opts.error_report_period, start, rosout, min_interval);
 
         let mut tasks = Vec::new();
         let max_side = opts.max_image_side;

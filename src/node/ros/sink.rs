@@ -24,6 +24,9 @@ pub struct InputStats {
     pub rejections: Rejections,
     /// Events dropped because the input queue was full.
     pub queue_dropped: u64,
+    /// Messages dropped by the per-topic rate limit (`inputs.max_rate_hz`) before they were
+    /// decoded, per resolved topic.
+    pub rate_limited: BTreeMap<String, u64>,
 }
 
 #[derive(Debug)]
@@ -31,6 +34,7 @@ struct Counters {
     accepted: BTreeMap<String, u64>,
     errors: InputErrors,
     rejections: Rejections,
+    rate_limited: BTreeMap<String, u64>,
 }
 
 /// Shared by the subscription tasks of one node.
@@ -39,6 +43,7 @@ pub(crate) struct InputSink<E> {
     counters: Arc<Mutex<Counters>>,
     start: Instant,
     rosout: Option<Arc<NodeLoggingHandle>>,
+    min_interval: Option<Duration>,
 }
 
 impl<E> Clone for InputSink<E> {
@@ -48,6 +53,7 @@ impl<E> Clone for InputSink<E> {
             counters: self.counters.clone(),
             start: self.start,
             rosout: self.rosout.clone(),
+            min_interval: self.min_interval,
         }
     }
 }
@@ -58,6 +64,7 @@ impl<E: Send + 'static> InputSink<E> {
         report_period: Duration,
         start: Instant,
         rosout: Option<NodeLoggingHandle>,
+        min_interval: Option<Duration>,
     ) -> Self {
         Self {
             queue,
@@ -65,9 +72,11 @@ impl<E: Send + 'static> InputSink<E> {
                 accepted: BTreeMap::new(),
                 errors: InputErrors::new(report_period),
                 rejections: Rejections::default(),
+                rate_limited: BTreeMap::new(),
             })),
             start,
             rosout: rosout.map(Arc::new),
+            min_interval,
         }
     }
 
@@ -111,6 +120,23 @@ impl<E: Send + 'static> InputSink<E> {
         }
     }
 
+    /// The per-topic rate limit: whether a message of `topic` arriving at `now` comes sooner
+    /// than the minimum interval after the last one taken (`last`), and is dropped (counted)
+    /// before it is decoded; otherwise it is taken and `last` moves to `now`.
+    fn over_rate(&self, topic: &str, last: &mut Option<Duration>, now: Duration) -> bool {
+        let too_soon = match (self.min_interval, *last) {
+            (Some(min), Some(prev)) => now.saturating_sub(prev) < min,
+            _ => false,
+        };
+        if too_soon {
+            let mut counters = self.counters.lock().expect("input counters poisoned");
+            *counters.rate_limited.entry(topic.to_owned()).or_default() += 1;
+        } else {
+            *last = Some(now);
+        }
+        too_soon
+    }
+
     /// Snapshot of the counters.
     pub(crate) fn stats(&self) -> InputStats {
         let c = self.counters.lock().expect("input counters poisoned");
@@ -119,6 +145,7 @@ impl<E: Send + 'static> InputSink<E> {
             rejected: c.errors.counts().map(|(t, n)| (t.to_owned(), n)).collect(),
             rejections: c.rejections,
             queue_dropped: self.queue.dropped(),
+            rate_limited: c.rate_limited.clone(),
         }
     }
 
@@ -151,7 +178,11 @@ async fn read_subscription<E, M, F>(
 {
     let stream = sub.async_stream();
     futures::pin_mut!(stream);
+    let mut last_taken = None;
     while let Some(item) = stream.next().await {
+        if sink.over_rate(&topic, &mut last_taken, sink.now()) {
+            continue;
+        }
         match item {
             Ok((msg, _info)) => match convert(&topic, msg, sink.now()) {
                 Ok(event) => sink.accept(&topic, event),
@@ -166,4 +197,44 @@ async fn read_subscription<E, M, F>(
         }
     }
     tracing::debug!(topic, "subscription stream ended");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::node::input_queue::{bounded, OverflowPolicy};
+
+    #[test]
+    fn messages_sooner_than_the_rate_allows_are_dropped_and_counted_per_topic() {
+        let (tx, _rx) = bounded::<u32>(4, OverflowPolicy::DropOldest);
+        let sink = InputSink::new(
+            tx,
+            Duration::from_secs(1),
+            Instant::now(),
+            None,
+            Some(Duration::from_millis(100)),
+        );
+        let ms = Duration::from_millis;
+        let mut last = None;
+        let taken: Vec<u64> = [0, 50, 100, 150, 199, 250, 400]
+            .into_iter()
+            .filter(|&t| !sink.over_rate("/cam0", &mut last, ms(t)))
+            .collect();
+        assert_eq!(taken, [0, 100, 250, 400]);
+        // Another topic has its own budget.
+        let mut other = None;
+        assert!(!sink.over_rate("/pose", &mut other, ms(260)));
+        let stats = sink.stats();
+        assert_eq!(stats.rate_limited.get("/cam0"), Some(&3));
+        assert_eq!(stats.rate_limited.get("/pose"), None);
+    }
+
+    #[test]
+    fn no_limit_takes_everything() {
+        let (tx, _rx) = bounded::<u32>(4, OverflowPolicy::DropOldest);
+        let sink = InputSink::new(tx, Duration::from_secs(1), Instant::now(), None, None);
+        let mut last = None;
+        assert!((0..100).all(|_| !sink.over_rate("/cam0", &mut last, Duration::ZERO)));
+        assert!(sink.stats().rate_limited.is_empty());
+    }
 }
