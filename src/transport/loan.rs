@@ -5,12 +5,12 @@
 use iceoryx2::sample_mut::SampleMut;
 
 use super::error::{iceoryx, ShmError};
+use super::factory::Svc;
 use super::layout::{
     frame_slot, read_header, ArrayRef, LayoutError, PayloadHeader, PayloadKind, HEADER_LEN,
     TIMESTAMP_OFFSET,
 };
 use super::publisher::ShmPublisher;
-use super::shm_node::Svc;
 
 /// A zero-filled shared-memory sample of a fixed byte length, loaned from a [`ShmPublisher`].
 /// The producer writes a complete payload (header first) into [`PayloadLoan::bytes_mut`];

@@ -9,20 +9,20 @@
 
 pub mod checksum;
 mod error;
+mod factory;
 pub mod footprint;
 pub mod layout;
 mod loan;
 pub mod options;
 mod publisher;
-mod shm_node;
 mod subscriber;
 
 pub use error::ShmError;
+pub use factory::ShmNode;
 pub use layout::{AvatarView, Decoded, FrameShape, FrameView, PayloadBody, PayloadKind, Stamp};
 pub use loan::{FrameArraysMut, FrameLoan, PayloadLoan};
 pub use options::ShmOptions;
 pub use publisher::ShmPublisher;
-pub use shm_node::ShmNode;
 pub use subscriber::{ShmSample, ShmSubscriber};
 
 #[cfg(test)]

@@ -8,10 +8,10 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
 
 use super::error::{iceoryx, ShmError};
+use super::factory::{ShmNode, Svc};
 use super::layout::{read_header, Encoder, FrameShape, PayloadBody, PayloadKind, PersonId, Stamp};
 use super::loan::{FrameLoan, PayloadLoan};
 use super::options::event_service;
-use super::shm_node::{ShmNode, Svc};
 
 /// Publisher of one stream (`lhmpp/<person>/avatar` or `lhmpp/<person>/frame/<camera>`).
 ///

@@ -14,8 +14,8 @@ use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 
 use super::error::{iceoryx, ShmError};
+use super::factory::{ShmNode, Svc};
 use super::layout::{decode, Decoded, LayoutError, PayloadKind};
-use super::shm_node::{ShmNode, Svc};
 
 /// One received payload, still in shared memory; released when dropped.
 #[derive(Debug)]
