@@ -1,4 +1,4 @@
-//! The bad-input matrix (issue 18, item 3): every kind of bad input the node can be given, each
+//! The bad-input matrix: every kind of bad input the node can be given, each
 //! with a clear error naming the input, while the node goes on serving everything else.
 //!
 //! - Messages: one replayed bag carries every bad message on every subscribed topic (raw and
