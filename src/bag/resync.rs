@@ -108,8 +108,7 @@ fn chunk_at<R: Read + Seek>(reader: &mut R, at: u64, limit: u64) -> bool {
         return false;
     }
     match mcap::parse_record(op::CHUNK, &body) {
-        Ok(Record::Chunk { header, data }) => mcap::read::ChunkReader::new(header, &data)
-            .is_ok_and(|mut records| records.all(|r| r.is_ok())),
+        Ok(Record::Chunk { header, data }) => super::scan::chunk_records(&header, &data).is_ok(),
         _ => false,
     }
 }

@@ -175,15 +175,14 @@ impl<R: Read + Seek> RecordScanner<R> {
             Err(_) => end,
         };
         let compression = header.compression.clone();
-        let records: Result<Vec<Record<'_>>, _> =
-            mcap::read::ChunkReader::new(header, &data).and_then(|r| r.collect());
+        let records = chunk_records(&header, &data);
         match records {
             Ok(records) => {
                 self.chunk_count += 1;
                 if !compression.is_empty() {
                     self.compression.insert(compression);
                 }
-                Step::Records(records.into_iter().map(Record::into_owned).collect(), end)
+                Step::Records(records, end)
             }
             Err(e) => Step::BadChunk(format!("unreadable chunk: {e}"), end),
         }
@@ -288,5 +287,167 @@ impl<R: Read + Seek> Iterator for RecordScanner<R> {
                 return None;
             }
         }
+    }
+}
+
+/// The records of a chunk: decompressed here (the output bounded by the declared size),
+/// checked against the declared size and CRC, then split with every record length checked
+/// against what is left. (The `mcap` crate's chunk reader aborts the process on a damaged
+/// chunk that declares a huge record or size, and panics on others: found by `lhmpp fuzz
+/// mcap`.)
+pub(super) fn chunk_records(
+    header: &mcap::records::ChunkHeader,
+    data: &[u8],
+) -> Result<Vec<Record<'static>>, String> {
+    let declared = header.uncompressed_size;
+    if let Some(reason) = implausible_chunk_size(&header.compression, data.len(), declared) {
+        return Err(reason);
+    }
+    let bytes: std::borrow::Cow<'_, [u8]> = match header.compression.as_str() {
+        "" => data.into(),
+        "zstd" => {
+            let decoder =
+                zstd::stream::read::Decoder::new(data).map_err(|e| format!("zstd: {e}"))?;
+            read_bounded(decoder, declared)
+                .map_err(|e| format!("zstd: {e}"))?
+                .into()
+        }
+        "lz4" => {
+            let decoder = lz4::Decoder::new(data).map_err(|e| format!("lz4: {e}"))?;
+            read_bounded(decoder, declared)
+                .map_err(|e| format!("lz4: {e}"))?
+                .into()
+        }
+        other => return Err(format!("unsupported compression `{other}`")),
+    };
+    if bytes.len() as u64 != declared {
+        return Err(format!(
+            "decompressed to {}{} bytes, the header declares {declared}",
+            if bytes.len() as u64 > declared {
+                "more than "
+            } else {
+                ""
+            },
+            bytes.len().min(declared as usize)
+        ));
+    }
+    let crc = header.uncompressed_crc;
+    if crc != 0 && crc32fast::hash(&bytes) != crc {
+        return Err(format!("CRC mismatch (the header says {crc:#010x})"));
+    }
+    let mut records = Vec::new();
+    let mut pos = 0usize;
+    while pos < bytes.len() {
+        let left = bytes.len() - pos;
+        if left < RECORD_HEAD as usize {
+            return Err(format!("{left} stray bytes at the chunk's end"));
+        }
+        let opcode = bytes[pos];
+        let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().expect("8 bytes"));
+        let body_left = (left - RECORD_HEAD as usize) as u64;
+        if len > body_left {
+            return Err(format!(
+                "record 0x{opcode:02X} of {len} bytes overruns the chunk ({body_left} left)"
+            ));
+        }
+        let body = &bytes[pos + 9..pos + 9 + len as usize];
+        let record = mcap::parse_record(opcode, body)
+            .map_err(|e| format!("malformed record 0x{opcode:02X} in the chunk: {e}"))?;
+        records.push(record.into_owned());
+        pos += 9 + len as usize;
+    }
+    Ok(records)
+}
+
+/// Reads `reader` to its end, but at most `limit + 1` bytes (one more shows an overrun).
+fn read_bounded(reader: impl Read, limit: u64) -> std::io::Result<Vec<u8>> {
+    let mut out = Vec::with_capacity(limit as usize);
+    reader.take(limit + 1).read_to_end(&mut out)?;
+    Ok(out)
+}
+
+/// Largest uncompressed chunk read (the `mcap` crate allocates the declared size up front, and
+/// a failed allocation aborts the process).
+const MAX_CHUNK_BYTES: u64 = 1 << 30;
+/// Largest compression ratio believed for a compressed chunk.
+const MAX_CHUNK_RATIO: u64 = 1024;
+
+/// Why a chunk's declared uncompressed size cannot be right, if it cannot: a stored chunk
+/// whose two sizes differ, a size over [`MAX_CHUNK_BYTES`], or a ratio over
+/// [`MAX_CHUNK_RATIO`].
+fn implausible_chunk_size(compression: &str, stored: usize, uncompressed: u64) -> Option<String> {
+    let stored = stored as u64;
+    if compression.is_empty() && stored != uncompressed {
+        Some(format!(
+            "an uncompressed chunk of {stored} bytes declares {uncompressed}"
+        ))
+    } else if uncompressed > MAX_CHUNK_BYTES {
+        Some(format!(
+            "declares {uncompressed} uncompressed bytes, over the {MAX_CHUNK_BYTES}-byte limit"
+        ))
+    } else if uncompressed > stored.saturating_mul(MAX_CHUNK_RATIO).max(1 << 20) {
+        Some(format!(
+            "declares {uncompressed} uncompressed bytes from {stored} {compression} bytes"
+        ))
+    } else {
+        None
+    }
+}
+
+#[cfg(test)]
+mod chunk_tests {
+    use super::*;
+    use mcap::records::ChunkHeader;
+
+    fn header(compression: &str, uncompressed_size: u64) -> ChunkHeader {
+        ChunkHeader {
+            message_start_time: 0,
+            message_end_time: 0,
+            uncompressed_size,
+            uncompressed_crc: 0,
+            compression: compression.into(),
+            compressed_size: 0,
+        }
+    }
+
+    /// One record of `opcode` whose length field says `len`, followed by `body`.
+    fn record(opcode: u8, len: u64, body: &[u8]) -> Vec<u8> {
+        let mut out = vec![opcode];
+        out.extend_from_slice(&len.to_le_bytes());
+        out.extend_from_slice(body);
+        out
+    }
+
+    #[test]
+    fn damaged_chunks_are_errors_not_panics_or_huge_allocations() {
+        // A record inside the chunk that claims more bytes than the chunk holds (the mcap
+        // crate reserves the claimed size and aborts).
+        let data = record(op::MESSAGE, u64::MAX / 3, &[0; 16]);
+        let err = chunk_records(&header("", data.len() as u64), &data).unwrap_err();
+        assert!(err.contains("overruns the chunk"), "{err}");
+        // A stored chunk whose two sizes disagree.
+        let err = chunk_records(&header("", 999), &data).unwrap_err();
+        assert!(err.contains("declares 999"), "{err}");
+        // A compressed chunk declaring far more than it can hold.
+        let err = chunk_records(&header("zstd", 1 << 40), &data).unwrap_err();
+        assert!(err.contains("limit"), "{err}");
+        // Stray bytes after the last record.
+        let mut data = record(op::MESSAGE_INDEX, 6, &[0; 6]);
+        data.extend_from_slice(&[1, 2, 3]);
+        let err = chunk_records(&header("", data.len() as u64), &data).unwrap_err();
+        assert!(err.contains("stray bytes"), "{err}");
+    }
+
+    #[test]
+    fn a_zstd_chunk_round_trips_and_a_wrong_crc_is_caught() {
+        // A message index record for channel 1 with no entries: 2 + 4 bytes.
+        let raw = record(op::MESSAGE_INDEX, 6, &[1, 0, 0, 0, 0, 0]);
+        let packed = zstd::encode_all(&raw[..], 3).unwrap();
+        let mut good = header("zstd", raw.len() as u64);
+        good.uncompressed_crc = crc32fast::hash(&raw);
+        assert_eq!(chunk_records(&good, &packed).unwrap().len(), 1);
+        good.uncompressed_crc ^= 1;
+        let err = chunk_records(&good, &packed).unwrap_err();
+        assert!(err.contains("CRC mismatch"), "{err}");
     }
 }

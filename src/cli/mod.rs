@@ -8,6 +8,7 @@ mod body;
 mod config_cmd;
 mod config_source;
 mod eval;
+mod fuzz;
 mod model;
 mod model_parity;
 mod record;
@@ -63,6 +64,8 @@ enum Command {
     ShmEcho(shm_echo::ShmEchoArgs),
     /// Benchmarks that print tables (`bench render|model|points|transport`).
     Bench(bench::BenchArgs),
+    /// Mutation-fuzz a parser of untrusted input for a while (`fuzz cdr --seconds 600`).
+    Fuzz(fuzz::FuzzArgs),
 }
 
 /// An error that ends `lhmpp` with its own exit status, documented by its subcommand's
@@ -108,6 +111,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Bag(args) => bag::run(args),
         Command::Record(args) => record::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Fuzz(args) => fuzz::run(args),
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),
         Command::SynthDataset(args) => synth_dataset::run(args),
