@@ -15,6 +15,8 @@
 //! The rows of RELIABILITY.md's "bad-input matrix" quote what these tests print
 //! (`cargo test --release --test bad_input_matrix -- --nocapture`).
 
+mod bag_support;
+
 use lhmpp::bag::{BagReader, BagWriter};
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{
@@ -27,7 +29,6 @@ use lhmpp::node::ros::{ResolvedTopics, RosNodeOptions};
 use lhmpp::synth::capture::{
     image_topic, info_topic, mask_topic, POSE_TOPIC, SHAPE_TOPIC, START_NS,
 };
-use lhmpp::synth::{write_synthetic_bag, SynthOptions};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -548,16 +549,7 @@ fn bad_messages() -> Vec<Bad> {
 /// A synthetic person's bag (4 views, the last one PNG-compressed) with every bad message
 /// written first.
 fn bag_with_every_bad_message(dir: &Path, bad: &[Bad]) -> PathBuf {
-    let synth = dir.join("synth.mcap");
-    let options = SynthOptions {
-        views: RAW_VIEWS + 1,
-        heldout: 0,
-        size: 96,
-        points: 4000,
-        publish_shape: false,
-        ..SynthOptions::default()
-    };
-    write_synthetic_bag(&synth, &options).unwrap();
+    let synth = bag_support::synthetic_person_bag(dir, "synth.mcap", RAW_VIEWS + 1);
     let source = BagReader::open(&synth).unwrap();
     let path = dir.join("bad_inputs.mcap");
     let mut bag = BagWriter::create(&path).unwrap();
@@ -855,16 +847,7 @@ fn every_bad_message_is_rejected_by_reason_naming_its_topic_and_the_good_views_m
 
 /// A good 3-view bag for the file and config runs.
 fn small_bag(dir: &Path) -> PathBuf {
-    let path = dir.join("small.mcap");
-    let options = SynthOptions {
-        views: 3,
-        heldout: 0,
-        size: 96,
-        points: 4000,
-        ..SynthOptions::default()
-    };
-    write_synthetic_bag(&path, &options).unwrap();
-    path
+    bag_support::synthetic_person_bag(dir, "small.mcap", 3)
 }
 
 fn small_bag_overrides() -> Vec<String> {

@@ -17,7 +17,6 @@ use lhmpp::node::rejections::RejectReason;
 use lhmpp::node::replay::BagReplay;
 use lhmpp::node::ros::{ResolvedTopics, RosNodeOptions};
 use lhmpp::synth::capture::{image_topic, POSE_TOPIC, SHAPE_TOPIC, START_NS};
-use lhmpp::synth::{write_synthetic_bag, SynthOptions};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -37,16 +36,7 @@ fn planted() -> BTreeMap<String, u64> {
 
 /// A synthetic person's bag with the bad messages written first.
 fn bag_with_bad_messages(dir: &Path) -> PathBuf {
-    let synth = dir.join("synth.mcap");
-    let options = SynthOptions {
-        views: VIEWS,
-        heldout: 0,
-        size: 96,
-        points: 4000,
-        publish_shape: false,
-        ..SynthOptions::default()
-    };
-    write_synthetic_bag(&synth, &options).unwrap();
+    let synth = bag_support::synthetic_person_bag(dir, "synth.mcap", VIEWS);
     let source = BagReader::open(&synth).unwrap();
     let path = dir.join("bad.mcap");
     let mut bag = BagWriter::create(&path).unwrap();
@@ -198,15 +188,7 @@ fn rejections_agree_across_log_summary_pipeline_and_status() {
 #[test]
 fn a_damaged_bag_replays_the_other_views_and_the_summary_says_what_was_skipped() {
     let dir = tempfile::tempdir().unwrap();
-    let synth = dir.path().join("synth.mcap");
-    let options = SynthOptions {
-        views: VIEWS,
-        heldout: 0,
-        size: 96,
-        points: 4000,
-        ..SynthOptions::default()
-    };
-    write_synthetic_bag(&synth, &options).unwrap();
+    let synth = bag_support::synthetic_person_bag(dir.path(), "synth.mcap", VIEWS);
     // Everything but the images in the first chunk, then one chunk per image.
     let source = BagReader::open(&synth).unwrap();
     let path = dir.path().join("one_chunk_per_view.mcap");

@@ -66,6 +66,20 @@ pub struct FuzzArgs {
     crashes: PathBuf,
 }
 
+/// Kinds a corpus file may be named after (`BodyPose-1.cdr`, `jpeg-1.bin`), as
+/// [`decode_and_check`] and the image target read them.
+const CORPUS_KINDS: [&str; 9] = [
+    "Image",
+    "mask",
+    "CompressedImage",
+    "CameraInfo",
+    "BodyPose",
+    "BodyShape",
+    "TFMessage",
+    "png",
+    "jpeg",
+];
+
 /// One seed input, with the message type it holds for the CDR target.
 struct Seed {
     kind: &'static str,
@@ -306,7 +320,8 @@ fn seeds(target: Target, corpus: &Path) -> Result<Vec<Seed>> {
                     .file_stem()
                     .and_then(|s| s.to_str())
                     .and_then(|s| s.split('-').next())
-                    .map_or("file", |k| Box::leak(k.to_owned().into_boxed_str()));
+                    .and_then(|k| CORPUS_KINDS.iter().copied().find(|known| *known == k))
+                    .unwrap_or("file");
                 seeds.push(Seed { kind, bytes });
             }
         }

@@ -3,7 +3,7 @@
 //! messages that live subscriptions ([`super::ros`]) and bag replay ([`super::replay`]) share.
 //! Synchronous: no ROS 2 endpoint and no runtime.
 
-use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image};
+use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Header, Image};
 use crate::reconstruct::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
 use image::{GrayImage, RgbImage};
 use std::sync::Arc;
@@ -86,13 +86,7 @@ pub(crate) fn image_event(
 ) -> Result<InputEvent, String> {
     let raw = RawImage::from(&msg);
     let image = decode_raw(topic, &raw, max_side).map_err(|e| e.to_string())?;
-    Ok(InputEvent::Frame(CameraFrame {
-        topic: topic.to_owned(),
-        stamp_ns: msg.header.stamp.as_nanos(),
-        frame_id: msg.header.frame_id,
-        arrival,
-        image: Arc::new(image),
-    }))
+    Ok(frame_event(topic, msg.header, arrival, image))
 }
 
 /// `sensor_msgs/CompressedImage` → [`InputEvent::Frame`].
@@ -104,13 +98,18 @@ pub(crate) fn compressed_event(
 ) -> Result<InputEvent, String> {
     let image =
         decode_compressed(topic, &msg.format, &msg.data, max_side).map_err(|e| e.to_string())?;
-    Ok(InputEvent::Frame(CameraFrame {
+    Ok(frame_event(topic, msg.header, arrival, image))
+}
+
+/// A decoded camera image of `topic` as an [`InputEvent::Frame`].
+fn frame_event(topic: &str, header: Header, arrival: Duration, image: RgbImage) -> InputEvent {
+    InputEvent::Frame(CameraFrame {
         topic: topic.to_owned(),
-        stamp_ns: msg.header.stamp.as_nanos(),
-        frame_id: msg.header.frame_id,
+        stamp_ns: header.stamp.as_nanos(),
+        frame_id: header.frame_id,
         arrival,
         image: Arc::new(image),
-    }))
+    })
 }
 
 /// mono8 `sensor_msgs/Image` → [`InputEvent::Mask`] of `camera` (`None`: any camera).

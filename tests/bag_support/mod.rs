@@ -405,3 +405,19 @@ pub fn check_with_python_readers(bag: &std::path::Path, expected: &Value) {
         bag.display()
     );
 }
+
+/// A synthetic person's bag in `dir` (`name`): `views` input views of 96 px, no held-out
+/// views, no body shape; the source the bad-message bags are built from.
+pub fn synthetic_person_bag(dir: &std::path::Path, name: &str, views: usize) -> std::path::PathBuf {
+    let path = dir.join(name);
+    let options = lhmpp::synth::SynthOptions {
+        views,
+        heldout: 0,
+        size: 96,
+        points: 4000,
+        publish_shape: false,
+        ..lhmpp::synth::SynthOptions::default()
+    };
+    lhmpp::synth::write_synthetic_bag(&path, &options).unwrap();
+    path
+}
