@@ -9,6 +9,7 @@ mod config_cmd;
 mod config_source;
 mod eval;
 mod fuzz;
+mod loadgen;
 mod model;
 mod model_parity;
 mod record;
@@ -18,6 +19,7 @@ mod run;
 mod shm_echo;
 mod synth;
 mod synth_dataset;
+mod udp_buffers;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
@@ -64,6 +66,9 @@ enum Command {
     ShmEcho(shm_echo::ShmEchoArgs),
     /// Benchmarks that print tables (`bench render|model|points|transport`).
     Bench(bench::BenchArgs),
+    /// Publish synthetic camera streams on loopback for load and soak tests, sampling the
+    /// node's memory (`loadgen --seconds 600 --watch-pid PID`).
+    Loadgen(loadgen::LoadgenArgs),
     /// Mutation-fuzz a parser of untrusted input for a while (`fuzz cdr --seconds 600`).
     Fuzz(fuzz::FuzzArgs),
 }
@@ -112,6 +117,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Record(args) => record::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Fuzz(args) => fuzz::run(args),
+        Command::Loadgen(args) => loadgen::run(args),
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),
         Command::SynthDataset(args) => synth_dataset::run(args),

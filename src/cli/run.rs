@@ -53,6 +53,18 @@ pub fn run(args: RunArgs) -> Result<()> {
         s.last_render_ms,
         summary.wall.as_secs_f64()
     );
+    if config.replay.bag.is_empty() {
+        println!(
+            "inputs: received {}, queue dropped {}, rate-limited {}; queue wait {}; frame age {}; \
+             latency {}",
+            summary.received,
+            summary.queue_dropped,
+            summary.rate_limited,
+            s.queue_waits,
+            s.frame_ages,
+            s.latencies
+        );
+    }
     if let Some(salvage) = summary.bag.as_ref().filter(|s| !s.is_complete()) {
         println!("bag {}: {salvage}", config.replay.bag);
     }

@@ -3,11 +3,13 @@
 //! Dropped items are counted.
 //!
 //! `tokio::sync::mpsc` cannot evict its oldest item from the sending side, so this is a small
-//! `Mutex<VecDeque>` plus a `tokio::sync::Notify` with the same `recv().await` shape.
+//! `Mutex<VecDeque>` plus a `tokio::sync::Notify` with the same `recv().await` shape, and a
+//! `Condvar` for a synchronous consumer ([`QueueReceiver::recv_timeout`]).
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
 use tokio::sync::Notify;
 
 /// What to do when the queue is full.
@@ -26,6 +28,7 @@ struct Shared<T> {
     capacity: usize,
     policy: OverflowPolicy,
     notify: Notify,
+    ready: Condvar,
     dropped: AtomicU64,
     senders: AtomicUsize,
 }
@@ -50,6 +53,7 @@ pub fn bounded<T>(capacity: usize, policy: OverflowPolicy) -> (QueueSender<T>, Q
         capacity,
         policy,
         notify: Notify::new(),
+        ready: Condvar::new(),
         dropped: AtomicU64::new(0),
         senders: AtomicUsize::new(1),
     });
@@ -79,6 +83,7 @@ impl<T> QueueSender<T> {
         items.push_back(item);
         drop(items);
         self.shared.notify.notify_one();
+        self.shared.ready.notify_one();
         kept_all
     }
 
@@ -101,6 +106,9 @@ impl<T> Drop for QueueSender<T> {
     fn drop(&mut self) {
         if self.shared.senders.fetch_sub(1, Ordering::AcqRel) == 1 {
             self.shared.notify.notify_one();
+            // Taking the lock orders this wake-up after a waiter's last look at the count.
+            drop(self.shared.items.lock());
+            self.shared.ready.notify_all();
         }
     }
 }
@@ -119,6 +127,33 @@ impl<T> QueueReceiver<T> {
             }
             notified.await;
         }
+    }
+
+    /// The next item, waiting at most `timeout` for one on the calling thread (no runtime
+    /// needed); `None` on timeout or once the queue is empty and every sender is gone.
+    pub fn recv_timeout(&mut self, timeout: Duration) -> Option<T> {
+        let deadline = Instant::now() + timeout;
+        let mut items = self.shared.items.lock().expect("queue lock poisoned");
+        loop {
+            if let Some(item) = items.pop_front() {
+                return Some(item);
+            }
+            let now = Instant::now();
+            if now >= deadline || self.shared.senders.load(Ordering::Acquire) == 0 {
+                return None;
+            }
+            items = self
+                .shared
+                .ready
+                .wait_timeout(items, deadline - now)
+                .expect("queue lock poisoned")
+                .0;
+        }
+    }
+
+    /// Whether every sender is gone (nothing more will arrive once the queue is empty).
+    pub fn is_closed(&self) -> bool {
+        self.shared.senders.load(Ordering::Acquire) == 0
     }
 
     /// The next item if one is queued.
@@ -169,6 +204,27 @@ mod tests {
         assert_eq!(tx.dropped(), 2);
         let got: Vec<i32> = std::iter::from_fn(|| rx.try_recv()).collect();
         assert_eq!(got, vec![0, 1, 2]);
+    }
+
+    #[test]
+    fn recv_timeout_wakes_on_send_times_out_and_ends_when_senders_are_gone() {
+        let (tx, mut rx) = bounded(4, OverflowPolicy::DropOldest);
+        let start = Instant::now();
+        assert_eq!(rx.recv_timeout(Duration::from_millis(30)), None::<i32>);
+        assert!(start.elapsed() >= Duration::from_millis(30));
+        let producer = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(20));
+            tx.send(7);
+        });
+        assert_eq!(rx.recv_timeout(Duration::from_secs(5)), Some(7));
+        producer.join().unwrap();
+        let start = Instant::now();
+        assert_eq!(rx.recv_timeout(Duration::from_secs(5)), None);
+        assert!(rx.is_closed());
+        assert!(
+            start.elapsed() < Duration::from_secs(1),
+            "a closed queue does not wait"
+        );
     }
 
     #[tokio::test]

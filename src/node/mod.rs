@@ -8,10 +8,11 @@
 //!
 //! What is async: [`ros`] (ros2-client subscription tasks on tokio), [`record`] (the recorder
 //! is one future), [`signal`] (the SIGINT/SIGTERM future) and the receiving side of
-//! [`input_queue`] (`recv().await`; sending and `try_recv` are plain calls). [`run`] starts the
+//! [`input_queue`] (`recv().await`; sending, `try_recv` and the blocking `recv_timeout` the
+//! live loop uses are plain calls). [`run`] starts the
 //! tokio runtime for those and drives the synchronous [`pipeline`] on the calling thread.
 //! Everything else is synchronous: [`inputs`], [`frame_store`], [`scheduler`], [`names`] and
-//! [`rejections`] are sans-io, driven by the caller; [`pipeline`] (which writes the output
+//! [`rejections`] and [`timings`] are sans-io, driven by the caller; [`pipeline`] (which writes the output
 //! files), [`replay`] (which reads the bag) and [`publishers`] make plain blocking calls.
 
 pub mod frame_store;
@@ -29,3 +30,4 @@ pub mod ros;
 pub mod run;
 pub mod scheduler;
 pub mod signal;
+pub mod timings;

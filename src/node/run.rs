@@ -10,11 +10,11 @@ use super::replay::{BagReplay, Replayed};
 use super::ros::{ResolvedTopics, RosError, RosNode, RosNodeOptions};
 use crate::bag::Salvage;
 use crate::config::NodeConfig;
+use crate::node::input_queue::QueueReceiver;
 use crate::node::rejections::Rejections;
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -52,6 +52,10 @@ pub struct RunSummary {
     pub rejections: Rejections,
     /// Live messages dropped by the per-topic rate limit (`inputs.max_rate_hz`).
     pub rate_limited: u64,
+    /// Live messages decoded into input events (before the input queue), all topics.
+    pub received: u64,
+    /// Live input events the full input queue dropped (`inputs` overflow policy).
+    pub queue_dropped: u64,
     /// What reading the replayed bag skipped (`None` for a live run).
     pub bag: Option<Salvage>,
     /// Views held at the end.
@@ -96,7 +100,6 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         .enable_all()
         .build()?;
     let stop = Arc::new(AtomicBool::new(false));
-    let (wake_tx, wake_rx) = sync_channel::<InputEvent>(64);
     {
         let stop = stop.clone();
         runtime.spawn(async move {
@@ -105,25 +108,20 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
             stop.store(true, Ordering::SeqCst);
         });
     }
+    // Live inputs wait in the endpoint's one bounded queue (its overflow policy applies and
+    // counts what it drops) until the pipeline takes them on this thread.
+    let mut inputs = None;
     let ros = if config.outputs.ros || live {
         let _guard = runtime.enter();
-        let (node, mut queue) = RosNode::start(&options)?;
+        let (node, queue) = RosNode::start_with_clock(&options, started)?;
         tracing::info!(domain = node.domain_id(), topics = ?node.topics(), "ROS 2 endpoint up");
         if live {
-            let tx = wake_tx.clone();
-            runtime.spawn(async move {
-                while let Some(event) = queue.recv().await {
-                    if tx.try_send(event).is_err() {
-                        tracing::debug!("pipeline busy: input event dropped");
-                    }
-                }
-            });
+            inputs = Some(queue);
         }
         Some(Arc::new(node))
     } else {
         None
     };
-    drop(wake_tx);
     let mut publishers: Vec<Box<dyn Publisher>> = Vec::new();
     if let (Some(node), true) = (&ros, config.outputs.ros) {
         publishers.push(Box::new(RosPublisher(node.clone())));
@@ -143,17 +141,24 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         if !stop.load(Ordering::SeqCst) && config.replay.exit_when_done {
             animation_frames = pipeline.write_animation(ANIMATION_FRAMES);
         } else if !config.replay.exit_when_done {
-            run_live(&mut pipeline, &wake_rx, None, &stop, &clock);
+            run_live(&mut pipeline, None, None, &stop, &clock);
         }
     } else {
-        run_live(&mut pipeline, &wake_rx, ros.as_deref(), &stop, &clock);
+        run_live(
+            &mut pipeline,
+            inputs.as_mut(),
+            ros.as_deref(),
+            &stop,
+            &clock,
+        );
     }
+    let input_stats = ros.as_ref().map(|n| n.input_stats()).unwrap_or_default();
     let summary = RunSummary {
         stats: pipeline.stats().clone(),
         rejections: pipeline.rejections(),
-        rate_limited: ros
-            .as_ref()
-            .map_or(0, |node| node.input_stats().rate_limited.values().sum()),
+        rate_limited: input_stats.rate_limited.values().sum(),
+        received: input_stats.accepted.values().sum(),
+        queue_dropped: input_stats.queue_dropped,
         bag: replay.as_ref().map(|r| r.salvage().clone()),
         views_held: pipeline.views_held(),
         revision: pipeline.revision(),
@@ -176,7 +181,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
 /// subscriptions whose rejection counts the pipeline reports.
 fn run_live(
     pipeline: &mut Pipeline,
-    events: &Receiver<InputEvent>,
+    mut events: Option<&mut QueueReceiver<InputEvent>>,
     inputs: Option<&RosNode>,
     stop: &AtomicBool,
     clock: &impl Fn() -> Duration,
@@ -192,10 +197,13 @@ fn run_live(
         let wait = pipeline
             .next_deadline()
             .map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT));
-        match events.recv_timeout(wait) {
-            Ok(event) => pipeline.handle(event, clock()),
-            Err(RecvTimeoutError::Timeout) => {}
-            Err(RecvTimeoutError::Disconnected) => std::thread::sleep(wait),
+        match events.as_deref_mut() {
+            Some(queue) if !(queue.is_closed() && queue.is_empty()) => {
+                if let Some(event) = queue.recv_timeout(wait) {
+                    pipeline.handle(event, clock());
+                }
+            }
+            _ => std::thread::sleep(wait),
         }
         pipeline.step(clock(), clock);
     }

@@ -188,7 +188,8 @@ fn mask_image(view: &RenderedView, ns: u64) -> Image {
     }
 }
 
-fn camera_info(rig: &RigCamera, ns: u64) -> CameraInfo {
+/// The calibration message of `rig` (no distortion), stamped `ns`.
+pub fn camera_info(rig: &RigCamera, ns: u64) -> CameraInfo {
     let i = &rig.camera.intrinsics;
     let k = i.k();
     CameraInfo {

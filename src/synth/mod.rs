@@ -8,6 +8,7 @@ pub mod outfit;
 pub mod person;
 pub mod random_pose;
 pub mod scene;
+pub mod stream;
 
 pub use capture::{write_synthetic_bag, CameraMode, SynthOptions, SynthPose, SynthSummary};
 pub use person::{SynthError, SyntheticPerson};

@@ -15,6 +15,7 @@ use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, V
 use crate::node::inputs::{CameraFrame, InputEvent};
 use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
+use crate::node::timings::Timings;
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::{shape, ReconstructError, Reconstructor};
 use crate::splat::Gaussians;
@@ -126,6 +127,13 @@ pub struct PipelineStats {
     pub shapes_applied: u64,
     /// Body shapes rejected (wrong model, length or values).
     pub shapes_rejected: u64,
+    /// Live camera frames' waits in the input queue (arrival → taken by the pipeline).
+    pub queue_waits: Timings,
+    /// Camera frames' age when taken (`header.stamp` → taken), recorded only for stamps of
+    /// the last 10 minutes by this machine's clock (live streams, not replayed bags).
+    pub frame_ages: Timings,
+    /// Newest frame's arrival → avatar published, over the whole run.
+    pub latencies: Timings,
     /// Input messages rejected by the pipeline's checks and reported to it by the bag replay
     /// ([`Pipeline::reject`]), by reason; [`Pipeline::rejections`] adds the live inputs'.
     pub rejections: Rejections,
@@ -378,6 +386,12 @@ impl Pipeline {
         match event {
             InputEvent::Frame(frame) => {
                 self.stats.frames += 1;
+                self.stats
+                    .queue_waits
+                    .record(now.saturating_sub(frame.arrival));
+                if let Some(age) = live_age(frame.stamp_ns) {
+                    self.stats.frame_ages.record(age);
+                }
                 let ready = self.masks.frame(frame, now);
                 self.admit(ready, now);
             }
@@ -672,6 +686,7 @@ impl Pipeline {
                         let latency = done.latency.as_secs_f64() * 1e3;
                         let run = done.run_time.as_secs_f64() * 1e3;
                         push_bounded(&mut self.stats.latencies_ms, latency);
+                        self.stats.latencies.record(done.latency);
                         push_bounded(&mut self.stats.run_times_ms, run);
                         self.stats.reconstructions += 1;
                         tracing::info!(
@@ -821,6 +836,17 @@ fn unix_now_ns() -> i64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as i64)
+}
+
+/// How old a frame stamped `stamp_ns` (ns since the epoch) is by this machine's clock, if
+/// that is between 0 and 10 minutes (a live stream; replayed bags carry older stamps).
+fn live_age(stamp_ns: i64) -> Option<Duration> {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()?;
+    let stamp = Duration::from_nanos(u64::try_from(stamp_ns).ok()?);
+    now.checked_sub(stamp)
+        .filter(|age| *age < Duration::from_secs(600))
 }
 
 fn push_bounded(q: &mut VecDeque<f64>, v: f64) {

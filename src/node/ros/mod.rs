@@ -269,7 +269,7 @@ struct Preview {
 }
 
 /// `pkg/msg/Type` → ros2-client's (package, type) name.
-fn type_name<M: RosMessage>() -> MessageTypeName {
+pub fn type_name<M: RosMessage>() -> MessageTypeName {
     let full = M::TYPE_NAME;
     let package = full.split('/').next().unwrap_or(full);
     let name = full.rsplit('/').next().unwrap_or(full);
@@ -278,8 +278,17 @@ fn type_name<M: RosMessage>() -> MessageTypeName {
 
 impl RosNode {
     /// Starts the endpoint; must be called inside a tokio runtime. Returns the node and the
-    /// receiving end of its input queue.
+    /// receiving end of its input queue. Its clock ([`RosNode::clock`]) starts now.
     pub fn start(opts: &RosNodeOptions) -> Result<(Self, QueueReceiver<InputEvent>), RosError> {
+        Self::start_with_clock(opts, Instant::now())
+    }
+
+    /// [`RosNode::start`] with the clock of the `arrival` fields counting from `origin`, so
+    /// they compare with the caller's own clock of the same origin.
+    pub fn start_with_clock(
+        opts: &RosNodeOptions,
+        origin: Instant,
+    ) -> Result<(Self, QueueReceiver<InputEvent>), RosError> {
         let names = NameResolver::new(&opts.namespace, &opts.node_name)?.with_map(&opts.remap)?;
         let topics = ResolvedTopics::resolve(opts, &names)?;
         let context = create_context(&opts.participant)?;
@@ -288,7 +297,7 @@ impl RosNode {
         let mut node = context
             .new_node(node_name, NodeOptions::new().enable_rosout(opts.rosout))
             .map_err(|e| RosError::Create(format!("node {}: {e:?}", opts.node_name)))?;
-        let start = Instant::now();
+        let start = origin;
         let (tx, rx) = bounded(opts.queue_capacity, opts.overflow);
         let rosout = opts.rosout.then(|| node.logging_handle());
         let min_interval =

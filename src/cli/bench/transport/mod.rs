@@ -6,13 +6,12 @@
 use anyhow::{Context, Result};
 mod dds;
 mod harness;
-mod udp_buffers;
 
+use crate::cli::udp_buffers::{self, RmemMaxRaised};
 use dds::{DdsBench, DEFAULT_RECEIVE_BUFFER};
 use harness::{render_table, run_case, BenchCase, BenchRow, Iceoryx2Bench, ShmWrite};
 use lhmpp::transport::footprint::ShmSnapshot;
 use lhmpp::transport::ShmOptions;
-use udp_buffers::RmemMaxRaised;
 
 /// Arguments of `lhmpp bench transport`.
 #[derive(clap::Args, Debug)]

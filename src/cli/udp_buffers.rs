@@ -1,4 +1,4 @@
-//! Linux UDP receive-buffer facts for the DDS benchmark: the kernel's cap on `SO_RCVBUF`
+//! Linux UDP receive-buffer facts for the DDS benchmark and the load generator: the kernel's cap on `SO_RCVBUF`
 //! (`net.core.rmem_max`), the count of datagrams dropped because a socket buffer was full
 //! (`RcvbufErrors` in `/proc/net/snmp`), and a guard that raises the cap for one run and
 //! restores it afterwards.
