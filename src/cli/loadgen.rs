@@ -10,8 +10,10 @@ use super::ExitStatus;
 use anyhow::{bail, Context, Result};
 use lhmpp::config::ImageQos;
 use lhmpp::msgs::{CameraInfo, CompressedImage, Header, Image, RosMessage, Time};
-use lhmpp::node::ros::{create_context, image_input_qos, type_name, ParticipantOptions};
-use lhmpp::synth::capture::camera_info;
+use lhmpp::node::ros::{
+    create_context, image_input_qos, resolve_domain_id, type_name, ParticipantOptions,
+};
+use lhmpp::synth::capture::{camera_info, optical_frame};
 use lhmpp::synth::stream::{render_stream, StreamOptions};
 use ros2_client::qos::QosProfile;
 use ros2_client::{Name, NodeName, NodeOptions};
@@ -90,6 +92,8 @@ pub struct LoadgenArgs {
 struct CameraStream {
     /// The image topic (fully qualified).
     topic: String,
+    /// `header.frame_id` of its messages (the camera's optical frame).
+    frame_id: String,
     image: Publisher,
     info: ros2_client::Publisher<CameraInfo>,
     info_msg: CameraInfo,
@@ -166,17 +170,10 @@ pub fn run(args: LoadgenArgs) -> Result<()> {
             args.warmup_fraction
         );
     }
-    let domain = match args.domain {
-        Some(d) => d,
-        None => std::env::var("ROS_DOMAIN_ID")
-            .ok()
-            .map(|v| {
-                v.parse::<u16>()
-                    .with_context(|| format!("ROS_DOMAIN_ID `{v}`"))
-            })
-            .transpose()?
-            .unwrap_or(0),
-    };
+    let domain = resolve_domain_id(
+        args.domain.map_or(-1, i32::from),
+        std::env::var("ROS_DOMAIN_ID").ok().as_deref(),
+    )?;
     let prefix = args.prefix.trim_end_matches('/');
     if !prefix.starts_with('/') {
         bail!(
@@ -254,6 +251,7 @@ pub fn run(args: LoadgenArgs) -> Result<()> {
         let info_topic = format!("{prefix}/{}/camera_info", rig.name);
         cameras.push(CameraStream {
             topic,
+            frame_id: optical_frame(&rig.name),
             image,
             info: publisher(&mut node, &info_topic, &qos)?,
             info_msg: camera_info(rig, 0),
@@ -424,11 +422,11 @@ fn publish_for(
                 .duration_since(UNIX_EPOCH)
                 .map_or(0, |d| d.as_nanos() as i64),
         );
-        for (c, cam) in cameras.iter().enumerate() {
+        for cam in cameras {
             let frame = &cam.frames[tick as usize % cam.frames.len()];
             let header = Header {
                 stamp,
-                frame_id: format!("cam{c}_optical_frame"),
+                frame_id: cam.frame_id.clone(),
             };
             let ok = match &cam.image {
                 Publisher::Jpeg(p) => p

@@ -9,11 +9,11 @@
 //! What is async: [`ros`] (ros2-client subscription tasks on tokio), [`record`] (the recorder
 //! is one future), [`signal`] (the SIGINT/SIGTERM future) and the receiving side of
 //! [`input_queue`] (`recv().await`; sending, `try_recv` and the blocking `recv_timeout` the
-//! live loop uses are plain calls). [`run`] starts the
-//! tokio runtime for those and drives the synchronous [`pipeline`] on the calling thread.
-//! Everything else is synchronous: [`inputs`], [`frame_store`], [`scheduler`], [`names`] and
-//! [`rejections`] and [`timings`] are sans-io, driven by the caller; [`pipeline`] (which writes the output
-//! files), [`replay`] (which reads the bag) and [`publishers`] make plain blocking calls.
+//! live loop uses are plain calls). [`run`] starts the tokio runtime for those and drives the
+//! synchronous [`pipeline`] on the calling thread. Everything else is synchronous:
+//! [`inputs`], [`frame_store`], [`scheduler`], [`names`], [`rejections`] and [`timings`] are
+//! sans-io, driven by the caller; [`pipeline`] (which writes the output files), [`replay`]
+//! (which reads the bag) and [`publishers`] make plain blocking calls.
 
 pub mod frame_store;
 pub mod input_errors;

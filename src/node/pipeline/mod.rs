@@ -841,12 +841,8 @@ fn unix_now_ns() -> i64 {
 /// How old a frame stamped `stamp_ns` (ns since the epoch) is by this machine's clock, if
 /// that is between 0 and 10 minutes (a live stream; replayed bags carry older stamps).
 fn live_age(stamp_ns: i64) -> Option<Duration> {
-    let now = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .ok()?;
-    let stamp = Duration::from_nanos(u64::try_from(stamp_ns).ok()?);
-    now.checked_sub(stamp)
-        .filter(|age| *age < Duration::from_secs(600))
+    let age = u64::try_from(unix_now_ns().checked_sub(stamp_ns)?).ok()?;
+    Some(Duration::from_nanos(age)).filter(|age| *age < Duration::from_secs(600))
 }
 
 fn push_bounded(q: &mut VecDeque<f64>, v: f64) {

@@ -297,12 +297,11 @@ impl RosNode {
         let mut node = context
             .new_node(node_name, NodeOptions::new().enable_rosout(opts.rosout))
             .map_err(|e| RosError::Create(format!("node {}: {e:?}", opts.node_name)))?;
-        let start = origin;
         let (tx, rx) = bounded(opts.queue_capacity, opts.overflow);
         let rosout = opts.rosout.then(|| node.logging_handle());
         let min_interval =
             (opts.max_rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / opts.max_rate_hz));
-        let sink = InputSink::new(tx, opts.error_report_period, start, rosout, min_interval);
+        let sink = InputSink::new(tx, opts.error_report_period, origin, rosout, min_interval);
 
         let mut tasks = Vec::new();
         let max_side = opts.max_image_side;
@@ -409,7 +408,7 @@ impl RosNode {
                 preview,
                 tasks,
                 spinner,
-                start,
+                start: origin,
                 domain_id: opts.participant.domain_id,
             },
             rx,
