@@ -11,14 +11,14 @@
 //! reports also go to `/rosout` (and always to `tracing`).
 
 mod context;
-pub(crate) mod outputs;
+pub(crate) mod ports;
 mod sink;
 
 pub use context::{
     create_context, frame_output_qos, image_input_qos, latched_output_qos, reliable_input_qos,
     resolve_domain_id, ParticipantOptions,
 };
-pub use outputs::{rgb8_image, OutputTopics, PublishOutcome};
+pub use ports::{rgb8_image, OutputTopics, PublishOutcome};
 pub use sink::InputStats;
 
 use crate::config::{FrameQos, ImageQos, NodeConfig};
@@ -30,7 +30,7 @@ use crate::node::input_queue::{bounded, OverflowPolicy, QueueReceiver};
 use crate::node::inputs::{self, InputEvent};
 use crate::node::names::{split_fully_qualified, NameError, NameResolver};
 use crate::splat::Gaussians;
-use outputs::OutputPort;
+use ports::OutputPort;
 use ros2_client::dds::Node;
 use ros2_client::qos::QosProfile;
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};

@@ -1,6 +1,8 @@
-//! What the node publishes: the GaussianAvatar, rendered frames (sensor_msgs/Image rgb8, one
-//! topic per virtual camera) and ReconstructionStatus. A reliable writer whose send window is
-//! full (typically before discovery has matched a reader) reports back-pressure, not an error.
+//! The endpoint's publishing internals: the output topic names (GaussianAvatar, rendered
+//! frames as sensor_msgs/Image rgb8, one topic per virtual camera, ReconstructionStatus, the
+//! preview), one port per topic and the rgb8 Image builder. A reliable writer whose send window
+//! is full (typically before discovery has matched a reader) reports back-pressure, not an
+//! error.
 
 use super::RosError;
 use crate::msgs::{Header, Image, Time};
