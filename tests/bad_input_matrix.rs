@@ -23,7 +23,8 @@ use lhmpp::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, Header, Image, Quaternion,
     ReconstructionStatus, RosMessage, Transform,
 };
-use lhmpp::node::pipeline::{AvatarUpdate, Pipeline, Publisher, RenderedFrame};
+use lhmpp::node::outputs::{AvatarUpdate, Publisher};
+use lhmpp::node::pipeline::{Pipeline, RenderedFrame};
 use lhmpp::node::replay::BagReplay;
 use lhmpp::node::ros::{ResolvedTopics, RosNodeOptions};
 use lhmpp::synth::capture::{

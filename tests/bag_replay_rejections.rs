@@ -12,7 +12,8 @@ use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{
     BodyPose, BodyShape, Header, Image, Quaternion, ReconstructionStatus, RosMessage, Transform,
 };
-use lhmpp::node::pipeline::{AvatarUpdate, Pipeline, Publisher, RenderedFrame};
+use lhmpp::node::outputs::{AvatarUpdate, Publisher};
+use lhmpp::node::pipeline::{Pipeline, RenderedFrame};
 use lhmpp::node::rejections::RejectReason;
 use lhmpp::node::replay::BagReplay;
 use lhmpp::node::ros::{ResolvedTopics, RosNodeOptions};

@@ -5,8 +5,8 @@
 use lhmpp::bag::{BagReader, BagWriter};
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{BodyShape, GaussianAvatar, Header, Image, ReconstructionStatus};
-use lhmpp::node::pipeline::outputs::avatar_message;
-use lhmpp::node::pipeline::{AvatarUpdate, Pipeline, Publisher, RenderedFrame};
+use lhmpp::node::outputs::{avatar_message, AvatarUpdate, Publisher};
+use lhmpp::node::pipeline::{Pipeline, RenderedFrame};
 use lhmpp::node::replay::{BagReplay, Replayed};
 use lhmpp::node::ros::{ResolvedTopics, RosNodeOptions};
 use lhmpp::synth::capture::{image_topic, SHAPE_TOPIC, START_NS};

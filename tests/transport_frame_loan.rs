@@ -9,8 +9,8 @@ use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use lhmpp::node::pipeline::{Publisher, RenderedFrame};
-use lhmpp::node::publishers::ShmOutputs;
+use lhmpp::node::outputs::{Publisher, ShmOutputs};
+use lhmpp::node::pipeline::RenderedFrame;
 use lhmpp::splat::RenderOutput;
 use lhmpp::transport::layout::Encoder;
 use lhmpp::transport::{

@@ -4,7 +4,7 @@
 //! [`inputs`] events, through one bounded [`input_queue`]; images are decoded and
 //! cropped/resized by [`crate::reconstruct`], views are kept per person by [`frame_store`],
 //! [`scheduler`] decides when to reconstruct, and [`pipeline`] runs it all and fans the avatar
-//! and frames out through [`publishers`].
+//! and frames out through [`outputs`] (ROS 2, shared memory, files).
 //!
 //! What is async: [`ros`] (ros2-client subscription tasks on tokio), [`record`] (the recorder
 //! is one future), [`signal`] (the SIGINT/SIGTERM future) and the receiving side of
@@ -12,17 +12,18 @@
 //! live loop uses are plain calls). [`run`] starts the tokio runtime for those and drives the
 //! synchronous [`pipeline`] on the calling thread. Everything else is synchronous:
 //! [`inputs`], [`frame_store`], [`scheduler`], [`names`], [`rejections`] and [`timings`] are
-//! sans-io, driven by the caller; [`pipeline`] (which writes the output files), [`replay`]
-//! (which reads the bag) and [`publishers`] make plain blocking calls.
+//! sans-io, driven by the caller; [`pipeline`], [`replay`] (which reads the bag) and
+//! [`outputs`] (which write the files and hand messages to DDS and shared memory) make plain
+//! blocking calls.
 
 pub mod frame_store;
 pub mod input_errors;
 pub mod input_queue;
 pub mod inputs;
 pub mod names;
+pub mod outputs;
 pub mod pipeline;
 pub mod preview;
-pub mod publishers;
 pub mod record;
 pub mod rejections;
 pub mod replay;

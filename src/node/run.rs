@@ -4,8 +4,8 @@
 //! and the signal handlers.
 
 use super::inputs::InputEvent;
-use super::pipeline::{Fanout, Pipeline, PipelineError, PipelineStats, Publisher};
-use super::publishers::{RosPublisher, ShmOutputs};
+use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs};
+use super::pipeline::{Pipeline, PipelineError, PipelineStats};
 use super::replay::{BagReplay, Replayed};
 use super::ros::{ResolvedTopics, RosError, RosNode, RosNodeOptions};
 use crate::bag::Salvage;

@@ -1,10 +1,11 @@
 //! The node's processing pipeline, synchronous and driven by [`InputEvent`]s and a clock:
 //! decode → preprocess → frame store → scheduler → reconstruction → avatar → render → outputs.
-//! Live topics and bag replay feed it the same events, so both share this code path.
+//! Live topics and bag replay feed it the same events, so both share this code path. Results
+//! leave through one [`Fanout`] of [`crate::node::outputs`]: the files (when `outputs.dir` is
+//! usable) and the live publishers (ROS 2, shared memory).
 
 pub mod masks;
 pub mod neural_frames;
-pub mod outputs;
 pub mod render;
 
 use crate::avatar::Avatar;
@@ -13,16 +14,15 @@ use crate::config::NodeConfig;
 use crate::msgs::{BodyShape, ReconstructionStatus};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::inputs::{CameraFrame, InputEvent};
+use crate::node::outputs::{status_message, AvatarUpdate, Fanout, FileOutputs, Publisher};
 use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::node::timings::Timings;
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::{shape, ReconstructError, Reconstructor};
-use crate::splat::Gaussians;
 use image::GrayImage;
 use masks::{MaskPairing, Paired};
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
-use outputs::{status_message, FileOutputs};
 pub use render::RenderedFrame;
 use render::{
     display_pose, render_frames, FrameRasterizer, FrameRasterizerError, FrameRenderer,
@@ -43,59 +43,6 @@ const MASK_WAIT: Duration = Duration::from_millis(150);
 const LATENCIES_KEPT: usize = 256;
 /// Shortest time between statuses republished only because the rejection counts changed.
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
-
-/// A new avatar revision as handed to publishers.
-pub struct AvatarUpdate<'a> {
-    /// Person id.
-    pub person: &'a str,
-    /// Revision number.
-    pub revision: u64,
-    /// Views it was built from.
-    pub views_used: usize,
-    /// Stamp of the newest view (ns since the epoch).
-    pub stamp_ns: i64,
-    /// The avatar.
-    pub avatar: &'a Avatar,
-    /// The body template whose skeleton the skinning refers to.
-    pub template: &'a crate::body::BodyTemplate,
-    /// Shape coefficients of the avatar's body model (empty: the unshaped template).
-    pub shape_params: &'a [f32],
-    /// Whether the Gaussians' RGB is display-ready (false: latent, see `neural_renderer`).
-    pub rgb_display_ready: bool,
-    /// The neural renderer that decodes a latent RGB avatar (empty when display-ready).
-    pub neural_renderer: &'a str,
-}
-
-/// Where the pipeline publishes (ROS 2, shared memory); implemented by the node's endpoints.
-/// Failures are the endpoint's to log: publishing never stops the pipeline.
-pub trait Publisher {
-    /// Publishes a new avatar revision.
-    fn avatar(&self, update: &AvatarUpdate<'_>);
-    /// Publishes the reconstruction status.
-    fn status(&self, msg: ReconstructionStatus);
-    /// Publishes a rendered frame of virtual camera `camera`.
-    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64);
-    /// Publishes the avatar preview: the Gaussians posed at the latest BodyPose.
-    fn preview(&self, _posed: &Gaussians, _stamp_ns: i64) {}
-}
-
-/// Several publishers behind one (ROS 2 and shared memory at once).
-pub struct Fanout(pub Vec<Box<dyn Publisher>>);
-
-impl Publisher for Fanout {
-    fn avatar(&self, update: &AvatarUpdate<'_>) {
-        self.0.iter().for_each(|p| p.avatar(update));
-    }
-    fn status(&self, msg: ReconstructionStatus) {
-        self.0.iter().for_each(|p| p.status(msg.clone()));
-    }
-    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
-        self.0.iter().for_each(|p| p.frame(camera, frame, stamp_ns));
-    }
-    fn preview(&self, posed: &Gaussians, stamp_ns: i64) {
-        self.0.iter().for_each(|p| p.preview(posed, stamp_ns));
-    }
-}
 
 /// Counters of one run, printed at the end and used by tests.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -157,8 +104,8 @@ pub struct Pipeline {
     next_frame_id: u64,
     shape_changes: u64,
     current: Option<Current>,
-    files: Option<FileOutputs>,
-    publisher: Option<Box<dyn Publisher>>,
+    /// Where results go: the files first, then the live publishers.
+    outputs: Fanout,
     cameras: VirtualCameras,
     frames: FrameRenderer,
     render_period: Option<Duration>,
@@ -220,7 +167,11 @@ impl Pipeline {
             .map(|f| match rgb.display_ready() {
                 true => f,
                 false => f.with_latent_rgb(recon.checkpoint_kind()),
-            });
+            })
+            .map(|f| Box::new(f) as Box<dyn Publisher>);
+        // The files first (an avatar's PLY is written before it is published), then the live
+        // publishers.
+        let outputs = Fanout(files.into_iter().chain(publisher).collect());
         let cameras = VirtualCameras::ring(
             config.outputs.virtual_cameras,
             config.outputs.render_size,
@@ -277,8 +228,7 @@ impl Pipeline {
             next_frame_id: 1,
             shape_changes: 0,
             current: None,
-            files,
-            publisher,
+            outputs,
             cameras,
             frames: FrameRenderer::new(rasterizer, neural),
             render_period,
@@ -297,10 +247,11 @@ impl Pipeline {
         })
     }
 
-    /// Replaces the publisher (the node sets it once the ROS 2 endpoint is up: the pipeline
-    /// is built first, so a config that cannot run fails before DDS starts).
+    /// Replaces the live publishers (ROS 2, shared memory); the files stay (the node sets
+    /// them once the ROS 2 endpoint is up: the pipeline is built first, so a config that
+    /// cannot run fails before DDS starts).
     pub fn set_publisher(&mut self, publisher: Option<Box<dyn Publisher>>) {
-        self.publisher = publisher;
+        self.outputs.replace_live(publisher);
     }
 
     /// Whether frames go through the network's neural renderer (`outputs.renderer` resolved
@@ -369,7 +320,7 @@ impl Pipeline {
     pub fn next_deadline(&self) -> Option<Duration> {
         let render = self
             .render_period
-            .filter(|_| self.current.is_some() && self.publisher.is_some())
+            .filter(|_| self.current.is_some() && self.outputs.live())
             .map(|_| self.next_render);
         [
             self.scheduler.next_deadline(),
@@ -536,7 +487,7 @@ impl Pipeline {
         for job in self.scheduler.poll(now) {
             self.run_job(job, &clock);
         }
-        if let (Some(period), Some(_)) = (self.render_period, &self.publisher) {
+        if let (Some(period), true) = (self.render_period, self.outputs.live()) {
             if self.current.is_some() && now >= self.next_render {
                 let started = clock();
                 self.publish_frames(now);
@@ -545,7 +496,7 @@ impl Pipeline {
                 self.note_render_time(took, period);
             }
         }
-        if let (Some(period), Some(_)) = (self.preview_period, &self.publisher) {
+        if let (Some(period), true) = (self.preview_period, self.outputs.live()) {
             if self.current.is_some() && now >= self.next_preview {
                 self.publish_preview(now);
                 self.next_preview = now + period;
@@ -558,7 +509,7 @@ impl Pipeline {
     /// counts changed, at most once per [`STATUS_REFRESH`], so they show without a state
     /// change.
     fn refresh_status(&mut self, now: Duration) {
-        if self.publisher.is_none() || now < self.status_refresh_due {
+        if !self.outputs.live() || now < self.status_refresh_due {
             return;
         }
         let (reasons, counts) = self.rejection_fields();
@@ -602,21 +553,21 @@ impl Pipeline {
     }
 
     fn send_status(&mut self, msg: ReconstructionStatus) {
-        if let Some(p) = &self.publisher {
-            p.status(msg.clone());
+        if self.outputs.live() {
+            self.outputs.status(msg.clone());
             self.last_status = Some(msg);
         }
     }
 
     /// Poses the avatar at the pose the frames use and hands it to the publishers' preview.
     fn publish_preview(&self, now: Duration) {
-        let (Some(current), Some(p)) = (&self.current, &self.publisher) else {
+        let (Some(current), true) = (&self.current, self.outputs.live()) else {
             return;
         };
         let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
         let matrices = self.recon.template().skeleton.skinning_matrices(&pose);
         let posed = current.avatar.animate(&matrices);
-        p.preview(&posed, unix_now_ns());
+        self.outputs.preview(&posed, unix_now_ns());
     }
 
     /// Counts the render periods a batch that took `took` skipped (the next batch starts when
@@ -722,26 +673,18 @@ impl Pipeline {
     }
 
     fn publish_avatar(&mut self, job: &Job, avatar: &Avatar, views: usize, stamp: i64) {
-        if let Some(files) = &self.files {
-            match files.write_avatar(&job.person, job.revision, avatar) {
-                Ok(path) => tracing::info!("wrote {}", path.display()),
-                Err(e) => tracing::error!("avatar file: {e}"),
-            }
-        }
-        if let Some(p) = &self.publisher {
-            let shape_params = self.shape_params();
-            p.avatar(&AvatarUpdate {
-                person: &job.person,
-                revision: job.revision,
-                views_used: views,
-                stamp_ns: stamp,
-                avatar,
-                template: self.recon.template(),
-                shape_params: &shape_params,
-                rgb_display_ready: self.recon.rgb_kind().display_ready(),
-                neural_renderer: &self.neural_renderer_id,
-            });
-        }
+        let shape_params = self.shape_params();
+        self.outputs.avatar(&AvatarUpdate {
+            person: &job.person,
+            revision: job.revision,
+            views_used: views,
+            stamp_ns: stamp,
+            avatar,
+            template: self.recon.template(),
+            shape_params: &shape_params,
+            rgb_display_ready: self.recon.rgb_kind().display_ready(),
+            neural_renderer: &self.neural_renderer_id,
+        });
     }
 
     fn publish_status(
@@ -766,7 +709,7 @@ impl Pipeline {
     }
 
     fn publish_frames(&mut self, now: Duration) {
-        let (Some(current), Some(p)) = (&self.current, &self.publisher) else {
+        let (Some(current), true) = (&self.current, self.outputs.live()) else {
             return;
         };
         let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
@@ -784,18 +727,23 @@ impl Pipeline {
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos() as i64);
         for (i, f) in frames.iter().enumerate() {
-            p.frame(i, f, stamp);
+            self.outputs.frame(i, f, stamp);
         }
         self.stats.rendered_frames += frames.len() as u64;
     }
 
-    /// Writes a short animation of the latest avatar walking (the built-in walk cycle) from
-    /// every virtual camera as PNGs: `frames/<person>_cam<i>_<f>.png`.
+    /// Renders a short animation of the latest avatar walking (the built-in walk cycle) from
+    /// every virtual camera and hands it to the outputs that store it (the files write
+    /// `frames/<person>_cam<i>_<f>.png`); nothing is rendered when none does. Returns the
+    /// frames stored.
     pub fn write_animation(&mut self, frames: usize) -> usize {
-        let (Some(current), Some(files)) = (&self.current, &self.files) else {
+        let Some(current) = &self.current else {
             return 0;
         };
-        let (mut written, mut failed) = (0, 0);
+        let Some(mut animation) = self.outputs.animation() else {
+            return 0;
+        };
+        let mut written = 0;
         for f in 0..frames {
             let pose = display_pose(None, f as f32 / 24.0);
             let started = std::time::Instant::now();
@@ -809,24 +757,11 @@ impl Pipeline {
             self.stats.last_render_ms =
                 started.elapsed().as_secs_f64() * 1e3 / images.len().max(1) as f64;
             for (c, image) in images.iter().enumerate() {
-                match files.write_frame(&format!("{}_cam{c}_{f:03}", self.person), image.rgb8()) {
-                    Ok(_) => written += 1,
-                    // The first failure is logged; the rest (a full disk fails them all) are
-                    // counted below.
-                    Err(e) if failed == 0 => {
-                        failed += 1;
-                        tracing::error!("frame file: {e}");
-                    }
-                    Err(_) => failed += 1,
-                }
+                let name = format!("{}_cam{c}_{f:03}", self.person);
+                written += usize::from(animation.frame(&name, image));
             }
         }
-        if failed > 1 {
-            tracing::error!(
-                "{failed} frame files of {} could not be written",
-                failed + written
-            );
-        }
+        animation.finish();
         self.stats.rendered_frames += written as u64;
         written
     }

@@ -2,7 +2,7 @@
 //! frames as sensor_msgs/Image rgb8, one topic per virtual camera, ReconstructionStatus, the
 //! preview), one port per topic and the rgb8 Image builder. A reliable writer whose send window
 //! is full (typically before discovery has matched a reader) reports back-pressure, not an
-//! error.
+//! error. What the node sends here is decided in [`crate::node::outputs`].
 
 use super::RosError;
 use crate::msgs::{Header, Image, Time};

@@ -1,52 +1,13 @@
-//! The node's output endpoints behind [`Publisher`]: ROS 2 messages (GaussianAvatar, rendered
-//! Image, ReconstructionStatus) and iceoryx2 shared-memory services (avatar, frames).
-//! Failures are logged and counted by the endpoint; they never stop the pipeline.
+//! The shared-memory output: [`ShmOutputs`] publishes avatars and rendered frames as iceoryx2
+//! services. Failures are logged; they never stop the pipeline.
 
-use super::pipeline::outputs::{avatar_message, frame_message};
-use super::pipeline::{AvatarUpdate, Publisher, RenderedFrame};
-use super::ros::RosNode;
+use super::{AvatarUpdate, Publisher};
 use crate::msgs::ReconstructionStatus;
-use crate::splat::{sh_dc_to_rgb, Gaussians};
+use crate::node::pipeline::RenderedFrame;
+use crate::splat::sh_dc_to_rgb;
 use crate::transport::{
     AvatarView, FrameShape, PayloadBody, ShmError, ShmNode, ShmOptions, ShmPublisher, Stamp,
 };
-use std::sync::Arc;
-
-/// Publishes on the ROS 2 endpoint.
-pub struct RosPublisher(pub Arc<RosNode>);
-
-impl Publisher for RosPublisher {
-    fn avatar(&self, u: &AvatarUpdate<'_>) {
-        match avatar_message(u) {
-            Ok(msg) => {
-                if let Err(e) = self.0.publish_avatar(msg) {
-                    tracing::warn!("{e}");
-                }
-            }
-            Err(e) => tracing::error!("avatar message: {e}"),
-        }
-    }
-    fn status(&self, msg: ReconstructionStatus) {
-        if let Err(e) = self.0.publish_status(msg) {
-            tracing::warn!("{e}");
-        }
-    }
-    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
-        let msg = frame_message(
-            frame.rgb8(),
-            stamp_ns,
-            &format!("lhmpp_virtual_cam{camera}"),
-        );
-        if let Err(e) = self.0.publish_frame(camera, msg) {
-            tracing::warn!("{e}");
-        }
-    }
-    fn preview(&self, posed: &Gaussians, stamp_ns: i64) {
-        if let Err(e) = self.0.publish_preview(posed, stamp_ns) {
-            tracing::warn!("{e}");
-        }
-    }
-}
 
 /// Publishes avatars and rendered frames over iceoryx2 (layout: `docs/shm-layout.md`).
 pub struct ShmOutputs {

@@ -1,33 +1,13 @@
-//! Where results go: avatar PLY files and PNG frames under the output directory, and the
-//! ROS 2 messages (GaussianAvatar, rendered Image, ReconstructionStatus) built from them.
+//! The file output: [`FileOutputs`] writes each avatar revision as PLY files and the
+//! end-of-replay animation as PNG frames under the output directory (`outputs.dir`).
 
-use super::AvatarUpdate;
+use super::{Animation, AvatarUpdate, OutputError, Publisher};
 use crate::avatar::Avatar;
-use crate::msgs::{
-    GaussianAvatar, GaussianCloud, GaussianColors, Header, Image, Point, ReconstructionStatus, Time,
-};
-use crate::splat::{sh_dc_to_rgb, write_ply, PlyError};
+use crate::msgs::ReconstructionStatus;
+use crate::node::pipeline::RenderedFrame;
+use crate::splat::write_ply;
 use image::RgbImage;
 use std::path::{Path, PathBuf};
-
-/// A file output failed; names the file.
-#[derive(Debug, thiserror::Error)]
-pub enum OutputError {
-    /// Writing a PLY failed.
-    #[error(transparent)]
-    Ply(#[from] PlyError),
-    /// Writing a PNG or creating a directory failed.
-    #[error("{path}: {message}")]
-    File {
-        /// File or directory.
-        path: PathBuf,
-        /// What went wrong.
-        message: String,
-    },
-    /// A message could not be built.
-    #[error("message: {0}")]
-    Message(#[from] crate::msgs::MsgError),
-}
 
 /// Writes avatars and frames under one directory (`out/` by default).
 #[derive(Debug, Clone)]
@@ -127,84 +107,65 @@ impl FileOutputs {
     }
 }
 
-/// The GaussianAvatar message of an avatar revision (canonical Gaussians, skinning,
-/// skeleton, and whether its RGB is display-ready).
-pub fn avatar_message(update: &AvatarUpdate<'_>) -> Result<GaussianAvatar, OutputError> {
-    let AvatarUpdate {
-        person,
-        revision,
-        views_used,
-        stamp_ns,
-        avatar,
-        template,
-        shape_params,
-        rgb_display_ready,
-        neural_renderer,
-    } = *update;
-    let g = &avatar.canonical;
-    let colors = (0..g.len())
-        .map(|i| sh_dc_to_rgb(g.sh_of(i)[0]).to_array())
-        .collect();
-    let cloud = GaussianCloud {
-        positions: g.positions.iter().map(|p| p.to_array()).collect(),
-        scales: g.scales.iter().map(|s| s.to_array()).collect(),
-        rotations: g.rotations.iter().map(|q| [q.w, q.x, q.y, q.z]).collect(),
-        opacities: g.opacities.clone(),
-        colors: GaussianColors::Rgb(colors),
-        skin: avatar.skin.clone(),
-    };
-    let header = Header::new(Time::from_nanos(stamp_ns), "lhmpp_canonical");
-    let skeleton = &template.skeleton;
-    Ok(GaussianAvatar {
-        gaussians: cloud.to_point_cloud(header.clone())?,
-        header,
-        person_id: person.to_owned(),
-        revision: revision as u32,
-        views_used: views_used as u32,
-        body_model: avatar.body_model.clone(),
-        shape_params: shape_params.to_vec(),
-        sh_degree: 0,
-        rgb_display_ready,
-        neural_renderer: neural_renderer.to_owned(),
-        bone_names: skeleton.bone_names.clone(),
-        bone_parents: skeleton
-            .parents
-            .iter()
-            .map(|p| p.map_or(-1, |i| i as i32))
-            .collect(),
-        bone_rest_positions: skeleton.joints.iter().map(|j| Point::from(*j)).collect(),
-    })
-}
-
-/// A ReconstructionStatus message; `render_ms` is the per-frame render time of the last
-/// rendered batch (0 before the first).
-#[allow(clippy::too_many_arguments)]
-pub fn status_message(
-    person: &str,
-    views_held: usize,
-    revision: u64,
-    latency_ms: f64,
-    render_ms: f64,
-    state: u8,
-    message: impl Into<String>,
-    stamp_ns: i64,
-) -> ReconstructionStatus {
-    ReconstructionStatus {
-        header: Header::new(Time::from_nanos(stamp_ns), "lhmpp_canonical"),
-        person_id: person.to_owned(),
-        views_held: views_held as u32,
-        revision: revision as u32,
-        last_latency_ms: latency_ms,
-        last_render_ms: render_ms,
-        state,
-        message: message.into(),
-        ..Default::default()
+/// Stores avatars and animation frames; takes no live stream (statuses, rendered frames,
+/// previews).
+impl Publisher for FileOutputs {
+    /// Writes the avatar's PLY files ([`FileOutputs::write_avatar`]) and logs the path.
+    fn avatar(&self, u: &AvatarUpdate<'_>) {
+        match self.write_avatar(u.person, u.revision, u.avatar) {
+            Ok(path) => tracing::info!("wrote {}", path.display()),
+            Err(e) => tracing::error!("avatar file: {e}"),
+        }
+    }
+    fn status(&self, _msg: ReconstructionStatus) {}
+    fn frame(&self, _camera: usize, _frame: &RenderedFrame, _stamp_ns: i64) {}
+    fn live(&self) -> bool {
+        false
+    }
+    /// Writes the animation's frames as `frames/<name>.png`.
+    fn animation(&self) -> Option<Box<dyn Animation + '_>> {
+        Some(Box::new(FrameFiles {
+            files: self,
+            written: 0,
+            failed: 0,
+        }))
     }
 }
 
-/// An rgb8 Image message of a rendered frame.
-pub fn frame_message(image: &RgbImage, stamp_ns: i64, frame_id: &str) -> Image {
-    crate::node::ros::rgb8_image(image, stamp_ns, frame_id)
+/// The PNG files of one animation, counting what could not be written.
+struct FrameFiles<'a> {
+    files: &'a FileOutputs,
+    written: usize,
+    failed: usize,
+}
+
+impl Animation for FrameFiles<'_> {
+    fn frame(&mut self, name: &str, frame: &RenderedFrame) -> bool {
+        match self.files.write_frame(name, frame.rgb8()) {
+            Ok(_) => {
+                self.written += 1;
+                true
+            }
+            Err(e) => {
+                // The first failure is logged; the rest (a full disk fails them all) are
+                // counted and summed up by `finish`.
+                if self.failed == 0 {
+                    tracing::error!("frame file: {e}");
+                }
+                self.failed += 1;
+                false
+            }
+        }
+    }
+    fn finish(self: Box<Self>) {
+        if self.failed > 1 {
+            tracing::error!(
+                "{} frame files of {} could not be written",
+                self.failed,
+                self.failed + self.written
+            );
+        }
+    }
 }
 
 #[cfg(test)]
@@ -281,5 +242,56 @@ mod tests {
         });
         assert_eq!(log, "");
         assert!(tmp.path().join("avatar_p.ply").exists());
+    }
+
+    /// A 4×2 grey frame.
+    fn frame() -> RenderedFrame {
+        let n = 4 * 2;
+        RenderedFrame::new(crate::splat::RenderOutput {
+            width: 4,
+            height: 2,
+            rgb: vec![0.5; n * 3],
+            alpha: vec![1.0; n],
+            depth: vec![1.0; n],
+            ..Default::default()
+        })
+    }
+
+    #[test]
+    fn animation_frames_are_written_as_png_files_silently() {
+        let tmp = tempfile::tempdir().unwrap();
+        let files = FileOutputs::new(tmp.path()).unwrap();
+        let log = warnings(|| {
+            let mut animation = files.animation().unwrap();
+            assert!(animation.frame("p_cam0_000", &frame()));
+            animation.finish();
+        });
+        assert_eq!(log, "");
+        let written = image::open(tmp.path().join("frames/p_cam0_000.png")).unwrap();
+        assert_eq!((written.width(), written.height()), (4, 2));
+    }
+
+    #[test]
+    fn failed_animation_frames_log_the_first_failure_and_one_summary() {
+        let tmp = tempfile::tempdir().unwrap();
+        let files = FileOutputs::new(tmp.path()).unwrap();
+        // `frames` becomes a regular file: no frame can be written under it.
+        std::fs::remove_dir(tmp.path().join("frames")).unwrap();
+        std::fs::write(tmp.path().join("frames"), b"x").unwrap();
+        let log = warnings(|| {
+            let mut animation = files.animation().unwrap();
+            for f in 0..3 {
+                assert!(!animation.frame(&format!("p_cam0_{f:03}"), &frame()));
+            }
+            animation.finish();
+        });
+        assert_eq!(log.matches("frame file: ").count(), 1, "{log}");
+        assert!(log.contains("frames/p_cam0_000.png"), "{log}");
+        assert_eq!(
+            log.matches("3 frame files of 3 could not be written")
+                .count(),
+            1,
+            "{log}"
+        );
     }
 }
