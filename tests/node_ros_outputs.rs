@@ -1,5 +1,7 @@
-//! Publishing without any reader: never an error (a full reliable window is back-pressure),
-//! and misuse is reported with the offending camera. Loopback only, no peer needed.
+//! Publishing without any reader: never an error (a full reliable window is back-pressure, a
+//! latched output holds its newest message), misuse is reported with the offending camera, a
+//! late subscriber gets the newest latched message, and every output reaches the subscribers
+//! its QoS promises. Loopback only, no peer needed.
 
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{GaussianAvatar, ReconstructionStatus};
@@ -247,4 +249,84 @@ fn best_effort_frames_reach_only_best_effort_subscribers() {
     }
     assert!(count("image_raw (best effort)") > 0, "{got:?}");
     assert_eq!(count("image_raw (reliable)"), 0, "{got:?}");
+}
+
+#[test]
+fn a_late_subscriber_gets_the_newest_avatar_held_while_nobody_listened() {
+    use ros2_client::qos::{Durability, History, QosProfile, Reliability, WhenFull};
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let _guard = runtime.enter();
+    let cfg = NodeConfig {
+        domain_id: 110 + (std::process::id() % 30) as i32,
+        namespace: "/lhmpp_latched_test".into(),
+        ..NodeConfig::default()
+    };
+    let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None)
+        .unwrap()
+        .loopback_only();
+    let (node, _rx) = RosNode::start(&opts).expect("node starts");
+    // Nobody listens: each avatar is held (the newest replaces the older), none goes to DDS,
+    // whose transient-local history would otherwise keep every one of them.
+    for revision in 1..=40u32 {
+        let avatar = GaussianAvatar {
+            person_id: "p".into(),
+            revision,
+            ..GaussianAvatar::default()
+        };
+        assert_eq!(node.publish_avatar(avatar).unwrap(), PublishOutcome::Held);
+    }
+
+    let peer_ctx = lhmpp::node::ros::create_context(&opts.participant).unwrap();
+    let mut peer = peer_ctx
+        .new_node(
+            ros2_client::NodeName::new("/", "late_reader").unwrap(),
+            ros2_client::NodeOptions::new().enable_rosout(false),
+        )
+        .unwrap();
+    let qos = QosProfile::subscription_default()
+        .history(History::KeepLast { depth: 10 })
+        .durability(Durability::TransientLocal)
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::DEFAULT,
+        });
+    let (ns, base) = node.topics().avatar.rsplit_once('/').unwrap();
+    let name = ros2_client::Name::new(ns, base).unwrap();
+    let topic = peer
+        .create_topic(
+            &name,
+            ros2_client::MessageTypeName::new("lhmpp_msgs", "GaussianAvatar"),
+            &qos,
+        )
+        .unwrap();
+    let sub = peer
+        .create_subscription::<GaussianAvatar>(&topic, Some(qos))
+        .unwrap();
+    let mut revisions = Vec::new();
+    let start = std::time::Instant::now();
+    while start.elapsed() < std::time::Duration::from_secs(20) && revisions.is_empty() {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        while let Ok(Some(avatar)) = sub.take() {
+            revisions.push(avatar.0.revision);
+        }
+    }
+    // A little longer, so an older avatar delivered after the newest would show up.
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    while let Ok(Some(avatar)) = sub.take() {
+        revisions.push(avatar.0.revision);
+    }
+    assert_eq!(revisions, vec![40], "the late reader got {revisions:?}");
+    assert_eq!(node.avatar_subscribers(), 1);
+    // With a reader matched, publishing goes straight to DDS again.
+    let next = GaussianAvatar {
+        person_id: "p".into(),
+        revision: 41,
+        ..GaussianAvatar::default()
+    };
+    assert_eq!(node.publish_avatar(next).unwrap(), PublishOutcome::Sent);
+    drop(sub);
+    node.shutdown();
 }

@@ -5,12 +5,14 @@
 //! camera-info, mask, body-pose and body-shape topics, and returns the receiving end of ONE bounded queue of
 //! [`InputEvent`]s. Bad messages are counted and reported per topic at most once per period;
 //! they never stop the node. Outputs (avatar, rendered frames, status) are published through
-//! the node; a full reliable send window is [`PublishOutcome::BackPressure`].
+//! the node; a full reliable send window is [`PublishOutcome::BackPressure`], and a
+//! transient-local output without a reader keeps only its newest message ([`PublishOutcome::Held`]).
 //!
 //! ros2-client supports `rosout`: with [`RosNodeOptions::rosout`] the node's input-error
 //! reports also go to `/rosout` (and always to `tracing`).
 
 mod context;
+mod latched;
 pub(crate) mod ports;
 mod sink;
 
@@ -30,6 +32,7 @@ use crate::node::input_queue::{bounded, OverflowPolicy, QueueReceiver};
 use crate::node::inputs::{self, InputEvent};
 use crate::node::names::{split_fully_qualified, NameError, NameResolver};
 use crate::splat::Gaussians;
+use latched::LatchedPort;
 use ports::OutputPort;
 use ros2_client::dds::Node;
 use ros2_client::qos::QosProfile;
@@ -39,6 +42,7 @@ use serde::Serialize;
 use sink::InputSink;
 use std::collections::BTreeMap;
 use std::net::IpAddr;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// A failure to set up or use the ROS 2 endpoint; each names what it was about.
@@ -247,11 +251,11 @@ impl ResolvedTopics {
 pub struct RosNode {
     /// Held so the DDS participant outlives the node's own endpoints (see `shutdown`).
     context: ros2_client::Context,
-    node: Node,
+    node: Arc<Node>,
     topics: ResolvedTopics,
     sink: InputSink<InputEvent>,
-    avatar: OutputPort<GaussianAvatar>,
-    status: OutputPort<ReconstructionStatus>,
+    avatar: LatchedPort<GaussianAvatar>,
+    status: LatchedPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
     preview: Option<Preview>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
@@ -262,7 +266,7 @@ pub struct RosNode {
 
 /// The preview cloud's publisher and its `/tf` publisher.
 struct Preview {
-    cloud: OutputPort<PointCloud2>,
+    cloud: LatchedPort<PointCloud2>,
     tf: OutputPort<TFMessage>,
     frame: String,
     world: String,
@@ -370,15 +374,15 @@ impl RosNode {
             .iter()
             .map(|t| advertise(&mut node, t, frame_output_qos(opts.frame_qos)))
             .collect::<Result<Vec<_>, _>>()?;
+        // Transient local: RViz2 / Foxglove opened later get the last cloud at once;
+        // a reliable + transient-local writer matches every kind of subscriber.
         let preview = match &opts.preview_frames {
-            Some((frame, world)) => Some(Preview {
-                // Transient local: RViz2 / Foxglove opened later get the last cloud at once;
-                // a reliable + transient-local writer matches every kind of subscriber.
-                cloud: advertise(&mut node, &topics.preview, latched_output_qos())?,
-                tf: advertise(&mut node, &topics.tf, frame_output_qos(FrameQos::Reliable))?,
-                frame: frame.clone(),
-                world: world.clone(),
-            }),
+            Some((frame, world)) => Some((
+                advertise(&mut node, &topics.preview, latched_output_qos())?,
+                advertise(&mut node, &topics.tf, frame_output_qos(FrameQos::Reliable))?,
+                frame.clone(),
+                world.clone(),
+            )),
             None => None,
         };
 
@@ -389,6 +393,16 @@ impl RosNode {
             if let Err(e) = spinner.spin().await {
                 tracing::error!("ROS 2 spinner stopped: {e:?}");
             }
+        });
+        let node = Arc::new(node);
+        let runtime = tokio::runtime::Handle::current();
+        let avatar = LatchedPort::new(avatar, Arc::clone(&node), runtime.clone());
+        let status = LatchedPort::new(status, Arc::clone(&node), runtime.clone());
+        let preview = preview.map(|(cloud, tf, frame, world)| Preview {
+            cloud: LatchedPort::new(cloud, Arc::clone(&node), runtime),
+            tf,
+            frame,
+            world,
         });
         tracing::info!(
             domain_id = opts.participant.domain_id,
@@ -471,7 +485,7 @@ impl RosNode {
 
     /// Matched readers of the avatar topic.
     pub fn avatar_subscribers(&self) -> usize {
-        self.avatar.publisher.get_subscription_count(&self.node)
+        self.avatar.subscribers()
     }
 
     /// Matched readers of virtual camera `camera`'s frame topic.
@@ -483,8 +497,8 @@ impl RosNode {
 
     /// Publishes refused by a full send window so far (all outputs).
     pub fn back_pressure_count(&self) -> u64 {
-        self.avatar.back_pressure()
-            + self.status.back_pressure()
+        self.avatar.port().back_pressure()
+            + self.status.port().back_pressure()
             + self.frames.iter().map(|p| p.back_pressure()).sum::<u64>()
     }
 
@@ -523,6 +537,12 @@ impl RosNode {
             task.abort();
         }
         tasks.iter().for_each(wait);
+        let waiters = [avatar.stop(), status.stop()]
+            .into_iter()
+            .chain(preview.as_ref().map(|p| p.cloud.stop()))
+            .flatten()
+            .collect::<Vec<_>>();
+        waiters.iter().for_each(wait);
         drop((sink, avatar, status, frames, preview));
         drop(node);
         wait(&spinner);

@@ -52,6 +52,9 @@ pub enum PublishOutcome {
     /// The reliable send window was full (no matched reader yet, or a slow one); the
     /// message was not sent. Try again with the next message.
     BackPressure,
+    /// A transient-local output with no matched reader: the message is kept as the newest
+    /// and published when a reader matches (see `latched`).
+    Held,
 }
 
 /// A publisher with its resolved topic, counting back-pressure.
