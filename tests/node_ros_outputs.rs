@@ -8,17 +8,23 @@ use lhmpp::msgs::{GaussianAvatar, ReconstructionStatus};
 use lhmpp::node::ros::{rgb8_image, PublishOutcome, RosNode, RosNodeOptions};
 use std::collections::BTreeMap;
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn publishing_before_any_reader_is_not_an_error() {
+/// Starts the node, loopback only, on a domain from `domain_base` + 0..30 (by process id).
+fn start_node(domain_base: i32, namespace: &str) -> (RosNode, RosNodeOptions) {
     let cfg = NodeConfig {
-        domain_id: 200 + (std::process::id() % 30) as i32,
-        namespace: "/lhmpp_outputs_test".into(),
+        domain_id: domain_base + (std::process::id() % 30) as i32,
+        namespace: namespace.into(),
         ..NodeConfig::default()
     };
     let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None)
         .unwrap()
         .loopback_only();
     let (node, _rx) = RosNode::start(&opts).expect("node starts");
+    (node, opts)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn publishing_before_any_reader_is_not_an_error() {
+    let (node, _) = start_node(200, "/lhmpp_outputs_test");
     assert_eq!(node.avatar_subscribers(), 0);
     let frame = image::RgbImage::new(16, 16);
     let mut outcomes = Vec::new();
@@ -260,15 +266,7 @@ fn a_late_subscriber_gets_the_newest_avatar_held_while_nobody_listened() {
         .build()
         .unwrap();
     let _guard = runtime.enter();
-    let cfg = NodeConfig {
-        domain_id: 110 + (std::process::id() % 30) as i32,
-        namespace: "/lhmpp_latched_test".into(),
-        ..NodeConfig::default()
-    };
-    let opts = RosNodeOptions::from_config(&cfg, BTreeMap::new(), None)
-        .unwrap()
-        .loopback_only();
-    let (node, _rx) = RosNode::start(&opts).expect("node starts");
+    let (node, opts) = start_node(110, "/lhmpp_latched_test");
     // Nobody listens: each avatar is held (the newest replaces the older), none goes to DDS,
     // whose transient-local history would otherwise keep every one of them.
     for revision in 1..=40u32 {

@@ -48,7 +48,7 @@ fn a_minute_of_four_1080p_streams_keeps_the_node_reconstructing_and_the_counters
             .args(["run", "--config", "launch_configs/soak.yaml"])
             .args(["--set", &format!("domain_id={domain}")])
             .stdout(Stdio::piped())
-            .stderr(Stdio::null())
+            .stderr(std::fs::File::create(report.path().join("node.log")).unwrap())
             .spawn()
             .expect("lhmpp run starts"),
     );
@@ -96,6 +96,15 @@ fn a_minute_of_four_1080p_streams_keeps_the_node_reconstructing_and_the_counters
     std::io::Read::read_to_string(node.0.stdout.as_mut().unwrap(), &mut summary).unwrap();
     eprintln!("{summary}");
     assert!(status.success(), "node exit {status:?}");
+    // No ERROR line in the node's log under load (a reader-count query on outputs nobody had
+    // subscribed to once logged one per publish and poll).
+    let log = std::fs::read_to_string(report.path().join("node.log")).unwrap();
+    let errors: Vec<_> = log
+        .lines()
+        .filter(|l| l.contains("ERROR"))
+        .take(5)
+        .collect();
+    assert!(errors.is_empty(), "errors in the node's log: {errors:#?}");
 
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(report.path().join("summary.json")).unwrap())

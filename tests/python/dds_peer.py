@@ -158,6 +158,8 @@ def main():
                     help="index of the first frame sent (a peer that comes back sends new views)")
     ap.add_argument("--min-revisions", type=int, default=1,
                     help="distinct avatar revisions to receive, each higher than the last")
+    ap.add_argument("--above-revision", type=int, default=0,
+                    help="wait for a revision higher than this (a peer that comes back)")
     args = ap.parse_args()
 
     dp = DomainParticipant(args.domain)
@@ -225,6 +227,9 @@ def main():
                 revisions.append(msg.revision)
             if avatar_err is None and len(revisions) < args.min_revisions:
                 avatar_err = f"revisions so far {revisions}, waiting for {args.min_revisions}"
+            elif avatar_err is None and revisions[-1] <= args.above_revision:
+                avatar_err = (f"revisions so far {revisions}, waiting for one above "
+                              f"{args.above_revision}")
             avatar_ok = avatar_err is None
         if render_ok and avatar_ok:
             break

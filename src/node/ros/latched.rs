@@ -60,7 +60,7 @@ impl<M: Serialize + Send + Sync + 'static> LatchedPort<M> {
 
     /// Matched readers of the port's topic.
     pub(crate) fn subscribers(&self) -> usize {
-        self.port.publisher.get_subscription_count(&self.node)
+        self.port.matched_readers(&self.node)
     }
 
     /// Publishes `msg` when a reader is matched; otherwise keeps it (replacing any older one)
@@ -78,7 +78,7 @@ impl<M: Serialize + Send + Sync + 'static> LatchedPort<M> {
             let (port, node) = (Arc::clone(&self.port), Arc::clone(&self.node));
             let held = Arc::clone(&self.held);
             *waiter = Some(self.runtime.spawn(async move {
-                while port.publisher.get_subscription_count(&node) == 0 {
+                while port.matched_readers(&node) == 0 {
                     tokio::time::sleep(MATCH_POLL).await;
                 }
                 // Under the lock, so a newer message published meanwhile cannot go first.

@@ -492,7 +492,7 @@ impl RosNode {
     pub fn frame_subscribers(&self, camera: usize) -> usize {
         self.frames
             .get(camera)
-            .map_or(0, |p| p.publisher.get_subscription_count(&self.node))
+            .map_or(0, |p| p.matched_readers(&self.node))
     }
 
     /// Publishes refused by a full send window so far (all outputs).

@@ -7,7 +7,7 @@
 use super::RosError;
 use crate::msgs::{Header, Image, Time};
 use image::RgbImage;
-use ros2_client::dds::Publisher;
+use ros2_client::dds::{Node, Publisher};
 use ros2_client::WriteError;
 use serde::Serialize;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -86,6 +86,16 @@ impl<M: Serialize> OutputPort<M> {
                 reason: e.to_string(),
             }),
         }
+    }
+
+    /// Readers matched to this port's writer. ros2-client logs an ERROR for a writer that has
+    /// never matched a reader, so the (cheaper, never failing) count of readers discovered on
+    /// the topic is asked first: with none, none can be matched.
+    pub(crate) fn matched_readers(&self, node: &Node) -> usize {
+        if node.subscription_count(&self.topic) == 0 {
+            return 0;
+        }
+        self.publisher.get_subscription_count(node)
     }
 
     pub(crate) fn back_pressure(&self) -> u64 {
