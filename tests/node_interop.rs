@@ -11,10 +11,9 @@
 use lhmpp::body::SkinWeights;
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{GaussianAvatar, GaussianCloud, GaussianColors, Header, Point, Time};
-use lhmpp::node::input_queue::QueueReceiver;
 use lhmpp::node::inputs::InputEvent;
 use lhmpp::node::ros::PublishOutcome;
-use lhmpp::node::ros::{rgb8_image, RosNode, RosNodeOptions};
+use lhmpp::node::ros::{rgb8_image, LiveInputs, RosNode, RosNodeOptions};
 use std::collections::BTreeMap;
 use std::io::BufRead;
 use std::path::PathBuf;
@@ -168,7 +167,7 @@ fn peer_lines(child: &mut Child) -> mpsc::UnboundedReceiver<String> {
 /// Waits for `n` frames; also returns each one's delay from its header stamp (the peer's
 /// wall clock at publish) to its arrival here, both on this host.
 async fn wait_for_frames(
-    rx: &mut QueueReceiver<InputEvent>,
+    rx: &mut LiveInputs,
     n: usize,
     topics: &[String],
 ) -> (Vec<InputEvent>, Vec<Duration>) {

@@ -126,7 +126,9 @@ fn a_minute_of_four_1080p_streams_keeps_the_node_reconstructing_and_the_counters
     assert!(rss["exited_at_s"].is_null(), "the node died: {rss}");
     assert!(rss["samples"].as_u64().unwrap() >= 55, "{rss}");
     eprintln!("RSS slope {slope:+.1} MB/min, max {max:.0} MB");
-    assert!(max < 1_000.0, "RSS max {max:.0} MB: {rss}");
+    // Frames wait in the input queue encoded (86 KB each), not decoded (6 MB): 113 MB measured;
+    // with decoded frames in the queue it was 324 MB.
+    assert!(max < 250.0, "RSS max {max:.0} MB: {rss}");
     assert!(
         slope < 10.0,
         "RSS grows {slope:+.1} MB/min after the warm-up: {rss}"

@@ -1,6 +1,8 @@
 //! What the node receives: decoded camera frames, masks, camera calibration, body poses and shapes,
-//! all delivered as [`InputEvent`]s through one bounded queue, and the conversions from the
-//! messages that live subscriptions ([`super::ros`]) and bag replay ([`super::replay`]) share.
+//! all delivered as [`InputEvent`]s, and the conversions from the messages that live
+//! subscriptions ([`super::ros`]) and bag replay ([`super::replay`]) share. Live image messages
+//! wait in the bounded input queue still encoded ([`Incoming::Image`]) and are decoded when
+//! taken, so a frame dropped at a full queue costs no decoding and little memory.
 //! Synchronous: no ROS 2 endpoint and no runtime.
 
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Header, Image};
@@ -75,6 +77,63 @@ pub enum InputEvent {
         /// The message.
         shape: Box<BodyShape>,
     },
+}
+
+/// What waits in the live input queue: an event, or an image message not yet decoded.
+#[derive(Debug)]
+pub enum Incoming {
+    /// A message that needs no decoding (camera info, pose, shape).
+    Event(InputEvent),
+    /// A camera image or mask, decoded when taken ([`EncodedImage::decode`]).
+    Image(Box<EncodedImage>),
+}
+
+/// An image message as it arrived on its topic, with what decoding it needs.
+#[derive(Debug)]
+pub struct EncodedImage {
+    /// Resolved topic.
+    pub topic: String,
+    /// Node clock at arrival.
+    pub arrival: Duration,
+    /// Larger sides are refused before decoding (`inputs.max_image_side`).
+    pub max_side: u32,
+    /// The message.
+    pub message: ImageMessage,
+}
+
+/// The image message kinds the node subscribes to.
+#[derive(Debug)]
+pub enum ImageMessage {
+    /// A raw camera image.
+    Raw(Image),
+    /// A compressed (JPEG/PNG) camera image.
+    Compressed(CompressedImage),
+    /// A mono8 person mask of `camera` (`None`: any camera).
+    Mask {
+        /// The camera topic it masks.
+        camera: Option<String>,
+        /// The message.
+        image: Image,
+    },
+}
+
+impl EncodedImage {
+    /// Decodes the image into its event; the error names the topic and what is wrong.
+    pub fn decode(self) -> Result<InputEvent, String> {
+        let Self {
+            topic,
+            arrival,
+            max_side,
+            message,
+        } = self;
+        match message {
+            ImageMessage::Raw(msg) => image_event(&topic, msg, arrival, max_side),
+            ImageMessage::Compressed(msg) => compressed_event(&topic, msg, arrival, max_side),
+            ImageMessage::Mask { camera, image } => {
+                mask_event(&topic, camera.as_deref(), image, arrival, max_side)
+            }
+        }
+    }
 }
 
 /// `sensor_msgs/Image` → [`InputEvent::Frame`].

@@ -3,14 +3,12 @@
 //! (`replay.exit_when_done`) or SIGINT/SIGTERM. The tokio runtime hosts only the DDS endpoint
 //! and the signal handlers.
 
-use super::inputs::InputEvent;
 use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs};
 use super::pipeline::{Pipeline, PipelineError, PipelineStats};
 use super::replay::{BagReplay, Replayed};
-use super::ros::{ResolvedTopics, RosError, RosNode, RosNodeOptions};
+use super::ros::{LiveInputs, ResolvedTopics, RosError, RosNode, RosNodeOptions};
 use crate::bag::Salvage;
 use crate::config::NodeConfig;
-use crate::node::input_queue::QueueReceiver;
 use crate::node::rejections::Rejections;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -181,7 +179,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
 /// subscriptions whose rejection counts the pipeline reports.
 fn run_live(
     pipeline: &mut Pipeline,
-    mut events: Option<&mut QueueReceiver<InputEvent>>,
+    mut events: Option<&mut LiveInputs>,
     inputs: Option<&RosNode>,
     stop: &AtomicBool,
     clock: &impl Fn() -> Duration,

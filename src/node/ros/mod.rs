@@ -2,7 +2,8 @@
 //!
 //! [`RosNode::start`] creates the DDS participant in the resolved domain, resolves every topic
 //! name (namespace, `~/`, remapping), subscribes to the configured image, compressed-image,
-//! camera-info, mask, body-pose and body-shape topics, and returns the receiving end of ONE bounded queue of
+//! camera-info, mask, body-pose and body-shape topics, and returns the receiving end of ONE
+//! bounded queue ([`LiveInputs`]), which decodes image messages as they are taken and yields
 //! [`InputEvent`]s. Bad messages are counted and reported per topic at most once per period;
 //! they never stop the node. Outputs (avatar, rendered frames, status) are published through
 //! the node; a full reliable send window is [`PublishOutcome::BackPressure`], and a
@@ -13,6 +14,7 @@
 
 mod context;
 mod latched;
+mod live_inputs;
 pub(crate) mod ports;
 mod sink;
 
@@ -20,6 +22,7 @@ pub use context::{
     create_context, frame_output_qos, image_input_qos, latched_output_qos, reliable_input_qos,
     resolve_domain_id, ParticipantOptions,
 };
+pub use live_inputs::LiveInputs;
 pub use ports::{rgb8_image, OutputTopics, PublishOutcome};
 pub use sink::InputStats;
 
@@ -28,8 +31,8 @@ use crate::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, PointCloud2,
     ReconstructionStatus, RosMessage, TFMessage,
 };
-use crate::node::input_queue::{bounded, OverflowPolicy, QueueReceiver};
-use crate::node::inputs::{self, InputEvent};
+use crate::node::input_queue::{bounded, OverflowPolicy};
+use crate::node::inputs::{EncodedImage, ImageMessage, Incoming, InputEvent};
 use crate::node::names::{split_fully_qualified, NameError, NameResolver};
 use crate::splat::Gaussians;
 use latched::LatchedPort;
@@ -253,7 +256,7 @@ pub struct RosNode {
     context: ros2_client::Context,
     node: Arc<Node>,
     topics: ResolvedTopics,
-    sink: InputSink<InputEvent>,
+    sink: InputSink<Incoming>,
     avatar: LatchedPort<GaussianAvatar>,
     status: LatchedPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
@@ -282,8 +285,8 @@ pub fn type_name<M: RosMessage>() -> MessageTypeName {
 
 impl RosNode {
     /// Starts the endpoint; must be called inside a tokio runtime. Returns the node and the
-    /// receiving end of its input queue. Its clock ([`RosNode::clock`]) starts now.
-    pub fn start(opts: &RosNodeOptions) -> Result<(Self, QueueReceiver<InputEvent>), RosError> {
+    /// receiving end of its input queue (decoded events). Its clock ([`RosNode::clock`]) starts now.
+    pub fn start(opts: &RosNodeOptions) -> Result<(Self, LiveInputs), RosError> {
         Self::start_with_clock(opts, Instant::now())
     }
 
@@ -292,7 +295,7 @@ impl RosNode {
     pub fn start_with_clock(
         opts: &RosNodeOptions,
         origin: Instant,
-    ) -> Result<(Self, QueueReceiver<InputEvent>), RosError> {
+    ) -> Result<(Self, LiveInputs), RosError> {
         let names = NameResolver::new(&opts.namespace, &opts.node_name)?.with_map(&opts.remap)?;
         let topics = ResolvedTopics::resolve(opts, &names)?;
         let context = create_context(&opts.participant)?;
@@ -306,6 +309,7 @@ impl RosNode {
         let min_interval =
             (opts.max_rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / opts.max_rate_hz));
         let sink = InputSink::new(tx, opts.error_report_period, origin, rosout, min_interval);
+        let inputs = LiveInputs::new(rx, sink.rejecter());
 
         let mut tasks = Vec::new();
         let max_side = opts.max_image_side;
@@ -313,57 +317,65 @@ impl RosNode {
         for topic in &topics.images {
             let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
             tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
-                inputs::image_event(t, m, a, max_side)
+                Ok(encoded(t, a, max_side, ImageMessage::Raw(m)))
             }));
         }
         for topic in &topics.compressed_images {
             let sub = subscribe::<CompressedImage>(&mut node, topic, image_qos.clone())?;
             tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
-                inputs::compressed_event(t, m, a, max_side)
+                Ok(encoded(t, a, max_side, ImageMessage::Compressed(m)))
             }));
         }
         for (camera_index, topic) in topics.camera_infos.iter().enumerate() {
             let sub = subscribe::<CameraInfo>(&mut node, topic, reliable_input_qos())?;
             tasks.push(sink.spawn(topic.clone(), sub, move |t, info, arrival| {
-                Ok(InputEvent::CameraInfo {
+                Ok(Incoming::Event(InputEvent::CameraInfo {
                     topic: t.to_owned(),
                     camera_index,
                     arrival,
                     info: Box::new(info),
-                })
+                }))
             }));
         }
         if let Some(topic) = &topics.mask {
             let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
-            tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
-                inputs::mask_event(t, None, m, a, max_side)
+            tasks.push(sink.spawn(topic.clone(), sub, move |t, image, a| {
+                let message = ImageMessage::Mask {
+                    camera: None,
+                    image,
+                };
+                Ok(encoded(t, a, max_side, message))
             }));
         }
         for (topic, camera) in &topics.camera_masks {
             let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
             let camera = camera.clone();
-            tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
-                inputs::mask_event(t, Some(&camera), m, a, max_side)
+            tasks.push(sink.spawn(topic.clone(), sub, move |t, image, a| {
+                let message = ImageMessage::Mask {
+                    camera: Some(camera.clone()),
+                    image,
+                };
+                Ok(encoded(t, a, max_side, message))
             }));
         }
         if let Some(topic) = &topics.pose {
             let sub = subscribe::<BodyPose>(&mut node, topic, reliable_input_qos())?;
             tasks.push(sink.spawn(topic.clone(), sub, |t, pose, arrival| {
-                Ok(InputEvent::BodyPose {
+                Ok(Incoming::Event(InputEvent::BodyPose {
                     topic: t.to_owned(),
                     arrival,
                     pose: Box::new(pose),
-                })
+                }))
             }));
         }
         if let Some(topic) = &topics.shape {
             let sub = subscribe::<BodyShape>(&mut node, topic, reliable_input_qos())?;
             tasks.push(sink.spawn(topic.clone(), sub, |t, shape, arrival| {
-                Ok(InputEvent::BodyShape {
+                Ok(Incoming::Event(InputEvent::BodyShape {
                     topic: t.to_owned(),
                     arrival,
                     shape: Box::new(shape),
-                })
+                }))
             }));
         }
 
@@ -425,7 +437,7 @@ impl RosNode {
                 start: origin,
                 domain_id: opts.participant.domain_id,
             },
-            rx,
+            inputs,
         ))
     }
 
@@ -553,6 +565,16 @@ impl RosNode {
         // Last: the participant, once nothing of the node needs its event loop.
         drop(context);
     }
+}
+
+/// An image message of topic `t` queued for decoding when taken.
+fn encoded(t: &str, arrival: Duration, max_side: u32, message: ImageMessage) -> Incoming {
+    Incoming::Image(Box::new(EncodedImage {
+        topic: t.to_owned(),
+        arrival,
+        max_side,
+        message,
+    }))
 }
 
 fn ros_name(topic: &str) -> Result<Name, RosError> {

@@ -10,13 +10,14 @@ use ros2_client::dds::{NodeLoggingHandle, RosoutRaw, Subscription};
 use ros2_client::log::LogLevel;
 use serde::de::DeserializeOwned;
 use std::collections::BTreeMap;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 use std::time::{Duration, Instant};
 
 /// Per-topic counters of the input side.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct InputStats {
-    /// Messages turned into events, per resolved topic.
+    /// Messages taken into the input queue, per resolved topic. An image message is decoded
+    /// when the pipeline takes it; one that does not decode then also counts in `rejected`.
     pub accepted: BTreeMap<String, u64>,
     /// Messages rejected (malformed or undecodable), per resolved topic.
     pub rejected: BTreeMap<String, u64>,
@@ -40,9 +41,7 @@ struct Counters {
 /// Shared by the subscription tasks of one node.
 pub(crate) struct InputSink<E> {
     queue: QueueSender<E>,
-    counters: Arc<Mutex<Counters>>,
-    start: Instant,
-    rosout: Option<Arc<NodeLoggingHandle>>,
+    rejecter: Rejecter,
     min_interval: Option<Duration>,
 }
 
@@ -50,10 +49,64 @@ impl<E> Clone for InputSink<E> {
     fn clone(&self) -> Self {
         Self {
             queue: self.queue.clone(),
-            counters: self.counters.clone(),
-            start: self.start,
-            rosout: self.rosout.clone(),
+            rejecter: self.rejecter.clone(),
             min_interval: self.min_interval,
+        }
+    }
+}
+
+/// Counts and reports the input messages that could not be used, with the subscriptions'
+/// counters: for the subscription tasks and for the queue's receiving end, which decodes
+/// images as they are taken.
+#[derive(Clone)]
+pub(crate) struct Rejecter {
+    counters: Arc<Mutex<Counters>>,
+    start: Instant,
+    rosout: Option<Rosout>,
+}
+
+/// The node's `/rosout` writer: held by the subscription tasks; only referred to by the
+/// queue's receiving end, which may outlive the node (a held writer would then be removed
+/// after the DDS participant, which RustDDS logs as an error).
+#[derive(Clone)]
+enum Rosout {
+    Held(Arc<NodeLoggingHandle>),
+    Referred(Weak<NodeLoggingHandle>),
+}
+
+impl Rosout {
+    fn handle(&self) -> Option<Arc<NodeLoggingHandle>> {
+        match self {
+            Rosout::Held(h) => Some(h.clone()),
+            Rosout::Referred(w) => w.upgrade(),
+        }
+    }
+}
+
+impl Rejecter {
+    /// Counts a message of `topic` that could not be used, and reports it (rate-limited per
+    /// topic, to `tracing` and, while the node lives and has it enabled, `/rosout`).
+    pub(crate) fn reject(&self, topic: &str, kind: RejectReason, reason: &str) {
+        let now = self.start.elapsed();
+        let line = {
+            let mut counters = self.counters.lock().expect("input counters poisoned");
+            counters.rejections.add(kind);
+            counters.errors.record(topic, reason, now)
+        };
+        if let Some(line) = line {
+            match self.rosout.as_ref().and_then(Rosout::handle) {
+                // rosout_raw also forwards the line to `tracing`.
+                Some(handle) => handle.rosout_raw(
+                    ros2_client::builtin_interfaces::Time::now(),
+                    LogLevel::Warn,
+                    handle.base_name(),
+                    &line,
+                    file!(),
+                    "Rejecter::reject",
+                    line!(),
+                ),
+                None => tracing::warn!("{line}"),
+            }
         }
     }
 }
@@ -68,25 +121,41 @@ impl<E: Send + 'static> InputSink<E> {
     ) -> Self {
         Self {
             queue,
-            counters: Arc::new(Mutex::new(Counters {
-                accepted: BTreeMap::new(),
-                errors: InputErrors::new(report_period),
-                rejections: Rejections::default(),
-                rate_limited: BTreeMap::new(),
-            })),
-            start,
-            rosout: rosout.map(Arc::new),
+            rejecter: Rejecter {
+                counters: Arc::new(Mutex::new(Counters {
+                    accepted: BTreeMap::new(),
+                    errors: InputErrors::new(report_period),
+                    rejections: Rejections::default(),
+                    rate_limited: BTreeMap::new(),
+                })),
+                start,
+                rosout: rosout.map(|h| Rosout::Held(Arc::new(h))),
+            },
             min_interval,
+        }
+    }
+
+    /// The rejecter for the queue's receiving end, which may outlive the node: it only refers
+    /// to the `/rosout` writer, so once the node is gone its reports go to `tracing` only.
+    pub(crate) fn rejecter(&self) -> Rejecter {
+        let rosout = self.rejecter.rosout.as_ref().map(|r| match r {
+            Rosout::Held(h) => Rosout::Referred(Arc::downgrade(h)),
+            referred => referred.clone(),
+        });
+        Rejecter {
+            rosout,
+            ..self.rejecter.clone()
         }
     }
 
     /// Node clock: time since the node started.
     pub(crate) fn now(&self) -> Duration {
-        self.start.elapsed()
+        self.rejecter.start.elapsed()
     }
 
     fn accept(&self, topic: &str, event: E) {
         *self
+            .rejecter
             .counters
             .lock()
             .expect("input counters poisoned")
@@ -97,27 +166,7 @@ impl<E: Send + 'static> InputSink<E> {
     }
 
     fn reject(&self, topic: &str, kind: RejectReason, reason: &str) {
-        let now = self.now();
-        let line = {
-            let mut counters = self.counters.lock().expect("input counters poisoned");
-            counters.rejections.add(kind);
-            counters.errors.record(topic, reason, now)
-        };
-        if let Some(line) = line {
-            match &self.rosout {
-                // rosout_raw also forwards the line to `tracing`.
-                Some(handle) => handle.rosout_raw(
-                    ros2_client::builtin_interfaces::Time::now(),
-                    LogLevel::Warn,
-                    handle.base_name(),
-                    &line,
-                    file!(),
-                    "InputSink::reject",
-                    line!(),
-                ),
-                None => tracing::warn!("{line}"),
-            }
-        }
+        self.rejecter.reject(topic, kind, reason);
     }
 
     /// The per-topic rate limit: whether a message of `topic` arriving at `now` comes sooner
@@ -129,7 +178,11 @@ impl<E: Send + 'static> InputSink<E> {
             _ => false,
         };
         if too_soon {
-            let mut counters = self.counters.lock().expect("input counters poisoned");
+            let mut counters = self
+                .rejecter
+                .counters
+                .lock()
+                .expect("input counters poisoned");
             *counters.rate_limited.entry(topic.to_owned()).or_default() += 1;
         } else {
             *last = Some(now);
@@ -139,7 +192,11 @@ impl<E: Send + 'static> InputSink<E> {
 
     /// Snapshot of the counters.
     pub(crate) fn stats(&self) -> InputStats {
-        let c = self.counters.lock().expect("input counters poisoned");
+        let c = self
+            .rejecter
+            .counters
+            .lock()
+            .expect("input counters poisoned");
         InputStats {
             accepted: c.accepted.clone(),
             rejected: c.errors.counts().map(|(t, n)| (t.to_owned(), n)).collect(),
@@ -186,7 +243,6 @@ async fn read_subscription<E, M, F>(
         match item {
             Ok((msg, _info)) => match convert(&topic, msg, sink.now()) {
                 Ok(event) => sink.accept(&topic, event),
-                // Conversions fail only on image contents (size, encoding, JPEG/PNG data).
                 Err(reason) => sink.reject(&topic, RejectReason::Image, &reason),
             },
             Err(e) => sink.reject(
