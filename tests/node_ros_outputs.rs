@@ -65,6 +65,24 @@ async fn publishing_before_any_reader_is_not_an_error() {
     node.shutdown();
 }
 
+/// A two-worker runtime for the node's tasks (enter it before starting the node).
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// A node of the test's own DDS participant (`ctx`), without rosout.
+fn peer_node(ctx: &ros2_client::Context, name: &str) -> ros2_client::Node {
+    ctx.new_node(
+        ros2_client::NodeName::new("/", name).unwrap(),
+        ros2_client::NodeOptions::new().enable_rosout(false),
+    )
+    .unwrap()
+}
+
 /// What one probe subscription received.
 struct Probe<M: 'static> {
     what: String,
@@ -122,11 +140,7 @@ impl<M: serde::de::DeserializeOwned + 'static> Probe<M> {
 /// best-effort probe (volatile: what `ros2 topic echo` and RViz2 ask for), publishes until every
 /// probe that should match has received something; returns (probe, received) pairs.
 fn receive_outputs(frame_qos: &str, namespace: &str, domain: i32) -> Vec<(String, usize)> {
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
+    let runtime = runtime();
     let _guard = runtime.enter();
     let cfg = NodeConfig::from_yaml(
         "lhmpp:\n  ros__parameters: {}\n",
@@ -145,12 +159,7 @@ fn receive_outputs(frame_qos: &str, namespace: &str, domain: i32) -> Vec<(String
     let topics = node.topics().clone();
 
     let peer_ctx = lhmpp::node::ros::create_context(&opts.participant).unwrap();
-    let mut peer = peer_ctx
-        .new_node(
-            ros2_client::NodeName::new("/", "qos_probe").unwrap(),
-            ros2_client::NodeOptions::new().enable_rosout(false),
-        )
-        .unwrap();
+    let mut peer = peer_node(&peer_ctx, "qos_probe");
     let avatar_type = ("lhmpp_msgs", "GaussianAvatar");
     let status_type = ("lhmpp_msgs", "ReconstructionStatus");
     let image_type = ("sensor_msgs", "Image");
@@ -260,11 +269,7 @@ fn best_effort_frames_reach_only_best_effort_subscribers() {
 #[test]
 fn a_late_subscriber_gets_the_newest_avatar_held_while_nobody_listened() {
     use ros2_client::qos::{Durability, History, QosProfile, Reliability, WhenFull};
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
+    let runtime = runtime();
     let _guard = runtime.enter();
     let (node, opts) = start_node(110, "/lhmpp_latched_test");
     // Nobody listens: each avatar is held (the newest replaces the older), none goes to DDS,
@@ -279,12 +284,7 @@ fn a_late_subscriber_gets_the_newest_avatar_held_while_nobody_listened() {
     }
 
     let peer_ctx = lhmpp::node::ros::create_context(&opts.participant).unwrap();
-    let mut peer = peer_ctx
-        .new_node(
-            ros2_client::NodeName::new("/", "late_reader").unwrap(),
-            ros2_client::NodeOptions::new().enable_rosout(false),
-        )
-        .unwrap();
+    let mut peer = peer_node(&peer_ctx, "late_reader");
     let qos = QosProfile::subscription_default()
         .history(History::KeepLast { depth: 10 })
         .durability(Durability::TransientLocal)
