@@ -7,7 +7,9 @@
 //!
 //! [`reconstruct`] is the synchronous "frames → avatar" API that the node, [`eval`] and the
 //! tests share. `reconstruct`, `body`, `model` and `splat` are synchronous and never import
-//! `node`, `transport` or `bag`.
+//! `node`, `transport` or `bag`. `body` and `transport` import nothing from the crate, `model`
+//! only the SIMD and test helpers, `splat` only `body` and those; `tests/module_layers.rs`
+//! checks it.
 
 pub mod avatar;
 pub mod bag;

@@ -7,6 +7,7 @@ mod official_support;
 use glam::{Quat, Vec3};
 use lhmpp::body::official::{read_ply_points, OfficialPrior, PriorPaths};
 use lhmpp::body::SMPLX_JOINT_NAMES;
+use lhmpp::reconstruct::apply_part_rules;
 use official_support as synth;
 
 fn joint(name: &str) -> usize {
@@ -182,7 +183,7 @@ fn official_part_rules_fix_hand_opacity_and_clamp_upper_body_scales() {
     let n = prior.len();
     let mut scales = vec![Vec3::splat(0.04); n];
     let mut opacities = vec![0.3; n];
-    prior.apply_part_rules(&mut scales, &mut opacities);
+    apply_part_rules(&prior, &mut scales, &mut opacities);
     let (mut hands, mut upper, mut other) = (0, 0, 0);
     let joints = synth::joints();
     for i in 0..n {

@@ -3,8 +3,9 @@
 //! `mlp_net`: Linear(q→n), SiLU, [Linear(n→n), SiLU]×(hidden−1), Linear(n→q); then five linear
 //! heads with the official activations: colour `sigmoid` (RGB), scale `exp` clamped to
 //! `[0, clip_scaling]`, offset `(sigmoid − 0.5)·xyz_offset_max_step`, opacity `sigmoid`,
-//! rotation L2-normalised quaternion (w, x, y, z). (The inference-time per-body-part tweaks,
-//! upper-body scale 0.02 and hand opacity 0.95, need body-part masks and belong to the avatar.)
+//! rotation L2-normalised quaternion (w, x, y, z). (The inference-time per-body-part rules,
+//! [`UPPER_BODY_MAX_SCALE`] and [`HAND_OPACITY`], need body-part masks:
+//! [`GaussianOutput::with_part_masks`].)
 
 use candle_core::{DType, Module, Result, Tensor, D};
 use candle_nn::{Init, VarBuilder};
@@ -12,7 +13,12 @@ use candle_nn::{Init, VarBuilder};
 use super::ops::linear::{linear, Linear};
 
 use super::config::GsHeadConfig;
-use crate::body::official::{HAND_OPACITY, UPPER_BODY_MAX_SCALE};
+
+/// Upper-body Gaussians have their scales clamped to this at inference (metres; official
+/// `GSMLPDecoder`).
+pub const UPPER_BODY_MAX_SCALE: f32 = 0.02;
+/// Opacity the official decoder forces on hand Gaussians.
+pub const HAND_OPACITY: f32 = 0.95;
 
 /// Training init of the scaling bias (exp(−6) ≈ 2.5 mm).
 pub const SCALING_BIAS_INIT: f64 = -6.0;
@@ -61,7 +67,8 @@ pub fn part_masks(
 impl GaussianOutput {
     /// The official inference rules of `GSMLPDecoder` on body-part masks (`u8 [N]`, non-zero =
     /// in the part): hand Gaussians get opacity [`HAND_OPACITY`], upper-body scales are clamped
-    /// to [`UPPER_BODY_MAX_SCALE`]. (The node applies the same rules on the prior's masks.)
+    /// to [`UPPER_BODY_MAX_SCALE`]. (`reconstruct::part_rules` applies the same rules on the
+    /// prior's masks.)
     pub fn with_part_masks(self, hands: &Tensor, upper_body: &Tensor) -> Result<Self> {
         let n = self.opacities.dim(0)?;
         let mask = |m: &Tensor, width: usize| -> Result<Tensor> {

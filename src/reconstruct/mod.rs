@@ -4,11 +4,14 @@
 //! [`Avatar`](crate::avatar::Avatar) with the network ([`Reconstructor`]).
 //!
 //! The node (`crate::node`), the held-out evaluation (`crate::eval`), the synthetic data sets
-//! and the official-checkpoint tests all reconstruct through this module.
+//! and the official-checkpoint tests all reconstruct through this module. [`part_rules`]
+//! applies the official decoder's per-part rules to avatars made on the SMPL-X prior.
 
 pub mod image_decode;
+pub mod part_rules;
 pub mod preprocess;
 pub mod reconstructor;
 pub mod shape;
 
+pub use part_rules::apply_part_rules;
 pub use reconstructor::{select_device, ReconstructError, Reconstructor};

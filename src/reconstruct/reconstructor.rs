@@ -2,6 +2,7 @@
 //! anchor points on the body template (shaped by the latest accepted body shape), and turns a
 //! set of held views into an [`Avatar`].
 
+use super::part_rules::apply_part_rules;
 use super::preprocess::Preprocessed;
 use super::shape::AcceptedShape;
 use crate::avatar::Avatar;
@@ -454,7 +455,7 @@ impl Reconstructor {
             .collect();
         let skin = match &self.prior {
             Some(prior) => {
-                prior.apply_part_rules(&mut scales, &mut opacities);
+                apply_part_rules(prior, &mut scales, &mut opacities);
                 // Predicted in the official neutral pose; avatars live in the rest pose.
                 prior.all_to_rest(&mut positions, &mut rotations)
             }

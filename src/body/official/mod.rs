@@ -27,8 +27,8 @@ mod volume;
 
 pub use ply_points::read_ply_points;
 pub use prior::{
-    neutral_pose, OfficialPrior, PriorPaths, SkinRow, BODY_FACE_RATIO, HAND_OPACITY,
+    neutral_pose, OfficialPrior, PriorPaths, SkinRow, BODY_FACE_RATIO,
     NEUTRAL_HIP_ANGLE, POINTS_FILE, SMPLX_FILE, SMPLX_MODEL_ID, UPPER_BODY_JOINTS,
-    UPPER_BODY_MAX_SCALE, VOLUME_FILE,
+    VOLUME_FILE,
 };
 pub use volume::BlendWeightVolume;

@@ -22,10 +22,6 @@ pub type SkinRow = ([u16; MAX_INFLUENCES], [f32; MAX_INFLUENCES]);
 /// SMPL-X joints whose vertices form the official "upper body" (spine 1–3, collars,
 /// shoulders, elbows, wrists; `base_skinning.py` `joint_part["upper_body"]`).
 pub const UPPER_BODY_JOINTS: [usize; 11] = [3, 6, 9, 13, 14, 16, 17, 18, 19, 20, 21];
-/// Upper-body Gaussians have their scales clamped to this at inference (metres).
-pub const UPPER_BODY_MAX_SCALE: f32 = 0.02;
-/// Opacity the official decoder forces on hand Gaussians.
-pub const HAND_OPACITY: f32 = 0.95;
 
 /// Query points, relative to the prior folder (`cano_pose_type` 1, 160000 points).
 pub const POINTS_FILE: &str = "dense_sample_points/1_160000.ply";
@@ -107,11 +103,11 @@ pub struct OfficialPrior {
     pub skin: SkinWeights,
     /// True for body points (the first 3/4 of the file), false for head points.
     pub is_body: Vec<bool>,
-    /// Points on the hands (nearest vertex labelled `hand.*`): opacity fixed to
-    /// [`HAND_OPACITY`].
+    /// Points on the hands (nearest vertex labelled `hand.*`): the official decoder fixes
+    /// their opacity (`model::gs_head::HAND_OPACITY`).
     pub is_hand: Vec<bool>,
-    /// Points whose nearest vertex is dominated by an [`UPPER_BODY_JOINTS`] joint: scales
-    /// clamped to [`UPPER_BODY_MAX_SCALE`].
+    /// Points whose nearest vertex is dominated by an [`UPPER_BODY_JOINTS`] joint: the
+    /// official decoder clamps their scales (`model::gs_head::UPPER_BODY_MAX_SCALE`).
     pub is_upper_body: Vec<bool>,
     /// Points skinned by their nearest vertex instead of the volume (hands and head).
     fixed: Vec<bool>,
@@ -310,19 +306,6 @@ impl OfficialPrior {
         let mut pose = frame.pose();
         pose.root_translation += self.model_offset;
         pose
-    }
-
-    /// Applies the official inference rules of the Gaussian decoder: hand opacities fixed to
-    /// [`HAND_OPACITY`], upper-body scales clamped to [`UPPER_BODY_MAX_SCALE`].
-    pub fn apply_part_rules(&self, scales: &mut [Vec3], opacities: &mut [f32]) {
-        for i in 0..self.len().min(scales.len()).min(opacities.len()) {
-            if self.is_hand[i] {
-                opacities[i] = HAND_OPACITY;
-            }
-            if self.is_upper_body[i] {
-                scales[i] = scales[i].min(Vec3::splat(UPPER_BODY_MAX_SCALE));
-            }
-        }
     }
 }
 

@@ -1,0 +1,103 @@
+//! The crate's layers, read from its own sources: which top-level modules each module
+//! imports (`crate::X` outside comments). Data flows one way (`src/lib.rs`), so the leaves
+//! stay leaves and only the node and the CLI reach into `node`.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// Top-level library modules and the crate modules their code refers to.
+fn imports() -> BTreeMap<String, BTreeSet<String>> {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut table = BTreeMap::new();
+    for entry in fs::read_dir(&src).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+        if matches!(name.as_str(), "lib" | "main" | "cli") {
+            continue;
+        }
+        let mut files = Vec::new();
+        collect_rust_files(&path, &mut files);
+        let mut used = BTreeSet::new();
+        for file in files {
+            for line in fs::read_to_string(&file).unwrap().lines() {
+                let code = line.trim_start();
+                if code.starts_with("//") {
+                    continue;
+                }
+                for (at, _) in code.match_indices("crate::") {
+                    let rest = &code[at + "crate::".len()..];
+                    let module: String = rest
+                        .chars()
+                        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                        .collect();
+                    if !module.is_empty() && module != name {
+                        used.insert(module);
+                    }
+                }
+            }
+        }
+        table.insert(name, used);
+    }
+    table
+}
+
+fn collect_rust_files(path: &Path, out: &mut Vec<PathBuf>) {
+    if path.is_dir() {
+        for entry in fs::read_dir(path).unwrap() {
+            collect_rust_files(&entry.unwrap().path(), out);
+        }
+    } else if path.extension().is_some_and(|e| e == "rs") {
+        out.push(path.to_path_buf());
+    }
+}
+
+fn imported_by(table: &BTreeMap<String, BTreeSet<String>>, module: &str) -> BTreeSet<String> {
+    table
+        .get(module)
+        .unwrap_or_else(|| panic!("no module `{module}` under src/"))
+        .clone()
+}
+
+fn set(names: &[&str]) -> BTreeSet<String> {
+    names.iter().map(|s| s.to_string()).collect()
+}
+
+#[test]
+fn leaf_modules_import_only_their_helpers() {
+    let table = imports();
+    assert_eq!(imported_by(&table, "body"), set(&[]), "body is a leaf");
+    assert_eq!(imported_by(&table, "transport"), set(&[]), "transport is a leaf");
+    assert!(
+        imported_by(&table, "model").is_subset(&set(&["simd", "testing"])),
+        "model imports only the SIMD and test helpers: {:?}",
+        imported_by(&table, "model")
+    );
+    assert!(
+        imported_by(&table, "splat").is_subset(&set(&["body", "simd", "testing"])),
+        "splat imports only body and the helpers: {:?}",
+        imported_by(&table, "splat")
+    );
+}
+
+#[test]
+fn only_the_node_reaches_into_the_node() {
+    let table = imports();
+    let offenders: Vec<&String> = table
+        .iter()
+        .filter(|(module, used)| module.as_str() != "node" && used.contains("node"))
+        .map(|(module, _)| module)
+        .collect();
+    assert!(offenders.is_empty(), "modules importing node: {offenders:?}");
+}
+
+#[test]
+fn synchronous_layers_never_import_the_outputs() {
+    let table = imports();
+    for module in ["reconstruct", "body", "model", "splat", "avatar"] {
+        let used = imported_by(&table, module);
+        for outer in ["node", "transport", "bag"] {
+            assert!(!used.contains(outer), "{module} imports {outer}");
+        }
+    }
+}
