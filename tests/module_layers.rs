@@ -67,7 +67,11 @@ fn set(names: &[&str]) -> BTreeSet<String> {
 fn leaf_modules_import_only_their_helpers() {
     let table = imports();
     assert_eq!(imported_by(&table, "body"), set(&[]), "body is a leaf");
-    assert_eq!(imported_by(&table, "transport"), set(&[]), "transport is a leaf");
+    assert_eq!(
+        imported_by(&table, "transport"),
+        set(&[]),
+        "transport is a leaf"
+    );
     assert!(
         imported_by(&table, "model").is_subset(&set(&["simd", "testing"])),
         "model imports only the SIMD and test helpers: {:?}",
@@ -88,7 +92,10 @@ fn only_the_node_reaches_into_the_node() {
         .filter(|(module, used)| module.as_str() != "node" && used.contains("node"))
         .map(|(module, _)| module)
         .collect();
-    assert!(offenders.is_empty(), "modules importing node: {offenders:?}");
+    assert!(
+        offenders.is_empty(),
+        "modules importing node: {offenders:?}"
+    );
 }
 
 #[test]

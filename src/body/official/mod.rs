@@ -27,8 +27,7 @@ mod volume;
 
 pub use ply_points::read_ply_points;
 pub use prior::{
-    neutral_pose, OfficialPrior, PriorPaths, SkinRow, BODY_FACE_RATIO,
-    NEUTRAL_HIP_ANGLE, POINTS_FILE, SMPLX_FILE, SMPLX_MODEL_ID, UPPER_BODY_JOINTS,
-    VOLUME_FILE,
+    neutral_pose, OfficialPrior, PriorPaths, SkinRow, BODY_FACE_RATIO, NEUTRAL_HIP_ANGLE,
+    POINTS_FILE, SMPLX_FILE, SMPLX_MODEL_ID, UPPER_BODY_JOINTS, VOLUME_FILE,
 };
 pub use volume::BlendWeightVolume;
