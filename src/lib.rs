@@ -7,8 +7,8 @@
 //!
 //! [`reconstruct`] is the synchronous "frames → avatar" API that the node, [`eval`] and the
 //! tests share. `reconstruct`, `body`, `model` and `splat` are synchronous and never import
-//! `node`, `transport` or `bag`. `body` and `transport` import nothing from the crate, `model`
-//! only the SIMD and test helpers, `splat` only `body` and those; `tests/module_layers.rs`
+//! `node`, `transport` or `bag`. `body` and `transport` import nothing from the crate, `kernels`
+//! (the CPU kernels) only the SIMD and test helpers, `model` only `kernels` and those helpers, `splat` only `body` and those; `tests/module_layers.rs`
 //! checks it.
 
 pub mod avatar;
@@ -16,6 +16,7 @@ pub mod bag;
 pub mod body;
 pub mod config;
 pub mod eval;
+pub mod kernels;
 pub mod model;
 pub mod msgs;
 pub mod node;

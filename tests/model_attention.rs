@@ -3,8 +3,8 @@
 //! heads).
 
 use candle_core::{Device, Tensor};
+use lhmpp::kernels::fused_attention::{fused_attention, KEY_BLOCK, QUERY_BLOCK};
 use lhmpp::model::attention::{attention, attention_reference};
-use lhmpp::model::ops::fused_attention::{fused_attention, KEY_BLOCK, QUERY_BLOCK};
 
 /// Random `[b, h, l, d]` tensor with a fixed seed per call site.
 fn randn(b: usize, h: usize, l: usize, d: usize, seed: u64) -> Tensor {

@@ -73,8 +73,13 @@ fn leaf_modules_import_only_their_helpers() {
         "transport is a leaf"
     );
     assert!(
-        imported_by(&table, "model").is_subset(&set(&["simd", "testing"])),
-        "model imports only the SIMD and test helpers: {:?}",
+        imported_by(&table, "kernels").is_subset(&set(&["simd", "testing"])),
+        "the CPU kernels import only the SIMD and test helpers: {:?}",
+        imported_by(&table, "kernels")
+    );
+    assert!(
+        imported_by(&table, "model").is_subset(&set(&["kernels", "simd", "testing"])),
+        "model imports only the kernels and the SIMD and test helpers: {:?}",
         imported_by(&table, "model")
     );
     assert!(

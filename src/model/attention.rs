@@ -2,11 +2,11 @@
 //! PTv3 patch attention all call [`attention`]).
 //!
 //! Layout `[B, H, L, D]`, scale `1/sqrt(D)`, softmax in f32. On the CPU without a mask it runs
-//! the fused tiled kernel of [`crate::model::ops::fused_attention`]; elsewhere (other devices,
+//! the fused tiled kernel of [`crate::kernels::fused_attention`]; elsewhere (other devices,
 //! masks) it runs [`attention_reference`], plain candle ops with queries processed in chunks so
 //! the score matrix never exceeds [`SCORE_BUDGET_BYTES`].
 
-use super::ops::fused_attention::fused_attention;
+use crate::kernels::fused_attention::fused_attention;
 use candle_core::{DType, Result, Tensor};
 
 /// Upper bound for one chunk's score matrix (f32 bytes).
@@ -72,7 +72,7 @@ fn attention_in_chunks(
             };
             scores = scores.broadcast_add(&m.to_dtype(DType::F32)?)?;
         }
-        let probs = super::ops::softmax::softmax_last_dim(&scores)?;
+        let probs = crate::kernels::softmax::softmax_last_dim(&scores)?;
         outs.push(probs.matmul(&v)?);
         start += len;
     }

@@ -17,7 +17,7 @@
 //! and sigmoid: no position embedding after the fusion ([`DptConfig::pixel_shuffle`]).
 //!
 //! With f32 weights and input on the CPU the head runs channels-last on the packed kernels of
-//! [`super::ops`] (the token rows already are NHWC): 3×3 convolutions by Winograd F(4×4, 3×3)
+//! [`crate::kernels`] (the token rows already are NHWC): 3×3 convolutions by Winograd F(4×4, 3×3)
 //! or im2col + gemm with the bias, ReLUs and residual adds in their epilogues, the stride-sized
 //! transposed convolutions as one gemm + scatter, each fusion block's 1×1 `out_conv` before its
 //! (commuting) bilinear resize, and the sigmoid before a single NCHW copy at the end. Other
@@ -37,7 +37,7 @@ use candle_core::{DType, Device, Module, Result, Tensor, D};
 use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
-use super::ops::linear::{linear_no_bias, Linear};
+use crate::kernels::linear::{linear_no_bias, Linear};
 use candle_head::DptHead;
 use cpu_head::CpuHead;
 
@@ -442,7 +442,7 @@ impl NeuralRenderer {
                     candle_core::bail!("neural renderer: CPU tensor without CPU storage");
                 };
                 let data =
-                    super::ops::contiguous_f32(storage, layout, "neural renderer", "features")?;
+                    crate::kernels::contiguous_f32(storage, layout, "neural renderer", "features")?;
                 if channels_last {
                     channels_last_patches(data, (dims[0], h, w, dims[1]), p)
                 } else {

@@ -11,8 +11,8 @@ use std::sync::Mutex;
 use candle_core::{Module, Result, Tensor};
 use candle_nn::{Conv2d, Conv2dConfig, Init, VarBuilder};
 
-use super::ops::layer_norm::{layer_norm, LayerNorm};
-use super::ops::linear::{linear, Linear};
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::linear::{linear, Linear};
 
 use super::attention::{attention, merge_heads};
 use super::bicubic::resize_bicubic_aa;

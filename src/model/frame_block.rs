@@ -10,8 +10,8 @@
 use candle_core::{DType, Device, Module, Result, Tensor};
 use candle_nn::{Init, VarBuilder};
 
-use super::ops::layer_norm::{layer_norm, LayerNorm};
-use super::ops::linear::{linear, Linear};
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::linear::{linear, Linear};
 
 use super::attention::{attention, merge_heads};
 use super::config::{EncoderConfig, ImageBackboneConfig};

@@ -10,7 +10,7 @@
 use candle_core::{DType, Module, Result, Tensor, D};
 use candle_nn::{Init, VarBuilder};
 
-use super::ops::linear::{linear, Linear};
+use crate::kernels::linear::{linear, Linear};
 
 use super::config::GsHeadConfig;
 

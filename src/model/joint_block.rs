@@ -16,11 +16,11 @@
 use candle_core::{Module, Result, Tensor};
 use candle_nn::{Init, RmsNorm, VarBuilder};
 
-use super::ops::linear::{linear, Activation, Linear};
+use crate::kernels::linear::{linear, Activation, Linear};
 
 use super::attention::{attention, merge_heads, split_heads};
 use super::config::PitBlockSpec;
-use super::ops::layer_norm::LayerNorm;
+use crate::kernels::layer_norm::LayerNorm;
 
 /// LayerNorm epsilon inside AdaLN (no affine).
 const ADALN_EPS: f64 = 1e-6;

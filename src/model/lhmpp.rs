@@ -9,7 +9,7 @@
 use candle_core::{Module, Result, Tensor};
 use candle_nn::VarBuilder;
 
-use super::ops::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
 
 use super::config::LhmppConfig;
 use super::dpt::NeuralRenderer;

@@ -18,7 +18,6 @@ pub mod gs_head;
 pub mod hub;
 pub mod joint_block;
 pub mod lhmpp;
-pub mod ops;
 pub mod point;
 pub mod rgb_kind;
 pub mod shape_head;

@@ -19,8 +19,8 @@ use serde::{Deserialize, Serialize};
 
 use super::config::ImageBackboneConfig;
 use super::frame_block::{FrameBlock, RopeTables};
-use super::ops::layer_norm::{layer_norm, LayerNorm};
-use super::ops::linear::{linear, Linear};
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::linear::{linear, Linear};
 
 /// `shape_head` of the official config (plus `predict_shape_dim`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -17,16 +17,16 @@ use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::VarBuilder;
 use clap::Args;
 
+use lhmpp::kernels::conv2d::{Epilogue, PackedConv2d};
+use lhmpp::kernels::feature_map::FeatureMap;
+use lhmpp::kernels::layer_norm::{layer_norm, LayerNorm};
+use lhmpp::kernels::linear::{linear, Linear};
+use lhmpp::kernels::winograd::{F2X2, F4X4};
 use lhmpp::model::attention::{attention, attention_reference, merge_heads, split_heads};
 use lhmpp::model::checkpoint::seeded_var_builder;
 use lhmpp::model::config::EncoderConfig;
 use lhmpp::model::dpt::{DptConfig, DptStageTimes, NeuralRenderer};
 use lhmpp::model::encoder::DinoEncoder;
-use lhmpp::model::ops::conv2d::{Epilogue, PackedConv2d};
-use lhmpp::model::ops::feature_map::FeatureMap;
-use lhmpp::model::ops::layer_norm::{layer_norm, LayerNorm};
-use lhmpp::model::ops::linear::{linear, Linear};
-use lhmpp::model::ops::winograd::{F2X2, F4X4};
 
 /// Arguments of `lhmpp bench cpu-peer`.
 #[derive(Args, Debug)]

@@ -8,7 +8,7 @@ use candle_nn::{
 };
 
 use super::{pixel_shuffle, uv_position_embedding, Clock, DptConfig};
-use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
 
 fn conv3x3(c_in: usize, c_out: usize, vb: VarBuilder) -> Result<Conv2d> {
     let cfg = Conv2dConfig {

@@ -1,4 +1,4 @@
-//! The DPT head packed once for the channels-last f32 CPU kernels of [`crate::model::ops`]
+//! The DPT head packed once for the channels-last f32 CPU kernels of [`crate::kernels`]
 //! (Winograd / im2col + gemm convolutions with fused epilogues), used when the head's weights
 //! and input are f32 on the CPU; it computes what [`super::candle_head`] computes.
 
@@ -8,11 +8,11 @@ use rayon::prelude::*;
 
 use super::candle_head::{DptHead, FusionBlock, HeadTail, ResidualConvUnit, Resize};
 use super::{uv_embedding_tables, Clock};
-use crate::model::ops::conv2d::{Epilogue, PackedConv2d};
-use crate::model::ops::conv_transpose::PackedConvTranspose2d;
-use crate::model::ops::feature_map::FeatureMap;
-use crate::model::ops::layer_norm::LayerNorm;
-use crate::model::ops::upsample::upsample_bilinear;
+use crate::kernels::conv2d::{Epilogue, PackedConv2d};
+use crate::kernels::conv_transpose::PackedConvTranspose2d;
+use crate::kernels::feature_map::FeatureMap;
+use crate::kernels::layer_norm::LayerNorm;
+use crate::kernels::upsample::upsample_bilinear;
 
 /// [`pixel_shuffle`] on a channels-last map.
 pub(super) fn pixel_shuffle_nhwc(x: &FeatureMap, u: usize) -> Result<FeatureMap> {

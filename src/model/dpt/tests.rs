@@ -2,7 +2,7 @@
 
 use super::cpu_head::pixel_shuffle_nhwc;
 use super::*;
-use crate::model::ops::feature_map::FeatureMap;
+use crate::kernels::feature_map::FeatureMap;
 use crate::testing::max_abs_diff;
 use candle_nn::VarMap;
 

@@ -5,8 +5,8 @@
 use candle_core::{Result, Tensor};
 use candle_nn::{Module, VarBuilder};
 
-use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
-use crate::model::ops::linear::{linear, Linear};
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::linear::{linear, Linear};
 
 use super::serialization::Serialized;
 use super::sparse_conv::{NeighbourMap, SubMConv3d};

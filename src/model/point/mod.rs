@@ -15,9 +15,9 @@ pub mod synthetic;
 use candle_core::{DType, Device, Result, Tensor};
 use candle_nn::{Module, VarBuilder};
 
-use crate::model::ops::gelu::gelu_erf;
-use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
-use crate::model::ops::linear::{linear, Linear};
+use crate::kernels::gelu::gelu_erf;
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::linear::{linear, Linear};
 
 use block::{PtBlock, LN_EPS};
 use grid::{center_shift, grid_sample, pool_cells};

@@ -5,9 +5,9 @@
 use candle_core::{Device, Result, Tensor};
 use candle_nn::{Module, VarBuilder};
 
-use crate::model::ops::gelu::gelu_erf;
-use crate::model::ops::layer_norm::{layer_norm, LayerNorm};
-use crate::model::ops::linear::{linear, Linear};
+use crate::kernels::gelu::gelu_erf;
+use crate::kernels::layer_norm::{layer_norm, LayerNorm};
+use crate::kernels::linear::{linear, Linear};
 
 use super::block::LN_EPS;
 use super::grid::Clusters;

@@ -266,7 +266,7 @@ pub(crate) fn accumulate(out: &mut [f32], lhs: &[f32], rhs: &[f32], m: usize, n:
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::ops::winograd::F2X2;
+    use crate::kernels::winograd::F2X2;
     use crate::testing::max_abs_diff;
     use candle_core::Device;
     use candle_nn::{Conv2d, Conv2dConfig, Module};

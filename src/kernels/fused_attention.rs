@@ -8,7 +8,7 @@
 //! memory per unit of work is `QUERY_BLOCK × (KEY_BLOCK + D)` floats.
 //!
 //! Layout `[B, H, L, D]`, f32, contiguous (any start offset). No mask: call sites with a mask
-//! use the plain candle path in [`crate::model::attention`].
+//! use the plain candle path in `model::attention`.
 
 use super::fast_exp::{exp_approx, exp_shifted_sum, max_of};
 use super::matmul::{matmul_into, MatRef};

@@ -1,4 +1,5 @@
-//! Hand-written CPU kernels that replace chains of stock candle ops on the hot path: a fused
+//! Hand-written CPU kernels, shared by the LHM++ network (`model`) and any other network of the
+//! crate, that replace chains of stock candle ops on the hot path: a fused
 //! tiled attention ([`fused_attention`]); linear layers with the bias, exact or tanh GELU and
 //! the gated residual add fused into one matrix product ([`linear`]); LayerNorm
 //! ([`layer_norm`]); softmax ([`softmax`]); and the vectorisable exponential and GELU they use
