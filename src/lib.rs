@@ -20,6 +20,7 @@ pub mod kernels;
 pub mod model;
 pub mod msgs;
 pub mod node;
+pub mod perception;
 pub mod reconstruct;
 mod simd;
 pub mod splat;

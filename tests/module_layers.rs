@@ -83,6 +83,11 @@ fn leaf_modules_import_only_their_helpers() {
         imported_by(&table, "model")
     );
     assert!(
+        imported_by(&table, "perception").is_subset(&set(&["body", "kernels", "simd", "testing"])),
+        "perception imports only body, the kernels and the helpers, never the avatar network: {:?}",
+        imported_by(&table, "perception")
+    );
+    assert!(
         imported_by(&table, "splat").is_subset(&set(&["body", "simd", "testing"])),
         "splat imports only body and the helpers: {:?}",
         imported_by(&table, "splat")

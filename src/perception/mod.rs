@@ -1,0 +1,17 @@
+//! Camera-only perception: finds the person in a frame, segments them and reads their 33 body
+//! landmarks, with MediaPipe's BlazePose networks (Apache-2.0, converted once into
+//! `assets/perception/`) run on the crate's CPU kernels.
+//!
+//! Per camera: the person detector runs only while no person is tracked; a tracked person's
+//! region of interest comes from the previous frame's landmarks. The landmark model reads a
+//! rotated square crop around the person and gives image landmarks, world landmarks (metres,
+//! hip-centred) and a segmentation mask, which are mapped back into the frame.
+//!
+//! Perception imports the CPU kernels and the body template, never the avatar network
+//! (`tests/module_layers.rs`).
+
+mod error;
+pub mod landmark;
+
+pub use error::PerceptionError;
+pub use landmark::{Landmark, LandmarkId, BODY_LANDMARKS};
