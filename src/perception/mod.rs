@@ -10,8 +10,13 @@
 //! Perception imports the CPU kernels and the body template, never the avatar network
 //! (`tests/module_layers.rs`).
 
+pub mod crop;
+pub mod detection;
 mod error;
 pub mod landmark;
+pub mod landmarks;
+pub mod roi;
+pub mod segmentation;
 
 pub use error::PerceptionError;
 pub use landmark::{Landmark, LandmarkId, BODY_LANDMARKS};
