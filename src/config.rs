@@ -9,7 +9,8 @@ mod table;
 mod validate;
 
 pub use choices::{
-    Choice, ComputeDevice, Dtype, FrameQos, ImageQos, RenderDevice, RendererChoice, UnknownDevice,
+    Choice, ComputeDevice, Dtype, FrameQos, ImageQos, LandmarkModelChoice, PersonMask, PoseSource,
+    RenderDevice, RendererChoice, UnknownDevice,
 };
 pub use table::{markdown_table, parameters, Parameter};
 
@@ -82,6 +83,8 @@ pub struct NodeConfig {
     pub frame_store: FrameStoreConfig,
     /// Reconstruction network.
     pub model: ModelConfig,
+    /// Camera-only perception: person detection, segmentation and pose.
+    pub perception: PerceptionConfig,
     /// What the node publishes and writes.
     pub outputs: OutputConfig,
     /// Bag replay instead of live topics (the demo uses this).
@@ -122,6 +125,13 @@ pub struct InputConfig {
     /// Most messages per second taken from one live input topic; faster ones are dropped
     /// before they are decoded, and counted (0 disables the limit).
     pub max_rate_hz: f64,
+    /// Where each camera's person mask comes from: `auto` (its mask topic if it has one,
+    /// else perception), `topic`, `perception` or `off` (whole frames).
+    pub person_mask: PersonMask,
+    /// What animates the avatar: `auto` (the pose topic while another node publishes on it,
+    /// else the cameras through perception, else the walk cycle), `topic`, `camera` or
+    /// `walk`.
+    pub pose_source: PoseSource,
 }
 
 impl InputConfig {
@@ -182,6 +192,39 @@ impl ModelConfig {
     pub const NUM_POINTS: RangeInclusive<usize> = 64..=400_000;
 }
 
+/// Camera-only perception (MediaPipe BlazePose on the CPU).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PerceptionConfig {
+    /// Landmark model: `lite`, `full` (embedded) or `heavy` (from `heavy_weights`).
+    pub landmark_model: LandmarkModelChoice,
+    /// The converted heavy landmark model (`assets/perception/README.md` says how to make
+    /// it); only read with `landmark_model: heavy`.
+    pub heavy_weights: String,
+    /// Detector score that starts tracking a person, in [`PerceptionConfig::UNIT`].
+    pub min_detection_score: f32,
+    /// Pose presence that keeps tracking a person, in [`PerceptionConfig::UNIT`].
+    pub min_presence: f32,
+    /// Person probability at the mask's edge, in [`PerceptionConfig::UNIT`].
+    pub mask_threshold: f32,
+    /// Half-width of the mask's soft edge in probability, in [`PerceptionConfig::FEATHER`].
+    pub mask_feather: f32,
+    /// Landmarks less visible than this keep their bones' last rotation, then ease to rest,
+    /// in [`PerceptionConfig::UNIT`].
+    pub min_visibility: f32,
+    /// CPU threads of the perception networks, in [`PerceptionConfig::THREADS`].
+    pub threads: usize,
+}
+
+impl PerceptionConfig {
+    /// Accepted probability-like values.
+    pub const UNIT: RangeInclusive<f32> = 0.0..=1.0;
+    /// Accepted `perception.mask_feather` values.
+    pub const FEATHER: RangeInclusive<f32> = 0.0..=0.5;
+    /// Accepted `perception.threads` values.
+    pub const THREADS: RangeInclusive<usize> = 1..=64;
+}
+
 /// Outputs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -218,6 +261,11 @@ pub struct OutputConfig {
     pub ros: bool,
     /// Publish over iceoryx2 shared memory.
     pub shm: bool,
+    /// Publish each perceived camera's person mask (mono8 `sensor_msgs/Image`) on
+    /// `<camera namespace>/person_mask`.
+    pub masks: bool,
+    /// Publish the pose read from the cameras on `inputs.pose_topic`.
+    pub camera_pose: bool,
 }
 
 impl OutputConfig {
@@ -251,6 +299,7 @@ impl Default for NodeConfig {
             inputs: InputConfig::default(),
             frame_store: FrameStoreConfig::default(),
             model: ModelConfig::default(),
+            perception: PerceptionConfig::default(),
             outputs: OutputConfig::default(),
             replay: ReplayConfig::default(),
         }
@@ -270,6 +319,8 @@ impl Default for InputConfig {
             image_qos: ImageQos::SensorData,
             max_image_side: 8192,
             max_rate_hz: 120.0,
+            person_mask: PersonMask::Auto,
+            pose_source: PoseSource::Auto,
         }
     }
 }
@@ -314,6 +365,23 @@ impl Default for OutputConfig {
             world_frame: "world".into(),
             ros: true,
             shm: false,
+            masks: true,
+            camera_pose: true,
+        }
+    }
+}
+
+impl Default for PerceptionConfig {
+    fn default() -> Self {
+        Self {
+            landmark_model: LandmarkModelChoice::Full,
+            heavy_weights: String::new(),
+            min_detection_score: 0.5,
+            min_presence: 0.5,
+            mask_threshold: 0.5,
+            mask_feather: 0.1,
+            min_visibility: 0.5,
+            threads: 1,
         }
     }
 }

@@ -22,7 +22,16 @@ macro_rules! display_choice {
         }
     )*};
 }
-display_choice!(ImageQos, Dtype, RenderDevice, RendererChoice, FrameQos);
+display_choice!(
+    ImageQos,
+    Dtype,
+    RenderDevice,
+    RendererChoice,
+    FrameQos,
+    PersonMask,
+    PoseSource,
+    LandmarkModelChoice
+);
 
 /// `inputs.image_qos`: QoS of the image subscriptions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -146,6 +155,85 @@ impl Choice for FrameQos {
     }
 }
 
+/// `inputs.person_mask`: where a camera's person mask comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PersonMask {
+    /// `topic` for cameras with a mask topic, `perception` for the others.
+    #[default]
+    Auto,
+    /// Only mask topics; cameras without one go on as whole frames.
+    Topic,
+    /// The perception's segmentation for every camera (mask topics are ignored).
+    Perception,
+    /// No masks: whole frames.
+    Off,
+}
+
+impl Choice for PersonMask {
+    const ALL: &'static [Self] = &[Self::Auto, Self::Topic, Self::Perception, Self::Off];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Topic => "topic",
+            Self::Perception => "perception",
+            Self::Off => "off",
+        }
+    }
+}
+
+/// `inputs.pose_source`: what drives the avatar's animation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PoseSource {
+    /// The pose topic while someone else publishes on it, else the camera when perception
+    /// runs, else the walk cycle.
+    #[default]
+    Auto,
+    /// Only the pose topic (the walk cycle until a pose arrives).
+    Topic,
+    /// The pose read from the cameras by perception.
+    Camera,
+    /// The built-in walk cycle.
+    Walk,
+}
+
+impl Choice for PoseSource {
+    const ALL: &'static [Self] = &[Self::Auto, Self::Topic, Self::Camera, Self::Walk];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Topic => "topic",
+            Self::Camera => "camera",
+            Self::Walk => "walk",
+        }
+    }
+}
+
+/// `perception.landmark_model`: which BlazePose landmark model reads the person.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LandmarkModelChoice {
+    /// The smallest and fastest (embedded).
+    Lite,
+    /// The default balance of speed and accuracy (embedded).
+    #[default]
+    Full,
+    /// The most accurate; not embedded (`perception.heavy_weights`).
+    Heavy,
+}
+
+impl Choice for LandmarkModelChoice {
+    const ALL: &'static [Self] = &[Self::Lite, Self::Full, Self::Heavy];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Lite => "lite",
+            Self::Full => "full",
+            Self::Heavy => "heavy",
+        }
+    }
+}
+
 /// `model.device`: `cpu`, `cuda` (GPU 0) or `cuda:N`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(try_from = "String", into = "String")]
@@ -238,5 +326,8 @@ mod tests {
         names_round_trip::<RenderDevice>();
         names_round_trip::<RendererChoice>();
         names_round_trip::<FrameQos>();
+        names_round_trip::<PersonMask>();
+        names_round_trip::<PoseSource>();
+        names_round_trip::<LandmarkModelChoice>();
     }
 }

@@ -3,8 +3,9 @@
 //! uses. `lhmpp config --markdown` prints it as the README's table (a test keeps them equal).
 
 use super::{
-    Choice, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, InputConfig, ModelConfig,
-    NodeConfig, OutputConfig, RenderDevice, RendererChoice, RATE_RANGE,
+    Choice, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, InputConfig,
+    LandmarkModelChoice, ModelConfig, NodeConfig, OutputConfig, PerceptionConfig, PersonMask,
+    PoseSource, RenderDevice, RendererChoice, RATE_RANGE,
 };
 use crate::model::LhmppConfig;
 use std::fmt::Display;
@@ -143,6 +144,21 @@ pub fn parameters() -> Vec<Parameter> {
              before decoding and counted (`rate-limited` in the run summary); 0 = no limit",
         ),
         p(
+            "inputs.person_mask",
+            choice::<PersonMask>(),
+            "where each camera's person mask comes from: `auto` = its mask topic if it has \
+             one, else perception; `topic` = mask topics only; `perception` = the camera-only \
+             segmentation for every camera; `off` = whole frames. A frame in which perception \
+             finds nobody never reaches the frame store (counted in the run summary)",
+        ),
+        p(
+            "inputs.pose_source",
+            choice::<PoseSource>(),
+            "what animates the avatar: `auto` = the pose topic while another node publishes \
+             on it, else the pose perception reads from the cameras, else the walk cycle; \
+             `topic`, `camera` or `walk` force one",
+        ),
+        p(
             "frame_store.max_views",
             int_in(&FrameStoreConfig::MAX_VIEWS),
             "views held per person",
@@ -194,6 +210,49 @@ pub fn parameters() -> Vec<Parameter> {
             path(),
             "SMPL-X `.npz` replacing \
              `<prior_dir>/human_model_files/smplx/SMPLX_NEUTRAL.npz`",
+        ),
+        p(
+            "perception.landmark_model",
+            choice::<LandmarkModelChoice>(),
+            "BlazePose landmark model: `lite` and `full` are embedded; `heavy` is read from \
+             `perception.heavy_weights`",
+        ),
+        p(
+            "perception.heavy_weights",
+            path(),
+            "the converted heavy landmark model (`assets/perception/README.md`)",
+        ),
+        p(
+            "perception.min_detection_score",
+            float_in(&PerceptionConfig::UNIT),
+            "person-detector score that starts tracking a person",
+        ),
+        p(
+            "perception.min_presence",
+            float_in(&PerceptionConfig::UNIT),
+            "pose presence that keeps tracking a person (below it the detector runs again)",
+        ),
+        p(
+            "perception.mask_threshold",
+            float_in(&PerceptionConfig::UNIT),
+            "person probability at the mask's edge",
+        ),
+        p(
+            "perception.mask_feather",
+            float_in(&PerceptionConfig::FEATHER),
+            "half-width of the mask's soft edge, in probability",
+        ),
+        p(
+            "perception.min_visibility",
+            float_in(&PerceptionConfig::UNIT),
+            "landmarks less visible than this keep their bones' last rotation, then ease \
+             back to rest",
+        ),
+        p(
+            "perception.threads",
+            int_in(&PerceptionConfig::THREADS),
+            "CPU threads of the perception networks (live: a worker of its own, newest frame \
+             per camera wins)",
         ),
         p(
             "outputs.dir",
@@ -262,6 +321,18 @@ pub fn parameters() -> Vec<Parameter> {
         ),
         p("outputs.ros", boolean(), "publish over ROS 2"),
         p("outputs.shm", boolean(), "publish over iceoryx2"),
+        p(
+            "outputs.masks",
+            boolean(),
+            "publish each perceived camera's person mask (mono8 sensor_msgs/Image, the \
+             camera's stamp and frame) on `<camera namespace>/person_mask`",
+        ),
+        p(
+            "outputs.camera_pose",
+            boolean(),
+            "publish the pose read from the cameras (lhmpp_msgs/BodyPose) on \
+             `inputs.pose_topic`, for other nodes",
+        ),
         p(
             "replay.bag",
             path(),

@@ -2,8 +2,8 @@
 //! non-empty names, and settings that depend on each other or on the build.
 
 use super::{
-    ConfigError, FrameStoreConfig, InputConfig, ModelConfig, NodeConfig, OutputConfig,
-    RenderDevice, RATE_RANGE,
+    ConfigError, FrameStoreConfig, InputConfig, LandmarkModelChoice, ModelConfig, NodeConfig,
+    OutputConfig, PerceptionConfig, RenderDevice, RATE_RANGE,
 };
 use std::fmt::Display;
 use std::ops::RangeInclusive;
@@ -108,6 +108,38 @@ impl NodeConfig {
             return Err(bad(
                 "model.smplx_model",
                 "is only used with model.prior_dir (the official LHMPP-Prior body)".to_string(),
+            ));
+        }
+        let perception = &self.perception;
+        for (key, value) in [
+            (
+                "perception.min_detection_score",
+                perception.min_detection_score,
+            ),
+            ("perception.min_presence", perception.min_presence),
+            ("perception.mask_threshold", perception.mask_threshold),
+            ("perception.min_visibility", perception.min_visibility),
+        ] {
+            check(key, in_range(value, &PerceptionConfig::UNIT))?;
+        }
+        check(
+            "perception.mask_feather",
+            in_range(perception.mask_feather, &PerceptionConfig::FEATHER),
+        )?;
+        check(
+            "perception.threads",
+            in_range(perception.threads, &PerceptionConfig::THREADS),
+        )?;
+        if perception.landmark_model == LandmarkModelChoice::Heavy
+            && perception.heavy_weights.is_empty()
+        {
+            return Err(bad(
+                "perception.heavy_weights",
+                "landmark_model `heavy` needs the converted heavy model, which is not embedded: \
+                 make it as assets/perception/README.md says (scripts/perception/setup, then \
+                 convert.py into target/perception/pose_landmark_heavy.safetensors) and set \
+                 perception.heavy_weights to that file"
+                    .to_string(),
             ));
         }
         let out = &self.outputs;
