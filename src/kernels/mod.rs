@@ -7,10 +7,15 @@
 //! than f32. The DPT neural renderer's CPU path works on channels-last maps ([`feature_map`])
 //! with tiled-gemm convolutions ([`conv2d`], 3×3 ones by Winograd F(4×4, 3×3) in
 //! [`winograd`], [`conv_transpose`]) and a bilinear resize ([`upsample`]). All of them reach the
-//! `gemm` crate through one checked call (`matmul`).
+//! `gemm` crate through one checked call (`matmul`). The perception networks (MobileNet-style
+//! graphs on one NHWC image in a buffer arena) use slice kernels of their own: register-blocked
+//! products for 1×1 and k×k convolutions ([`pointwise`], [`conv_nhwc`]), depthwise convolution
+//! ([`depthwise`]) and the small NHWC operations ([`nhwc`]).
 
 pub mod conv2d;
+pub mod conv_nhwc;
 pub mod conv_transpose;
+pub mod depthwise;
 pub mod fast_exp;
 pub mod feature_map;
 pub mod fused_attention;
@@ -18,6 +23,8 @@ pub mod gelu;
 pub mod layer_norm;
 pub mod linear;
 mod matmul;
+pub mod nhwc;
+pub mod pointwise;
 pub mod softmax;
 pub mod upsample;
 pub mod winograd;

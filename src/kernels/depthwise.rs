@@ -1,0 +1,399 @@
+//! Depthwise 2-D convolution of one channels-last image (each channel with its own `kh×kw`
+//! filter; depth multiplier 1), with a stride, explicit zero padding and the fused bias,
+//! activations and residual of [`Epilogue`].
+//!
+//! Channels are processed in blocks of 16 (then 8, then single channels), so every tap is a
+//! vector multiply-add of contiguous input and weight values. For 3×3 and 5×5 filters the
+//! block's weights stay in registers while the block walks along an output row; output pixels
+//! whose window lies inside the image take a path without bounds checks, those at the border a
+//! checked one. Output rows run in parallel on rayon.
+
+use rayon::prelude::*;
+
+use super::nhwc::{Epilogue, Padding, Shape};
+use crate::simd::simd_dispatch;
+
+/// Multiply-adds below which a layer runs as one rayon task.
+const MIN_TASK_MACS: usize = 1 << 17;
+
+/// A packed depthwise convolution.
+#[derive(Debug, Clone)]
+pub struct Depthwise {
+    /// `[kh·kw][C]`, tap major.
+    weight: Vec<f32>,
+    bias: Vec<f32>,
+    kernel: (usize, usize),
+    stride: (usize, usize),
+    channels: usize,
+}
+
+impl Depthwise {
+    /// Packs TFLite's `weight [1][kh][kw][C]` and `bias [C]`; `stride` is (rows, columns).
+    pub fn new(
+        weight: &[f32],
+        bias: &[f32],
+        kernel: (usize, usize),
+        channels: usize,
+        stride: (usize, usize),
+    ) -> Self {
+        assert_eq!(
+            weight.len(),
+            kernel.0 * kernel.1 * channels,
+            "depthwise: weight length"
+        );
+        assert_eq!(bias.len(), channels, "depthwise: bias length");
+        assert!(stride.0 > 0 && stride.1 > 0, "depthwise: zero stride");
+        Self {
+            weight: weight.to_vec(),
+            bias: bias.to_vec(),
+            kernel,
+            stride,
+            channels,
+        }
+    }
+
+    /// Channels.
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+
+    /// Kernel (rows, columns).
+    pub fn kernel(&self) -> (usize, usize) {
+        self.kernel
+    }
+
+    /// Stride (rows, columns).
+    pub fn stride(&self) -> (usize, usize) {
+        self.stride
+    }
+
+    /// The output shape for an input shape and padding.
+    pub fn out_shape(&self, input: Shape, pad: Padding) -> Shape {
+        Shape::new(
+            Padding::out_side(
+                input.height,
+                pad.top,
+                pad.bottom,
+                self.kernel.0,
+                self.stride.0,
+            ),
+            Padding::out_side(
+                input.width,
+                pad.left,
+                pad.right,
+                self.kernel.1,
+                self.stride.1,
+            ),
+            self.channels,
+        )
+    }
+
+    /// `out = epi(depthwise(input padded by pad) + bias)`.
+    pub fn run(&self, input: &[f32], shape: Shape, pad: Padding, epi: Epilogue, out: &mut [f32]) {
+        assert_eq!(shape.channels, self.channels, "depthwise: input channels");
+        assert_eq!(input.len(), shape.len(), "depthwise: input length");
+        let os = self.out_shape(shape, pad);
+        assert_eq!(out.len(), os.len(), "depthwise: output length");
+        if let Some(r) = epi.residual {
+            assert_eq!(r.len(), os.len(), "depthwise: residual length");
+        }
+        if os.is_empty() {
+            return;
+        }
+        let row = os.width * os.channels;
+        let macs = os.len() * self.kernel.0 * self.kernel.1;
+        let threads = rayon::current_num_threads();
+        let rows = if threads == 1 || macs < 2 * MIN_TASK_MACS {
+            os.height
+        } else {
+            os.height
+                .div_ceil((macs / MIN_TASK_MACS).clamp(1, 4 * threads))
+        };
+        out.par_chunks_mut(rows * row)
+            .enumerate()
+            .for_each(|(t, chunk)| {
+                let first = t * rows;
+                let job = Rows {
+                    dw: self,
+                    input,
+                    shape,
+                    pad,
+                    out_shape: os,
+                    first,
+                };
+                let epi = Epilogue {
+                    residual: epi
+                        .residual
+                        .map(|r| &r[first * row..first * row + chunk.len()]),
+                    ..epi
+                };
+                run_rows(&job, epi, chunk);
+            });
+    }
+}
+
+/// Output rows `first..` of one layer call.
+struct Rows<'a> {
+    dw: &'a Depthwise,
+    input: &'a [f32],
+    shape: Shape,
+    pad: Padding,
+    out_shape: Shape,
+    first: usize,
+}
+
+simd_dispatch! {
+    avx2_fma;
+    fn run_rows[](job: &Rows, epi: Epilogue, out: &mut [f32]) = run_rows_portable;
+}
+
+#[inline(always)]
+fn run_rows_portable(job: &Rows, epi: Epilogue, out: &mut [f32]) {
+    match job.dw.kernel {
+        (3, 3) => blocks::<3, 9>(job, epi, out),
+        (5, 5) => blocks::<5, 25>(job, epi, out),
+        _ => blocks::<0, 0>(job, epi, out),
+    }
+}
+
+/// All channel blocks of the job's rows. `K` is the square kernel side the register path is
+/// compiled for (`T = K²`), 0 for the generic path.
+#[inline(always)]
+fn blocks<const K: usize, const T: usize>(job: &Rows, epi: Epilogue, out: &mut [f32]) {
+    const { assert!(T == K * K) };
+    let c = job.dw.channels;
+    let mut c0 = 0;
+    while c0 + 16 <= c {
+        block::<K, T, 16>(job, c0, epi, out);
+        c0 += 16;
+    }
+    while c0 + 8 <= c {
+        block::<K, T, 8>(job, c0, epi, out);
+        c0 += 8;
+    }
+    while c0 < c {
+        block::<K, T, 1>(job, c0, epi, out);
+        c0 += 1;
+    }
+}
+
+/// Channels `c0..c0 + L` of the job's rows.
+#[inline(always)]
+fn block<const K: usize, const T: usize, const L: usize>(
+    job: &Rows,
+    c0: usize,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    let dw = job.dw;
+    let (c, (kh, kw), (sh, sw)) = (dw.channels, dw.kernel, dw.stride);
+    let (h, w) = (job.shape.height, job.shape.width);
+    let ow = job.out_shape.width;
+    let (lo1, hi1) = epi.pre.bounds();
+    let (lo2, hi2) = epi.post.bounds();
+    let bias: [f32; L] = dw.bias[c0..c0 + L].try_into().unwrap();
+    // The register copy of this block's taps (used when K > 0, i.e. kh = kw = K).
+    let mut taps = [[0.0f32; L]; T];
+    for (t, tap) in taps.iter_mut().enumerate() {
+        *tap = dw.weight[t * c + c0..t * c + c0 + L].try_into().unwrap();
+    }
+    // Output columns whose window lies inside the image.
+    let ox_lo = job.pad.left.div_ceil(sw);
+    let ox_hi = if w + job.pad.left >= kw {
+        ((w + job.pad.left - kw) / sw + 1).min(ow)
+    } else {
+        0
+    };
+    let rows = out.len() / (ow * c);
+    for r in 0..rows {
+        let oy = job.first + r;
+        let y0 = (oy * sh) as isize - job.pad.top as isize;
+        let full_rows = y0 >= 0 && y0 as usize + kh <= h;
+        let out_row = &mut out[r * ow * c..(r + 1) * ow * c];
+        let res_row = epi.residual.map(|x| &x[r * ow * c..(r + 1) * ow * c]);
+        for ox in 0..ow {
+            let x0 = (ox * sw) as isize - job.pad.left as isize;
+            let mut acc = bias;
+            if K > 0 && full_rows && ox >= ox_lo && ox < ox_hi {
+                let y0 = y0 as usize;
+                let x0 = x0 as usize;
+                for ky in 0..K {
+                    let line = ((y0 + ky) * w + x0) * c + c0;
+                    for kx in 0..K {
+                        let at = line + kx * c;
+                        let xv: &[f32; L] = job.input[at..at + L].try_into().unwrap();
+                        let tap = &taps[ky * K + kx];
+                        for l in 0..L {
+                            acc[l] = xv[l].mul_add(tap[l], acc[l]);
+                        }
+                    }
+                }
+            } else {
+                for ky in 0..kh {
+                    let iy = y0 + ky as isize;
+                    if iy < 0 || iy >= h as isize {
+                        continue;
+                    }
+                    for kx in 0..kw {
+                        let ix = x0 + kx as isize;
+                        if ix < 0 || ix >= w as isize {
+                            continue;
+                        }
+                        let at = (iy as usize * w + ix as usize) * c + c0;
+                        let xv: &[f32; L] = job.input[at..at + L].try_into().unwrap();
+                        let t = (ky * kw + kx) * c + c0;
+                        let wv: &[f32; L] = dw.weight[t..t + L].try_into().unwrap();
+                        for l in 0..L {
+                            acc[l] = xv[l].mul_add(wv[l], acc[l]);
+                        }
+                    }
+                }
+            }
+            let at = ox * c + c0;
+            let dst: &mut [f32; L] = (&mut out_row[at..at + L]).try_into().unwrap();
+            match res_row {
+                Some(res) => {
+                    for l in 0..L {
+                        dst[l] = (acc[l].max(lo1).min(hi1) + res[at + l]).max(lo2).min(hi2);
+                    }
+                }
+                None => {
+                    for l in 0..L {
+                        dst[l] = acc[l].max(lo1).min(hi1);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::nhwc::Activation;
+
+    fn values(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| (((i as u32).wrapping_mul(seed * 2 + 7919) % 1999) as f32 / 999.5) - 1.0)
+            .collect()
+    }
+
+    fn reference(dw: &Depthwise, x: &[f32], s: Shape, pad: Padding) -> Vec<f32> {
+        let os = dw.out_shape(s, pad);
+        let (kh, kw) = dw.kernel;
+        let c = s.channels;
+        let mut out = vec![0.0; os.len()];
+        for oy in 0..os.height {
+            for ox in 0..os.width {
+                for ch in 0..c {
+                    let mut acc = dw.bias[ch] as f64;
+                    for ky in 0..kh {
+                        for kx in 0..kw {
+                            let iy = (oy * dw.stride.0 + ky) as isize - pad.top as isize;
+                            let ix = (ox * dw.stride.1 + kx) as isize - pad.left as isize;
+                            if iy >= 0
+                                && ix >= 0
+                                && (iy as usize) < s.height
+                                && (ix as usize) < s.width
+                            {
+                                let xv = x[(iy as usize * s.width + ix as usize) * c + ch];
+                                acc += xv as f64 * dw.weight[(ky * kw + kx) * c + ch] as f64;
+                            }
+                        }
+                    }
+                    out[(oy * os.width + ox) * c + ch] = acc as f32;
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn depthwise_matches_direct_summation() {
+        let cases = [
+            // (h, w, c, kernel, stride, pad)
+            (9, 10, 24, (3, 3), (1, 1), Padding::uniform(1)),
+            (12, 12, 40, (3, 3), (2, 2), Padding::uniform(1)),
+            (
+                8,
+                8,
+                288,
+                (3, 3),
+                (2, 2),
+                Padding {
+                    top: 0,
+                    left: 0,
+                    bottom: 1,
+                    right: 1,
+                },
+            ),
+            (14, 13, 19, (5, 5), (1, 1), Padding::uniform(2)),
+            (16, 16, 48, (5, 5), (2, 2), Padding::uniform(2)),
+            (
+                7,
+                5,
+                9,
+                (2, 3),
+                (1, 2),
+                Padding {
+                    top: 1,
+                    left: 0,
+                    bottom: 0,
+                    right: 2,
+                },
+            ),
+            (2, 2, 16, (3, 3), (1, 1), Padding::uniform(1)),
+            (64, 3, 8, (3, 3), (1, 1), Padding::uniform(1)),
+        ];
+        for (h, w, c, k, st, pad) in cases {
+            let s = Shape::new(h, w, c);
+            let dw = Depthwise::new(&values(k.0 * k.1 * c, 2), &values(c, 3), k, c, st);
+            let x = values(s.len(), 1);
+            let want = reference(&dw, &x, s, pad);
+            let os = dw.out_shape(s, pad);
+            let res = values(os.len(), 5);
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap();
+            for threads in [1, 2] {
+                let mut got = vec![f32::NAN; os.len()];
+                let epi = Epilogue {
+                    pre: Activation::Relu6,
+                    residual: Some(&res),
+                    post: Activation::None,
+                };
+                let run = |got: &mut Vec<f32>| dw.run(&x, s, pad, epi, got);
+                if threads == 1 {
+                    run(&mut got);
+                } else {
+                    pool.install(|| run(&mut got));
+                }
+                for i in 0..os.len() {
+                    let v = want[i].clamp(0.0, 6.0) + res[i];
+                    assert!(
+                        (got[i] - v).abs() < 1e-5,
+                        "{h}x{w}x{c} k{k:?} s{st:?} at {i}: {} vs {v}",
+                        got[i]
+                    );
+                }
+            }
+            let mut portable = vec![f32::NAN; os.len()];
+            let job = Rows {
+                dw: &dw,
+                input: &x,
+                shape: s,
+                pad,
+                out_shape: os,
+                first: 0,
+            };
+            run_rows_portable(&job, Epilogue::default(), &mut portable);
+            let d = portable
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f32::max);
+            assert!(d < 1e-5, "portable {h}x{w}x{c}: {d}");
+        }
+    }
+}

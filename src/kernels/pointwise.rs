@@ -1,0 +1,409 @@
+//! Register-blocked matrix products for channels-last convolutions: `out [m, n] =
+//! epilogue(a [m, k] · W [k, n])`, where the rows are pixels and the columns output channels.
+//! A 1×1 convolution is one such product over the pixels of an NHWC map; a k×k convolution
+//! gathers its taps into rows first ([`super::conv_nhwc`]).
+//!
+//! The weights are packed once into column panels of 32, 16 or 8 channels (`[k][width]`, the
+//! last panel zero-padded). A micro-kernel keeps a `rows × width` block of the output in
+//! registers (6×32, 12×16 or 12×8: twelve 512-bit accumulators under AVX-512) and runs over
+//! `k`, broadcasting one input value per row against the panel's row of weights. The
+//! epilogue adds the bias, applies the first activation, adds an optional residual and applies
+//! the second, as the block is stored. Rows are cut into blocks that stay in the L2 cache while
+//! every panel passes over them, and into rayon tasks.
+
+use rayon::prelude::*;
+
+use super::nhwc::Epilogue;
+use crate::simd::simd_dispatch;
+
+/// Floats of input rows per cache block (128 KiB).
+const BLOCK_FLOATS: usize = 1 << 15;
+
+/// Multiply-adds below which a product runs as one rayon task.
+const MIN_TASK_MACS: usize = 1 << 18;
+
+/// One column panel of packed weights.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Panel {
+    /// First output column.
+    col: usize,
+    /// Columns the panel holds (32, 16 or 8; the last ones past `n` are zero).
+    width: usize,
+    /// Offset of its `[k][width]` values in [`PackedGemm::data`].
+    offset: usize,
+}
+
+/// A `[k, n]` weight matrix and its `[n]` bias, packed into column panels.
+#[derive(Debug, Clone)]
+pub struct PackedGemm {
+    k: usize,
+    n: usize,
+    panels: Vec<Panel>,
+    data: Vec<f32>,
+    bias: Vec<f32>,
+}
+
+impl PackedGemm {
+    /// Packs `weight(row, col)` for `row < k`, `col < n` (the value multiplying input column
+    /// `row` into output column `col`) and `bias [n]`.
+    pub fn new(k: usize, n: usize, weight: impl Fn(usize, usize) -> f32, bias: &[f32]) -> Self {
+        assert_eq!(bias.len(), n, "packed gemm: bias length");
+        let mut panels = Vec::new();
+        let (mut col, mut offset) = (0, 0);
+        while col < n {
+            let width = match n - col {
+                r if r > 16 => 32,
+                r if r > 8 => 16,
+                _ => 8,
+            };
+            panels.push(Panel { col, width, offset });
+            offset += k * width;
+            col += width;
+        }
+        let mut data = vec![0.0; offset];
+        for p in &panels {
+            for row in 0..k {
+                for j in 0..p.width.min(n - p.col) {
+                    data[p.offset + row * p.width + j] = weight(row, p.col + j);
+                }
+            }
+        }
+        Self {
+            k,
+            n,
+            panels,
+            data,
+            bias: bias.to_vec(),
+        }
+    }
+
+    /// Packs a TFLite convolution weight `[n][k]` (output channel major; `k` = taps × input
+    /// channels in the order the rows are gathered).
+    pub fn from_rows(weight: &[f32], k: usize, n: usize, bias: &[f32]) -> Self {
+        assert_eq!(weight.len(), k * n, "packed gemm: weight length");
+        Self::new(k, n, |row, col| weight[col * k + row], bias)
+    }
+
+    /// The inner dimension (input values per row).
+    pub fn k(&self) -> usize {
+        self.k
+    }
+
+    /// Output columns.
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// `out [m, n] = epi(a [m, k] · W + bias)` with `a`'s rows `lda` apart, in parallel over
+    /// row blocks on the current rayon pool.
+    pub fn run(&self, a: &[f32], lda: usize, m: usize, epi: Epilogue, out: &mut [f32]) {
+        let n = self.n;
+        assert!(lda >= self.k, "packed gemm: lda < k");
+        assert!(
+            m == 0 || a.len() >= (m - 1) * lda + self.k,
+            "packed gemm: input length"
+        );
+        assert_eq!(out.len(), m * n, "packed gemm: output length");
+        if let Some(r) = epi.residual {
+            assert_eq!(r.len(), m * n, "packed gemm: residual length");
+        }
+        if m == 0 {
+            return;
+        }
+        let rows = rows_per_task(m, m * n * self.k);
+        out.par_chunks_mut(rows * n)
+            .enumerate()
+            .for_each(|(t, chunk)| {
+                let r0 = t * rows;
+                let rm = chunk.len() / n;
+                let epi = Epilogue {
+                    residual: epi.residual.map(|r| &r[r0 * n..(r0 + rm) * n]),
+                    ..epi
+                };
+                self.run_serial(&a[r0 * lda..], lda, rm, epi, chunk);
+            });
+    }
+
+    /// [`Self::run`] on the calling thread.
+    pub fn run_serial(&self, a: &[f32], lda: usize, m: usize, epi: Epilogue, out: &mut [f32]) {
+        let block = (BLOCK_FLOATS / self.k.max(1)).clamp(12, 240) / 12 * 12;
+        let mut r0 = 0;
+        while r0 < m {
+            let rm = block.min(m - r0);
+            let epi_block = Epilogue {
+                residual: epi.residual.map(|r| &r[r0 * self.n..(r0 + rm) * self.n]),
+                ..epi
+            };
+            let out_block = &mut out[r0 * self.n..(r0 + rm) * self.n];
+            gemm_block(self, &a[r0 * lda..], lda, rm, epi_block, out_block);
+            r0 += rm;
+        }
+    }
+}
+
+/// Rows per rayon task: one task below [`MIN_TASK_MACS`] or on one thread, else about four
+/// tasks per thread, in multiples of 12 rows.
+pub(crate) fn rows_per_task(m: usize, macs: usize) -> usize {
+    let threads = rayon::current_num_threads();
+    if threads == 1 || macs < 2 * MIN_TASK_MACS {
+        return m;
+    }
+    let tasks = (macs / MIN_TASK_MACS).min(4 * threads).max(1);
+    m.div_ceil(tasks).div_ceil(12).max(1) * 12
+}
+
+simd_dispatch! {
+    avx2_fma;
+    fn gemm_block[](
+        w: &PackedGemm,
+        a: &[f32],
+        lda: usize,
+        m: usize,
+        epi: Epilogue,
+        out: &mut [f32],
+    ) = gemm_block_portable;
+}
+
+#[inline(always)]
+fn gemm_block_portable(
+    w: &PackedGemm,
+    a: &[f32],
+    lda: usize,
+    m: usize,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    for p in &w.panels {
+        let panel = &w.data[p.offset..p.offset + w.k * p.width];
+        match p.width {
+            32 => panel_rows::<6, 32>(w, p, panel, a, lda, m, epi, out),
+            16 => panel_rows::<12, 16>(w, p, panel, a, lda, m, epi, out),
+            _ => panel_rows::<12, 8>(w, p, panel, a, lda, m, epi, out),
+        }
+    }
+}
+
+/// One panel over rows `0..m` in blocks of `M`; a short last block is moved back to overlap
+/// the one before it (recomputing equal values), and a total shorter than `M` is copied into
+/// a zero-padded block.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn panel_rows<const M: usize, const W: usize>(
+    w: &PackedGemm,
+    p: &Panel,
+    panel: &[f32],
+    a: &[f32],
+    lda: usize,
+    m: usize,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    let k = w.k;
+    if m < M {
+        let mut padded = vec![0.0f32; M * k];
+        for r in 0..m {
+            padded[r * k..(r + 1) * k].copy_from_slice(&a[r * lda..r * lda + k]);
+        }
+        let acc = tile::<M, W>(&padded, k, panel, k);
+        store::<M, W>(&acc, w, p, 0, m, epi, out);
+        return;
+    }
+    let mut r0 = 0;
+    loop {
+        let start = r0.min(m - M);
+        let acc = tile::<M, W>(&a[start * lda..], lda, panel, k);
+        store::<M, W>(&acc, w, p, start, M, epi, out);
+        r0 += M;
+        if r0 >= m {
+            break;
+        }
+    }
+}
+
+/// The `M × W` product block of rows `a[r·lda .. r·lda + k]` and a `[k][W]` panel.
+#[inline(always)]
+fn tile<const M: usize, const W: usize>(
+    a: &[f32],
+    lda: usize,
+    panel: &[f32],
+    k: usize,
+) -> [[f32; W]; M] {
+    assert!(a.len() >= (M - 1) * lda + k && panel.len() >= k * W);
+    let mut acc = [[0.0f32; W]; M];
+    for (p, b) in panel.chunks_exact(W).take(k).enumerate() {
+        let b: &[f32; W] = b.try_into().unwrap();
+        for (r, row) in acc.iter_mut().enumerate() {
+            // SAFETY: r·lda + p ≤ (M − 1)·lda + k − 1 < a.len() (asserted above).
+            let x = unsafe { *a.get_unchecked(r * lda + p) };
+            for (acc, &bv) in row.iter_mut().zip(b) {
+                *acc = x.mul_add(bv, *acc);
+            }
+        }
+    }
+    acc
+}
+
+/// Stores rows `0..rows` of `acc` as output rows `first..first + rows`, panel columns that
+/// exist only, through the epilogue.
+#[inline(always)]
+fn store<const M: usize, const W: usize>(
+    acc: &[[f32; W]; M],
+    w: &PackedGemm,
+    p: &Panel,
+    first: usize,
+    rows: usize,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    let n = w.n;
+    let valid = W.min(n - p.col);
+    let bias = &w.bias[p.col..p.col + valid];
+    let (lo1, hi1) = epi.pre.bounds();
+    let (lo2, hi2) = epi.post.bounds();
+    for (r, acc_row) in acc.iter().enumerate().take(rows) {
+        let at = (first + r) * n + p.col;
+        let dst = &mut out[at..at + valid];
+        match epi.residual {
+            Some(res) => {
+                let res = &res[at..at + valid];
+                for (((o, &v), &b), &x) in dst.iter_mut().zip(acc_row).zip(bias).zip(res) {
+                    *o = ((v + b).max(lo1).min(hi1) + x).max(lo2).min(hi2);
+                }
+            }
+            None => {
+                for ((o, &v), &b) in dst.iter_mut().zip(acc_row).zip(bias) {
+                    *o = (v + b).max(lo1).min(hi1);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::nhwc::Activation;
+
+    fn values(n: usize, seed: u32) -> Vec<f32> {
+        let mut s = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+        (0..n)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 17;
+                s ^= s << 5;
+                (s % 2001) as f32 / 1000.0 - 1.0
+            })
+            .collect()
+    }
+
+    /// The product through the straightforward triple loop.
+    fn reference(
+        a: &[f32],
+        lda: usize,
+        m: usize,
+        w: &[f32],
+        k: usize,
+        n: usize,
+        bias: &[f32],
+        epi: Epilogue,
+    ) -> Vec<f32> {
+        let mut out = vec![0.0; m * n];
+        for r in 0..m {
+            for c in 0..n {
+                let mut s = 0.0f64;
+                for p in 0..k {
+                    s += a[r * lda + p] as f64 * w[c * k + p] as f64;
+                }
+                let mut v = epi.pre.apply(s as f32 + bias[c]);
+                if let Some(res) = epi.residual {
+                    v = epi.post.apply(v + res[r * n + c]);
+                }
+                out[r * n + c] = v;
+            }
+        }
+        out
+    }
+
+    fn check(m: usize, k: usize, n: usize, lda: usize) {
+        let a = values((m.max(1) - 1) * lda + k, 1);
+        let w = values(n * k, 2);
+        let bias = values(n, 3);
+        let res = values(m * n, 4);
+        let packed = PackedGemm::from_rows(&w, k, n, &bias);
+        for epi in [
+            Epilogue::default(),
+            Epilogue {
+                pre: Activation::Relu6,
+                residual: None,
+                post: Activation::None,
+            },
+            Epilogue {
+                pre: Activation::None,
+                residual: Some(&res),
+                post: Activation::Relu6,
+            },
+            Epilogue {
+                pre: Activation::Relu,
+                residual: Some(&res),
+                post: Activation::None,
+            },
+        ] {
+            let want = reference(&a, lda, m, &w, k, n, &bias, epi);
+            let mut got = vec![f32::NAN; m * n];
+            packed.run(&a, lda, m, epi, &mut got);
+            let tol = 1e-5 * (k as f32).sqrt().max(1.0);
+            for i in 0..m * n {
+                assert!(
+                    (got[i] - want[i]).abs() <= tol,
+                    "m{m} k{k} n{n} lda{lda} at {i}: {} vs {}",
+                    got[i],
+                    want[i]
+                );
+            }
+            let mut serial = vec![f32::NAN; m * n];
+            gemm_block_portable(&packed, &a, lda, m, epi, &mut serial);
+            let d = serial
+                .iter()
+                .zip(&want)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(d <= tol, "portable m{m} k{k} n{n}: {d}");
+        }
+    }
+
+    #[test]
+    fn products_match_the_triple_loop_over_odd_shapes() {
+        for (m, k, n) in [
+            (1, 1, 1),
+            (5, 3, 2),
+            (11, 7, 8),
+            (12, 16, 16),
+            (13, 24, 24),
+            (37, 17, 40),
+            (100, 64, 88),
+            (6, 288, 195),
+            (250, 144, 33),
+            (700, 8, 8),
+        ] {
+            check(m, k, n, k);
+        }
+        check(29, 10, 20, 13);
+    }
+
+    #[test]
+    fn parallel_tasks_give_the_serial_result() {
+        let (m, k, n) = (3001, 96, 48);
+        let a = values(m * k, 5);
+        let w = values(n * k, 6);
+        let packed = PackedGemm::from_rows(&w, k, n, &values(n, 7));
+        let mut serial = vec![0.0; m * n];
+        packed.run_serial(&a, k, m, Epilogue::default(), &mut serial);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        let mut par = vec![0.0; m * n];
+        pool.install(|| packed.run(&a, k, m, Epilogue::default(), &mut par));
+        assert_eq!(serial, par);
+    }
+}
