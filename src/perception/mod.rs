@@ -15,6 +15,7 @@ pub mod detection;
 mod error;
 pub mod landmark;
 pub mod landmarks;
+pub mod pose;
 pub mod roi;
 pub mod segmentation;
 
