@@ -21,6 +21,16 @@ pub enum PerceptionError {
         /// What is wrong.
         reason: String,
     },
+    /// Weights that are not shipped with the binary and have not been produced yet.
+    #[error("{what}: no weights file at {path}; produce it with: {command}")]
+    MissingWeights {
+        /// The network.
+        what: String,
+        /// Where the file was looked for.
+        path: PathBuf,
+        /// The commands that produce it.
+        command: String,
+    },
     /// An input has the wrong size.
     #[error("{what}: expected {expected}, got {got}")]
     Input {
