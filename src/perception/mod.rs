@@ -15,9 +15,13 @@ pub mod detection;
 mod error;
 pub mod landmark;
 pub mod landmarks;
+pub mod network;
 pub mod pose;
 pub mod roi;
 pub mod segmentation;
+pub mod weights;
 
 pub use error::PerceptionError;
 pub use landmark::{Landmark, LandmarkId, BODY_LANDMARKS};
+pub use network::{Network, NetworkOutputs};
+pub use weights::LandmarkModel;
