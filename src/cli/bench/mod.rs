@@ -4,6 +4,7 @@ use clap::{Args, Subcommand};
 
 mod cpu_peer;
 mod model;
+mod perception;
 mod points;
 mod render;
 mod transport;
@@ -29,6 +30,10 @@ enum BenchCommand {
     /// The pieces of the PyTorch CPU peer benchmark (matmul 1024³, DINOv2 ViT-S/B, SD3 joint
     /// attention) timed with our code; `scripts/bench-cpu-peer` runs both side by side.
     CpuPeer(cpu_peer::CpuPeerArgs),
+    /// The BlazePose networks (person detector, lite/full/heavy landmarks) on our CPU kernels
+    /// at 1 and 2 threads, with an optional per-step profile; `scripts/perception/bench` runs
+    /// it next to LiteRT/XNNPACK.
+    Perception(perception::PerceptionBenchArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -39,5 +44,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Points(a) => points::run(a),
         BenchCommand::Transport(a) => transport::run(a),
         BenchCommand::CpuPeer(a) => cpu_peer::run(a),
+        BenchCommand::Perception(a) => perception::run(a),
     }
 }
