@@ -177,7 +177,9 @@ fn blocks<const K: usize, const T: usize>(job: &Rows, epi: Epilogue, out: &mut [
     }
 }
 
-/// Channels `c0..c0 + L` of the job's rows.
+/// Channels `c0..c0 + L` of the job's rows: the interior of each row (windows inside the
+/// image, `K > 0`) four output pixels at a time with the taps in registers, the rest through
+/// the checked path.
 #[inline(always)]
 fn block<const K: usize, const T: usize, const L: usize>(
     job: &Rows,
@@ -186,11 +188,9 @@ fn block<const K: usize, const T: usize, const L: usize>(
     out: &mut [f32],
 ) {
     let dw = job.dw;
-    let (c, (kh, kw), (sh, sw)) = (dw.channels, dw.kernel, dw.stride);
+    let (c, (kh, kw), sw) = (dw.channels, dw.kernel, dw.stride.1);
     let (h, w) = (job.shape.height, job.shape.width);
     let ow = job.out_shape.width;
-    let (lo1, hi1) = epi.pre.bounds();
-    let (lo2, hi2) = epi.post.bounds();
     let bias: [f32; L] = dw.bias[c0..c0 + L].try_into().unwrap();
     // The register copy of this block's taps (used when K > 0, i.e. kh = kw = K).
     let mut taps = [[0.0f32; L]; T];
@@ -198,72 +198,139 @@ fn block<const K: usize, const T: usize, const L: usize>(
         *tap = dw.weight[t * c + c0..t * c + c0 + L].try_into().unwrap();
     }
     // Output columns whose window lies inside the image.
-    let ox_lo = job.pad.left.div_ceil(sw);
+    let ox_lo = job.pad.left.div_ceil(sw).min(ow);
     let ox_hi = if w + job.pad.left >= kw {
-        ((w + job.pad.left - kw) / sw + 1).min(ow)
+        ((w + job.pad.left - kw) / sw + 1).min(ow).max(ox_lo)
     } else {
-        0
+        ox_lo
     };
     let rows = out.len() / (ow * c);
     for r in 0..rows {
         let oy = job.first + r;
-        let y0 = (oy * sh) as isize - job.pad.top as isize;
-        let full_rows = y0 >= 0 && y0 as usize + kh <= h;
+        let y0 = (oy * dw.stride.0) as isize - job.pad.top as isize;
+        let inside = K > 0 && y0 >= 0 && y0 as usize + kh <= h;
+        let (lo, hi) = if inside { (ox_lo, ox_hi) } else { (ow, ow) };
         let out_row = &mut out[r * ow * c..(r + 1) * ow * c];
         let res_row = epi.residual.map(|x| &x[r * ow * c..(r + 1) * ow * c]);
-        for ox in 0..ow {
-            let x0 = (ox * sw) as isize - job.pad.left as isize;
-            let mut acc = bias;
-            if K > 0 && full_rows && ox >= ox_lo && ox < ox_hi {
-                let y0 = y0 as usize;
-                let x0 = x0 as usize;
-                for ky in 0..K {
-                    let line = ((y0 + ky) * w + x0) * c + c0;
-                    for kx in 0..K {
-                        let at = line + kx * c;
-                        let xv: &[f32; L] = job.input[at..at + L].try_into().unwrap();
-                        let tap = &taps[ky * K + kx];
-                        for l in 0..L {
-                            acc[l] = xv[l].mul_add(tap[l], acc[l]);
-                        }
-                    }
+        for ox in (0..lo).chain(hi..ow) {
+            let acc = border_pixel::<L>(job, c0, bias, y0, ox);
+            store::<L>(&acc, epi, res_row, ox * c + c0, out_row);
+        }
+        if lo < hi {
+            let line0 = (y0 as usize * w) * c + c0;
+            let mut ox = lo;
+            while ox + 4 <= hi {
+                let acc = interior::<K, T, L, 4>(job, &taps, bias, line0, ox);
+                for (p, acc) in acc.iter().enumerate() {
+                    store::<L>(acc, epi, res_row, (ox + p) * c + c0, out_row);
                 }
-            } else {
-                for ky in 0..kh {
-                    let iy = y0 + ky as isize;
-                    if iy < 0 || iy >= h as isize {
-                        continue;
-                    }
-                    for kx in 0..kw {
-                        let ix = x0 + kx as isize;
-                        if ix < 0 || ix >= w as isize {
-                            continue;
-                        }
-                        let at = (iy as usize * w + ix as usize) * c + c0;
-                        let xv: &[f32; L] = job.input[at..at + L].try_into().unwrap();
-                        let t = (ky * kw + kx) * c + c0;
-                        let wv: &[f32; L] = dw.weight[t..t + L].try_into().unwrap();
-                        for l in 0..L {
-                            acc[l] = xv[l].mul_add(wv[l], acc[l]);
-                        }
-                    }
-                }
+                ox += 4;
             }
-            let at = ox * c + c0;
-            let dst: &mut [f32; L] = (&mut out_row[at..at + L]).try_into().unwrap();
-            match res_row {
-                Some(res) => {
-                    for l in 0..L {
-                        dst[l] = (acc[l].max(lo1).min(hi1) + res[at + l]).max(lo2).min(hi2);
-                    }
-                }
-                None => {
-                    for l in 0..L {
-                        dst[l] = acc[l].max(lo1).min(hi1);
-                    }
-                }
+            while ox < hi {
+                let [acc] = interior::<K, T, L, 1>(job, &taps, bias, line0, ox);
+                store::<L>(&acc, epi, res_row, ox * c + c0, out_row);
+                ox += 1;
             }
         }
+    }
+}
+
+/// Output pixels `ox..ox + P` of a row whose windows lie inside the image; `line0` is the
+/// offset of the window's top row plus `c0`.
+#[inline(always)]
+fn interior<const K: usize, const T: usize, const L: usize, const P: usize>(
+    job: &Rows,
+    taps: &[[f32; L]; T],
+    bias: [f32; L],
+    line0: usize,
+    ox: usize,
+) -> [[f32; L]; P] {
+    let (c, w, sw, left) = (
+        job.dw.channels,
+        job.shape.width,
+        job.dw.stride.1,
+        job.pad.left,
+    );
+    let mut acc = [bias; P];
+    for ky in 0..K {
+        let line = line0 + ky * w * c;
+        for kx in 0..K {
+            for (p, acc) in acc.iter_mut().enumerate() {
+                let at = line + ((ox + p) * sw + kx - left) * c;
+                let x: &[f32; L] = job.input[at..at + L].try_into().unwrap();
+                madd(acc, x, &taps[ky * K + kx]);
+            }
+        }
+    }
+    acc
+}
+
+/// One output pixel through the bounds-checked path (any kernel).
+#[inline(always)]
+fn border_pixel<const L: usize>(
+    job: &Rows,
+    c0: usize,
+    bias: [f32; L],
+    y0: isize,
+    ox: usize,
+) -> [f32; L] {
+    let dw = job.dw;
+    let (c, (kh, kw)) = (dw.channels, dw.kernel);
+    let (h, w) = (job.shape.height as isize, job.shape.width as isize);
+    let x0 = (ox * dw.stride.1) as isize - job.pad.left as isize;
+    let mut acc = bias;
+    for ky in 0..kh {
+        let iy = y0 + ky as isize;
+        if iy < 0 || iy >= h {
+            continue;
+        }
+        for kx in 0..kw {
+            let ix = x0 + kx as isize;
+            if ix < 0 || ix >= w {
+                continue;
+            }
+            let at = (iy as usize * w as usize + ix as usize) * c + c0;
+            let x: &[f32; L] = job.input[at..at + L].try_into().unwrap();
+            let t = (ky * kw + kx) * c + c0;
+            let wv: &[f32; L] = dw.weight[t..t + L].try_into().unwrap();
+            madd(&mut acc, x, wv);
+        }
+    }
+    acc
+}
+
+/// Writes one pixel's block through the epilogue at `at` of the output row.
+#[inline(always)]
+fn store<const L: usize>(
+    acc: &[f32; L],
+    epi: Epilogue,
+    res_row: Option<&[f32]>,
+    at: usize,
+    out_row: &mut [f32],
+) {
+    let (lo1, hi1) = epi.pre.bounds();
+    let dst: &mut [f32; L] = (&mut out_row[at..at + L]).try_into().unwrap();
+    match res_row {
+        Some(res) => {
+            let (lo2, hi2) = epi.post.bounds();
+            let res: &[f32; L] = res[at..at + L].try_into().unwrap();
+            for ((d, &a), &r) in dst.iter_mut().zip(acc).zip(res) {
+                *d = (a.max(lo1).min(hi1) + r).max(lo2).min(hi2);
+            }
+        }
+        None => {
+            for (d, &a) in dst.iter_mut().zip(acc) {
+                *d = a.max(lo1).min(hi1);
+            }
+        }
+    }
+}
+
+/// `acc += x · w`, lane by lane.
+#[inline(always)]
+fn madd<const L: usize>(acc: &mut [f32; L], x: &[f32; L], w: &[f32; L]) {
+    for ((a, &x), &w) in acc.iter_mut().zip(x).zip(w) {
+        *a = x.mul_add(w, *a);
     }
 }
 
