@@ -8,9 +8,10 @@
 //! [`PoseEstimatorConfig::ease_s`] seconds along a smoothstep; a segment never seen stays at
 //! rest. Its children are still solved from their own landmarks, against the held parent.
 
-use super::ik::{BoneRotations, PoseSolver, Segment, SolverConfig};
+use super::ik::{PoseSolver, SolverConfig};
 use super::one_euro::{OneEuroConfig, OneEuroFilter};
 use super::rotation::smoothstep;
+use super::segment::{BoneRotations, Segment};
 use super::PoseSolveError;
 use crate::body::{BodyTemplate, Pose};
 use crate::perception::{Landmark, BODY_LANDMARKS};
@@ -45,7 +46,8 @@ impl Default for PoseEstimatorConfig {
 pub struct PoseEstimator {
     solver: PoseSolver,
     config: PoseEstimatorConfig,
-    filters: Vec<OneEuroFilter>,
+    /// One filter per landmark, when filtering.
+    filters: Option<Vec<OneEuroFilter>>,
     last_good: BoneRotations,
     last_good_time: [Option<f64>; Segment::COUNT],
     last_solved: [bool; Segment::COUNT],
@@ -64,13 +66,10 @@ impl PoseEstimator {
     /// An estimator around an existing solver (its settings replace `config.solver`).
     pub fn with_solver(solver: PoseSolver, mut config: PoseEstimatorConfig) -> Self {
         config.solver = *solver.config();
-        let filter = config.filter.unwrap_or(OneEuroConfig {
-            min_cutoff: 0.0,
-            beta: 0.0,
-            d_cutoff: 0.0,
-        });
         Self {
-            filters: vec![OneEuroFilter::new(filter); BODY_LANDMARKS],
+            filters: config
+                .filter
+                .map(|f| vec![OneEuroFilter::new(f); BODY_LANDMARKS]),
             last_good: BoneRotations::rest(solver.bone_count()),
             last_good_time: [None; Segment::COUNT],
             last_solved: [false; Segment::COUNT],
@@ -91,7 +90,9 @@ impl PoseEstimator {
 
     /// Forgets the person: filters restart and every segment is at rest.
     pub fn reset(&mut self) {
-        self.filters.iter_mut().for_each(OneEuroFilter::reset);
+        for filter in self.filters.iter_mut().flatten() {
+            filter.reset();
+        }
         self.last_good = BoneRotations::rest(self.solver.bone_count());
         self.last_good_time = [None; Segment::COUNT];
         self.last_solved = [false; Segment::COUNT];
@@ -106,8 +107,8 @@ impl PoseEstimator {
         });
         let positions: [Vec3; BODY_LANDMARKS] = std::array::from_fn(|i| {
             let raw = world[i].position;
-            match (visible[i], self.config.filter.is_some()) {
-                (true, true) => self.filters[i].filter(t, raw),
+            match &mut self.filters {
+                Some(filters) if visible[i] => filters[i].filter(t, raw),
                 _ => raw,
             }
         });
