@@ -12,6 +12,7 @@ mod fuzz;
 mod loadgen;
 mod model;
 mod model_parity;
+mod perceive;
 mod record;
 mod render;
 mod replay;
@@ -60,6 +61,9 @@ enum Command {
     Body(body::BodyArgs),
     /// Create seeded model checkpoints and print parameter counts.
     Model(model::ModelArgs),
+    /// What camera-only perception sees in photos: person mask, landmarks, overlay and the
+    /// derived BodyPose (`perceive IMAGE... -o DIR`).
+    Perceive(perceive::PerceiveArgs),
     /// Pose a Gaussian avatar PLY and write PNG frames (`render AVATAR.ply --pose walk:0..60`).
     Render(render::RenderArgs),
     /// Print avatars and frames received over shared memory (iceoryx2), one line each.
@@ -118,6 +122,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Fuzz(args) => fuzz::run(args),
         Command::Loadgen(args) => loadgen::run(args),
+        Command::Perceive(args) => perceive::run(args),
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),
         Command::SynthDataset(args) => synth_dataset::run(args),

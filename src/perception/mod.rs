@@ -16,12 +16,15 @@ mod error;
 pub mod landmark;
 pub mod landmarks;
 pub mod network;
+pub mod overlay;
 pub mod pose;
 pub mod roi;
 pub mod segmentation;
+pub mod tracker;
 pub mod weights;
 
 pub use error::PerceptionError;
 pub use landmark::{Landmark, LandmarkId, BODY_LANDMARKS};
 pub use network::{Network, NetworkOutputs};
+pub use tracker::{Perceived, PersonTracker, PoseNetworks, TrackerConfig};
 pub use weights::LandmarkModel;

@@ -33,9 +33,12 @@ pub struct PoseNetworks {
 impl PoseNetworks {
     /// Loads the embedded detector and landmark model `model` (`heavy_weights`: the converted
     /// heavy model, which is not embedded).
-    pub fn load(model: LandmarkModel, heavy_weights: Option<&Path>) -> Result<Self, PerceptionError> {
+    pub fn load(
+        model: LandmarkModel,
+        heavy_weights: Option<&Path>,
+    ) -> Result<Self, PerceptionError> {
         Ok(Self {
-            detector: super::weights::detector()?,
+            detector: super::weights::pose_detector()?,
             landmarks: model.load(heavy_weights)?,
             model,
             anchors: pose_anchors(),
@@ -91,7 +94,7 @@ impl PoseNetworks {
             input,
         );
         let out = self.landmarks.run(input)?;
-        let what = self.model.as_str();
+        let what = self.model.name();
         let presence = output(&out, "Identity_1", what)?
             .first()
             .copied()

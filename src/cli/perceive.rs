@@ -1,0 +1,183 @@
+//! `lhmpp perceive IMAGE... -o DIR`: what camera-only perception sees in photos, for
+//! debugging. Per image: `<stem>_mask.png` (the feathered person mask), `<stem>_overlay.png`
+//! (the mask tinted and the landmark skeleton) and `<stem>.json` (detection, crop, image and
+//! world landmarks, and the BodyPose the solver derives from them).
+
+use anyhow::{Context, Result};
+use clap::Args;
+use lhmpp::body::{BodyTemplate, Pose};
+use lhmpp::perception::overlay::draw_overlay;
+use lhmpp::perception::pose::{PoseEstimator, PoseEstimatorConfig};
+use lhmpp::perception::{
+    Landmark, LandmarkId, LandmarkModel, Perceived, PersonTracker, PoseNetworks, TrackerConfig,
+};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Options of `lhmpp perceive`.
+#[derive(Args, Debug)]
+pub struct PerceiveArgs {
+    /// Photos (JPEG or PNG), each perceived on its own.
+    #[arg(required = true)]
+    images: Vec<PathBuf>,
+    /// Output directory (created if missing).
+    #[arg(short, long)]
+    out: PathBuf,
+    /// Landmark model: `lite`, `full` or `heavy`.
+    #[arg(long, default_value = "full")]
+    model: String,
+    /// The converted heavy model (with `--model heavy`).
+    #[arg(long)]
+    heavy_weights: Option<PathBuf>,
+    /// Person probability at the mask's edge.
+    #[arg(long, default_value_t = 0.5)]
+    mask_threshold: f32,
+    /// Half-width of the mask's soft edge, in probability.
+    #[arg(long, default_value_t = 0.1)]
+    mask_feather: f32,
+    /// Landmarks less visible than this are left out of the overlay and the pose.
+    #[arg(long, default_value_t = 0.5)]
+    min_visibility: f32,
+}
+
+/// Perceives every image; an image that cannot be read or shows nobody is reported and the
+/// others go on (exit status 1 when none showed a person).
+pub fn run(args: PerceiveArgs) -> Result<()> {
+    let model = LandmarkModel::from_name(&args.model)
+        .with_context(|| format!("--model `{}`: expected lite, full or heavy", args.model))?;
+    let networks = Arc::new(PoseNetworks::load(model, args.heavy_weights.as_deref())?);
+    let template = BodyTemplate::load_default().context("loading the embedded body template")?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let mut found = 0;
+    for path in &args.images {
+        match perceive_one(&args, &networks, &template, path) {
+            Ok(true) => found += 1,
+            Ok(false) => tracing::warn!(image = %path.display(), "no person found"),
+            Err(e) => tracing::error!(image = %path.display(), "{}", super::error_line(&e)),
+        }
+    }
+    if found == 0 {
+        anyhow::bail!(
+            "no person found in any of the {} image(s)",
+            args.images.len()
+        );
+    }
+    tracing::info!(found, images = args.images.len(), out = %args.out.display(), "perceived");
+    Ok(())
+}
+
+/// Writes one image's outputs; whether a person was found.
+fn perceive_one(
+    args: &PerceiveArgs,
+    networks: &Arc<PoseNetworks>,
+    template: &BodyTemplate,
+    path: &Path,
+) -> Result<bool> {
+    let image = image::open(path)
+        .with_context(|| format!("reading {}", path.display()))?
+        .to_rgb8();
+    let config = TrackerConfig {
+        smooth_masks: false,
+        ..TrackerConfig::default()
+    };
+    let mut tracker = PersonTracker::new(networks.clone(), config);
+    let started = std::time::Instant::now();
+    let perceived = tracker.perceive(&image)?;
+    let ms = started.elapsed().as_secs_f64() * 1e3;
+    let stem = path
+        .file_stem()
+        .map_or_else(|| "image".into(), |s| s.to_string_lossy().into_owned());
+    let write = |name: String, img: &dyn Fn(&Path) -> image::ImageResult<()>| {
+        let target = args.out.join(name);
+        img(&target).with_context(|| format!("writing {}", target.display()))
+    };
+    let Some(p) = perceived else {
+        let json = json!({ "image": path, "person_found": false, "ms": ms });
+        write_json(&args.out.join(format!("{stem}.json")), &json)?;
+        return Ok(false);
+    };
+    let mask = p.mask.to_mask(args.mask_threshold, args.mask_feather);
+    write(format!("{stem}_mask.png"), &|t| mask.save(t))?;
+    let overlay = draw_overlay(
+        &image,
+        Some(&mask),
+        Some(&p.landmarks.image),
+        args.min_visibility,
+    );
+    write(format!("{stem}_overlay.png"), &|t| overlay.save(t))?;
+    let mut estimator_config = PoseEstimatorConfig {
+        filter: None,
+        ..PoseEstimatorConfig::default()
+    };
+    estimator_config.solver.min_visibility = args.min_visibility;
+    let pose = PoseEstimator::new(template, estimator_config)?.update(0.0, &p.landmarks.world);
+    let json = perception_json(path, &image, &p, &pose, ms);
+    write_json(&args.out.join(format!("{stem}.json")), &json)?;
+    Ok(true)
+}
+
+fn write_json(path: &Path, value: &Value) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).expect("JSON values serialise");
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+/// The JSON record of one perceived image.
+fn perception_json(
+    path: &Path,
+    image: &image::RgbImage,
+    p: &Perceived,
+    pose: &Pose,
+    ms: f64,
+) -> Value {
+    let landmarks = |list: &[Landmark]| -> Vec<Value> {
+        LandmarkId::ALL
+            .iter()
+            .zip(list)
+            .map(|(id, l)| {
+                json!({
+                    "name": id.name(),
+                    "position": l.position.to_array(),
+                    "visibility": l.visibility,
+                    "presence": l.presence,
+                })
+            })
+            .collect()
+    };
+    let mut bones: Vec<(&String, &glam::Quat)> = pose.rotations.iter().collect();
+    bones.sort_by(|a, b| a.0.cmp(b.0));
+    let quat = |q: &glam::Quat| [q.w, q.x, q.y, q.z];
+    let roi = p.landmarks.roi;
+    json!({
+        "image": path,
+        "width": image.width(),
+        "height": image.height(),
+        "person_found": true,
+        "ms": ms,
+        "detection": p.detection.map(|d| json!({
+            "score": d.score,
+            "box_min": d.min.to_array(),
+            "box_max": d.max.to_array(),
+            "keypoints": d.keypoints.map(|k| k.to_array()),
+        })),
+        "presence": p.landmarks.presence,
+        "roi": {
+            "center": roi.center.to_array(),
+            "size": roi.size.to_array(),
+            "rotation": roi.rotation,
+        },
+        "landmarks_px": landmarks(&p.landmarks.image),
+        "world_landmarks_m": landmarks(&p.landmarks.world),
+        "body_pose": {
+            "convention": "quaternions [w, x, y, z]; local rotations about each joint in \
+                           canonical axes, relative to the rest pose (lhmpp_msgs/BodyPose)",
+            "root_rotation": quat(&pose.root_rotation),
+            "root_translation": pose.root_translation.to_array(),
+            "rotations": bones
+                .into_iter()
+                .map(|(name, q)| (name.clone(), json!(quat(q))))
+                .collect::<serde_json::Map<_, _>>(),
+        },
+    })
+}
