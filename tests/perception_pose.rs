@@ -165,3 +165,53 @@ fn a_person_facing_the_camera_gets_the_identity_root() {
         }
     }
 }
+
+/// Twist of `q` about unit `axis`, degrees.
+fn twist_deg(q: Quat, axis: Vec3) -> f32 {
+    let along = Vec3::new(q.x, q.y, q.z).dot(axis);
+    let t = 2.0 * along.atan2(q.w);
+    let t = (t + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU) - std::f32::consts::PI;
+    t.to_degrees()
+}
+
+#[test]
+fn a_knee_seen_bending_forwards_is_clamped_by_the_limits() {
+    use lhmpp::perception::LandmarkId::*;
+    let template = BodyTemplate::load_default().unwrap();
+    let s = &template.skeleton;
+    let joint = |name: &str| s.joints[s.bone_index(name).unwrap()];
+    // The left shin bent 60° forwards about the knee (the foot goes with it): a knee that
+    // cannot bend that way, so the only exact fit twists the thigh half a turn. Within the
+    // limits the solver reads it as a straight, untwisted leg.
+    let mut seen = posed_landmarks(&template, &Pose::identity());
+    let knee = joint("lowerleg01.L");
+    let bend = Quat::from_rotation_x(-60f32.to_radians());
+    for id in [LeftAnkle, LeftHeel, LeftFootIndex] {
+        seen[id.index()] = knee + bend * (seen[id.index()] - knee);
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let world = world_landmarks(&seen, 0.0, 0.0, &mut rng);
+    let thigh_axis = (joint("lowerleg01.L") - joint("upperleg01.L")).normalize();
+    let solve = |apply_limits: bool| {
+        let config = SolverConfig {
+            apply_limits,
+            ..SolverConfig::default()
+        };
+        let pose = landmarks_to_pose(&PoseSolver::new(&template, config).unwrap(), &world);
+        let twist = twist_deg(pose.rotations["upperleg01.L"], thigh_axis);
+        let knee = pose.rotations["lowerleg01.L"];
+        (twist, knee)
+    };
+    let (free_twist, _) = solve(false);
+    let (twist, knee) = solve(true);
+    println!("thigh twist without limits {free_twist:.1}°, with {twist:.1}°");
+    assert!(free_twist.abs() > 150.0, "{free_twist}");
+    assert!(twist.abs() < 15.0, "{twist}");
+    // The knee bends at most 10° backwards past straight (its rest pose is bent a little).
+    let rest_bend = (joint("lowerleg01.L") - joint("upperleg01.L"))
+        .angle_between(joint("foot.L") - joint("lowerleg01.L"))
+        .to_degrees();
+    let bend_deg = twist_deg(knee, Vec3::X);
+    println!("knee bend {bend_deg:.1}° from rest (rest bend {rest_bend:.1}°)");
+    assert!(bend_deg >= -10.0 - rest_bend - 0.5, "{bend_deg}");
+}

@@ -296,6 +296,15 @@ impl PoseSolver {
         };
     }
 
+    /// How far (radians) a twist of `twist` about the rest axis lies outside `bone`'s twist
+    /// range; 0 inside it or when limits are off.
+    pub(super) fn twist_excess(&self, bone: usize, twist: f32) -> f32 {
+        match (self.config.apply_limits, &self.limits[bone]) {
+            (true, Some(limit)) => limit.twist_excess(twist),
+            _ => 0.0,
+        }
+    }
+
     pub(super) fn set_global(&self, w: &mut Work, bone: usize, target: Quat) {
         let local = self.parent_global(w, bone).inverse() * target;
         self.set_local(w, bone, local);

@@ -142,11 +142,21 @@ impl PoseSolver {
             let lower_untwisted = arc(untwisted * rest.lower, lower)? * untwisted;
             Some(share * twist_angle(target * lower_untwisted.inverse(), axis))
         });
-        let twist = match (bend, distal) {
+        let blend = |bend: Option<(f32, f32)>| match (bend, distal) {
             (Some((b, trust)), Some(d)) => d + trust * wrap(b - d),
             (Some((b, trust)), None) => trust * b,
             (None, Some(d)) => d,
             (None, None) => 0.0,
+        };
+        // A bend plane read the wrong way round (a knee or elbow seen bending backwards)
+        // asks for a twist of about half a turn; the flipped plane is then the plausible
+        // reading (the hinge limit straightens the joint instead).
+        let twist = blend(bend);
+        let flipped = blend(bend.map(|(b, trust)| (wrap(b + std::f32::consts::PI), trust)));
+        let twist = if self.twist_excess(bone, flipped) < self.twist_excess(bone, twist) {
+            flipped
+        } else {
+            twist
         };
         self.set_global(w, bone, Quat::from_axis_angle(axis, twist) * untwisted);
         Some(())

@@ -87,6 +87,21 @@ impl BoneLimit {
     }
 }
 
+impl BoneLimit {
+    /// How far (radians) a twist of `twist` radians about the rest bone axis lies outside a
+    /// ball joint's twist range; 0 inside it, and for other limits.
+    pub fn twist_excess(&self, twist: f32) -> f32 {
+        match *self {
+            Self::Ball {
+                twist: [lo, hi], ..
+            } => (lo.to_radians() - twist)
+                .max(twist - hi.to_radians())
+                .max(0.0),
+            _ => 0.0,
+        }
+    }
+}
+
 /// Rest geometry of one side's limbs the limits are resolved from (unit vectors, canonical
 /// rest axes).
 #[derive(Debug, Clone, Copy)]
