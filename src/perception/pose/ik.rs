@@ -20,7 +20,9 @@
 //!   twist puts the elbow's (knee's) hinge axis on the observed bend plane, trusted in full
 //!   from a bend of about 24° down to none below about 9°, where the twist comes instead from
 //!   the hand (foot) orientation (half of it for the arm, the rest left to the forearm twist,
-//!   all of it for the leg). The forearm (shin) swings onto elbow → wrist (knee → ankle).
+//!   all of it for the leg). A bend plane that would twist the limb past its limit is read
+//!   the other way round (a knee seen bending forwards is a straight knee, clamped by its
+//!   hinge). The forearm (shin) swings onto elbow → wrist (knee → ankle).
 //!   The hand's orientation comes from wrist → knuckles and the across-palm direction
 //!   (little finger → index, plus little finger → thumb when the thumb is seen); its twist
 //!   about the forearm goes to the forearm twist bone where there is one. The foot's comes
