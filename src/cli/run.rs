@@ -65,6 +65,18 @@ pub fn run(args: RunArgs) -> Result<()> {
             s.latencies
         );
     }
+    if s.perceived > 0 || summary.perception_dropped > 0 {
+        println!(
+            "perception: frames {} (cropped by its mask {}, nobody found {}, dropped for newer \
+             {}), time per frame {}, camera poses {}",
+            s.perceived,
+            s.perception_masked,
+            s.no_person,
+            summary.perception_dropped,
+            s.perception_times,
+            s.camera_poses
+        );
+    }
     if let Some(salvage) = summary.bag.as_ref().filter(|s| !s.is_complete()) {
         println!("bag {}: {salvage}", config.replay.bag);
     }

@@ -54,6 +54,8 @@ pub struct RunSummary {
     pub received: u64,
     /// Live input events the full input queue dropped (`inputs` overflow policy).
     pub queue_dropped: u64,
+    /// Frames perception dropped unperceived (a newer frame of their camera came first).
+    pub perception_dropped: u64,
     /// What reading the replayed bag skipped (`None` for a live run).
     pub bag: Option<Salvage>,
     /// Views held at the end.
@@ -157,6 +159,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         rate_limited: input_stats.rate_limited.values().sum(),
         received: input_stats.accepted.values().sum(),
         queue_dropped: input_stats.queue_dropped,
+        perception_dropped: pipeline.perception_dropped(),
         bag: replay.as_ref().map(|r| r.salvage().clone()),
         views_held: pipeline.views_held(),
         revision: pipeline.revision(),

@@ -26,8 +26,8 @@ pub fn draw_overlay(
     if let Some(mask) = mask.filter(|m| m.dimensions() == image.dimensions()) {
         for (p, m) in out.pixels_mut().zip(mask.pixels()) {
             let a = MASK_ALPHA * f32::from(m.0[0]) / 255.0;
-            for c in 0..3 {
-                p.0[c] = (f32::from(p.0[c]) * (1.0 - a) + MASK_TINT[c] * a).round() as u8;
+            for (channel, tint) in p.0.iter_mut().zip(MASK_TINT) {
+                *channel = (f32::from(*channel) * (1.0 - a) + tint * a).round() as u8;
             }
         }
     }

@@ -1,7 +1,8 @@
 //! The one place results leave the node: every avatar revision, status, rendered frame,
 //! preview and end-of-replay animation frame goes through a [`Publisher`], and a [`Fanout`]
 //! hands them to all of the node's outputs at once: ROS 2 messages ([`ros`]), iceoryx2 shared
-//! memory ([`shm`]) and files on disk ([`files`]).
+//! memory ([`shm`]) and files on disk ([`files`]); the person masks and the pose perception
+//! reads from the cameras go out the same way.
 //!
 //! Outputs differ in what they take: the live ones ([`Publisher::live`]: ROS 2, shared memory)
 //! take statuses, rendered frames and previews; the files take the avatars and the animation
@@ -17,9 +18,10 @@ pub use ros::{avatar_message, frame_message, status_message, RosPublisher};
 pub use shm::ShmOutputs;
 
 use crate::avatar::Avatar;
-use crate::msgs::ReconstructionStatus;
+use crate::msgs::{BodyPose, ReconstructionStatus};
 use crate::node::pipeline::RenderedFrame;
 use crate::splat::{Gaussians, PlyError};
+use image::GrayImage;
 use std::path::PathBuf;
 
 /// An output failed; names the file or the message.
@@ -74,6 +76,11 @@ pub trait Publisher {
     fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64);
     /// Publishes the avatar preview: the Gaussians posed at the latest BodyPose.
     fn preview(&self, _posed: &Gaussians, _stamp_ns: i64) {}
+    /// Publishes the person mask perception made of a frame of camera `camera` (resolved
+    /// topic): mono8, 255 = person, with the frame's stamp and optical frame.
+    fn mask(&self, _camera: &str, _mask: &GrayImage, _stamp_ns: i64, _frame_id: &str) {}
+    /// Publishes the pose read from the cameras.
+    fn pose(&self, _pose: &BodyPose) {}
     /// Whether this output takes the live stream: statuses, rendered frames and previews
     /// (true by default). The pipeline renders frames, poses previews and sends statuses only
     /// when some output does.
@@ -120,6 +127,14 @@ impl Publisher for Fanout {
     }
     fn preview(&self, posed: &Gaussians, stamp_ns: i64) {
         self.0.iter().for_each(|p| p.preview(posed, stamp_ns));
+    }
+    fn mask(&self, camera: &str, mask: &GrayImage, stamp_ns: i64, frame_id: &str) {
+        self.0
+            .iter()
+            .for_each(|p| p.mask(camera, mask, stamp_ns, frame_id));
+    }
+    fn pose(&self, pose: &BodyPose) {
+        self.0.iter().for_each(|p| p.pose(pose));
     }
     fn live(&self) -> bool {
         self.0.iter().any(|p| p.live())

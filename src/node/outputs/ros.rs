@@ -4,12 +4,13 @@
 
 use super::{AvatarUpdate, OutputError, Publisher};
 use crate::msgs::{
-    GaussianAvatar, GaussianCloud, GaussianColors, Header, Image, Point, ReconstructionStatus, Time,
+    BodyPose, GaussianAvatar, GaussianCloud, GaussianColors, Header, Image, Point,
+    ReconstructionStatus, Time,
 };
 use crate::node::pipeline::RenderedFrame;
 use crate::node::ros::RosNode;
 use crate::splat::{sh_dc_to_rgb, Gaussians};
-use image::RgbImage;
+use image::{GrayImage, RgbImage};
 use std::sync::Arc;
 
 /// Publishes on the ROS 2 endpoint.
@@ -45,6 +46,32 @@ impl Publisher for RosPublisher {
         if let Err(e) = self.0.publish_preview(posed, stamp_ns) {
             tracing::warn!("{e}");
         }
+    }
+    fn mask(&self, camera: &str, mask: &GrayImage, stamp_ns: i64, frame_id: &str) {
+        if let Err(e) = self
+            .0
+            .publish_mask(camera, mono8_image(mask, stamp_ns, frame_id))
+        {
+            tracing::warn!("{e}");
+        }
+    }
+    fn pose(&self, pose: &BodyPose) {
+        if let Err(e) = self.0.publish_pose(pose.clone()) {
+            tracing::warn!("{e}");
+        }
+    }
+}
+
+/// A mono8 Image message of a mask.
+pub fn mono8_image(mask: &GrayImage, stamp_ns: i64, frame_id: &str) -> Image {
+    Image {
+        header: Header::new(Time::from_nanos(stamp_ns), frame_id),
+        height: mask.height(),
+        width: mask.width(),
+        encoding: "mono8".into(),
+        is_bigendian: 0,
+        step: mask.width(),
+        data: mask.as_raw().clone(),
     }
 }
 

@@ -42,6 +42,11 @@ impl MaskPairing {
         }
     }
 
+    /// Whether camera `topic` has a mask topic of its own.
+    pub fn is_masked(&self, topic: &str) -> bool {
+        self.masked_cameras.contains(topic)
+    }
+
     /// Sets the camera topics whose frames wait for a mask of their own.
     pub fn set_masked_cameras(&mut self, cameras: impl IntoIterator<Item = String>) {
         self.masked_cameras = cameras.into_iter().collect();

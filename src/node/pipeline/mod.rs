@@ -6,23 +6,29 @@
 
 pub mod masks;
 pub mod neural_frames;
+pub mod perceive;
 pub mod render;
 
 use crate::avatar::Avatar;
 use crate::body::Pose;
-use crate::config::NodeConfig;
-use crate::msgs::{BodyShape, ReconstructionStatus};
+use crate::config::{LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
+use crate::msgs::{BodyPose, BodyShape, Header, ReconstructionStatus, Time};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::inputs::{CameraFrame, InputEvent};
 use crate::node::outputs::{status_message, AvatarUpdate, Fanout, FileOutputs, Publisher};
 use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::node::timings::Timings;
+use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig};
+use crate::perception::{
+    Landmark, LandmarkModel, PerceptionError, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
+};
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::{shape, ReconstructError, Reconstructor};
 use image::GrayImage;
 use masks::{MaskPairing, Paired};
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
+use perceive::{MaskSettings, PerceivedFrame, Perception};
 pub use render::RenderedFrame;
 use render::{
     display_pose, render_frames, FrameRasterizer, FrameRasterizerError, FrameRenderer,
@@ -43,6 +49,16 @@ const MASK_WAIT: Duration = Duration::from_millis(150);
 const LATENCIES_KEPT: usize = 256;
 /// Shortest time between statuses republished only because the rejection counts changed.
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
+/// How often the pipeline looks for perception results while perception is busy.
+const PERCEPTION_POLL: Duration = Duration::from_millis(5);
+/// With `inputs.pose_source: auto`, a pose topic counts as published for this long after its
+/// last message.
+const TOPIC_POSE_FRESH: Duration = Duration::from_secs(2);
+/// The camera whose pose drives the avatar keeps that role while it saw the person this
+/// recently.
+const POSE_CAMERA_HOLD: Duration = Duration::from_millis(500);
+/// Camera poses kept for the end-of-replay animation.
+const POSE_TRACK_KEPT: usize = 240;
 
 /// Counters of one run, printed at the end and used by tests.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -84,12 +100,78 @@ pub struct PipelineStats {
     /// Input messages rejected by the pipeline's checks and reported to it by the bag replay
     /// ([`Pipeline::reject`]), by reason; [`Pipeline::rejections`] adds the live inputs'.
     pub rejections: Rejections,
+    /// Frames camera-only perception ran on.
+    pub perceived: u64,
+    /// Frames cropped by a mask from perception.
+    pub perception_masked: u64,
+    /// Perceived frames that showed nobody (they never reach the frame store).
+    pub no_person: u64,
+    /// Time perception took per frame.
+    pub perception_times: Timings,
+    /// Poses read from the cameras.
+    pub camera_poses: u64,
 }
 
 /// The latest avatar and what it was built from.
 struct Current {
     revision: u64,
     avatar: Avatar,
+}
+
+/// Where a camera's frames get their person mask.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum MaskRoute {
+    /// A mask topic (paired by stamp; frames of cameras with their own topic wait for it).
+    Topic,
+    /// Camera-only perception.
+    Perception,
+    /// None: whole frames.
+    Whole,
+}
+
+/// The pose read from the cameras, and where and when.
+struct CameraPose {
+    pose: Pose,
+    camera: String,
+    at: Duration,
+}
+
+/// What drives the avatar and where its pose comes from.
+struct Animation {
+    source: PoseSource,
+    /// The latest pose from the pose topic.
+    topic_pose: Option<Pose>,
+    /// When the last one arrived (node clock).
+    topic_pose_at: Option<Duration>,
+    /// Turns the pose camera's world landmarks into poses (`None`: no camera pose).
+    estimator: Option<PoseEstimator>,
+    camera_pose: Option<CameraPose>,
+    /// Recent camera poses, for the end-of-replay animation.
+    track: VecDeque<Pose>,
+    /// Publish camera poses on the pose topic, in this world frame.
+    publish: Option<String>,
+}
+
+impl Animation {
+    /// The pose the frames show at `now` (`None`: the walk cycle).
+    fn pose(&self, now: Duration) -> Option<&Pose> {
+        let camera = self.camera_pose.as_ref().map(|c| &c.pose);
+        match self.source {
+            PoseSource::Walk => None,
+            PoseSource::Topic => self.topic_pose.as_ref(),
+            PoseSource::Camera => camera,
+            PoseSource::Auto => {
+                let fresh = self
+                    .topic_pose_at
+                    .is_some_and(|at| now.saturating_sub(at) < TOPIC_POSE_FRESH);
+                if fresh {
+                    self.topic_pose.as_ref()
+                } else {
+                    camera.or(self.topic_pose.as_ref())
+                }
+            }
+        }
+    }
 }
 
 /// The node's pipeline for one configured person.
@@ -100,7 +182,15 @@ pub struct Pipeline {
     scheduler: Scheduler,
     preprocess: PreprocessConfig,
     masks: MaskPairing,
-    pose: Option<Pose>,
+    /// `inputs.person_mask`, and whether a mask topic is shared by every camera.
+    person_mask: PersonMask,
+    shared_mask_topic: bool,
+    /// Camera-only perception (`None` when no camera needs it).
+    perception: Option<Perception>,
+    /// When the pipeline next looks for perception results.
+    perception_due: Duration,
+    publish_masks: bool,
+    animation: Animation,
     next_frame_id: u64,
     shape_changes: u64,
     current: Option<Current>,
@@ -136,6 +226,12 @@ pub enum PipelineError {
     /// The frame rasteriser's device is unavailable.
     #[error(transparent)]
     Rasterizer(#[from] FrameRasterizerError),
+    /// The perception networks could not be loaded.
+    #[error("perception: {0}")]
+    Perception(#[from] PerceptionError),
+    /// The pose solver does not fit the body template.
+    #[error("perception pose: {0}")]
+    PoseSolver(#[from] crate::perception::pose::PoseSolveError),
     /// `outputs.renderer` cannot be honoured with this network.
     #[error(transparent)]
     Renderer(#[from] RendererSetupError),
@@ -204,6 +300,19 @@ impl Pipeline {
         );
         let render_period = (config.outputs.render_rate_hz > 0.0)
             .then(|| Duration::from_secs_f64(1.0 / config.outputs.render_rate_hz));
+        let perception = perception_stage(config)?;
+        let camera_pose = perception.is_some()
+            && matches!(
+                config.inputs.pose_source,
+                PoseSource::Auto | PoseSource::Camera
+            );
+        let estimator = if camera_pose {
+            let mut cfg = PoseEstimatorConfig::default();
+            cfg.solver.min_visibility = config.perception.min_visibility;
+            Some(PoseEstimator::new(recon.template(), cfg)?)
+        } else {
+            None
+        };
         tracing::info!(
             preset = %config.model.preset,
             weights = recon.weights(),
@@ -224,7 +333,23 @@ impl Pipeline {
                 ..PreprocessConfig::default()
             },
             masks: MaskPairing::new(MASKS_KEPT, Vec::new(), MASK_WAIT),
-            pose: None,
+            person_mask: config.inputs.person_mask,
+            shared_mask_topic: !config.inputs.mask_topic.trim().is_empty(),
+            perception,
+            perception_due: Duration::ZERO,
+            publish_masks: config.outputs.masks,
+            animation: Animation {
+                source: config.inputs.pose_source,
+                topic_pose: None,
+                topic_pose_at: None,
+                estimator,
+                camera_pose: None,
+                track: VecDeque::new(),
+                publish: config
+                    .outputs
+                    .camera_pose
+                    .then(|| config.outputs.world_frame.clone()),
+            },
             next_frame_id: 1,
             shape_changes: 0,
             current: None,
@@ -309,9 +434,17 @@ impl Pipeline {
         self.masks.set_masked_cameras(cameras);
     }
 
-    /// True when no frame waits for its mask and no reconstruction is pending or running.
+    /// Frames perception dropped unperceived (live: replaced by a newer frame of their camera
+    /// before the worker took them).
+    pub fn perception_dropped(&self) -> u64 {
+        self.perception.as_ref().map_or(0, Perception::dropped)
+    }
+
+    /// True when no frame waits for its mask or for perception and no reconstruction is
+    /// pending or running.
     pub fn idle(&self) -> bool {
-        self.masks.waiting() == 0
+        !self.perception.as_ref().is_some_and(Perception::busy)
+            && self.masks.waiting() == 0
             && self.scheduler.next_deadline().is_none()
             && self.scheduler.in_flight(&self.person).is_none()
     }
@@ -322,10 +455,16 @@ impl Pipeline {
             .render_period
             .filter(|_| self.current.is_some() && self.outputs.live())
             .map(|_| self.next_render);
+        let perception = self
+            .perception
+            .as_ref()
+            .filter(|p| p.busy())
+            .map(|_| self.perception_due);
         [
             self.scheduler.next_deadline(),
             render,
             self.masks.next_deadline(),
+            perception,
         ]
         .into_iter()
         .flatten()
@@ -343,17 +482,25 @@ impl Pipeline {
                 if let Some(age) = live_age(frame.stamp_ns) {
                     self.stats.frame_ages.record(age);
                 }
-                let ready = self.masks.frame(frame, now);
-                self.admit(ready, now);
+                self.on_camera_frame(frame, now);
             }
             InputEvent::Mask(mask) => {
-                let ready = self.masks.mask(mask);
-                self.admit(ready, now);
+                if matches!(self.person_mask, PersonMask::Auto | PersonMask::Topic) {
+                    let ready = self.masks.mask(mask);
+                    self.admit(ready, now);
+                }
             }
             InputEvent::CameraInfo { .. } => {}
-            InputEvent::BodyPose { topic, pose, .. } => match pose.to_pose() {
+            InputEvent::BodyPose {
+                topic,
+                pose,
+                arrival,
+            } => match pose.to_pose() {
                 Ok(p) => match self.recon.template().skeleton.check_pose(&p) {
-                    Ok(()) => self.pose = Some(p),
+                    Ok(()) => {
+                        self.animation.topic_pose = Some(p);
+                        self.animation.topic_pose_at = Some(arrival);
+                    }
                     Err(e) => self.reject_pose(&topic, &e.to_string()),
                 },
                 Err(e) => self.reject_pose(&topic, &e.to_string()),
@@ -431,15 +578,146 @@ impl Pipeline {
         }
     }
 
+    /// Where frames of camera `topic` get their mask.
+    fn route(&self, topic: &str) -> MaskRoute {
+        match self.person_mask {
+            PersonMask::Off => MaskRoute::Whole,
+            PersonMask::Topic => MaskRoute::Topic,
+            PersonMask::Perception => MaskRoute::Perception,
+            PersonMask::Auto if self.shared_mask_topic || self.masks.is_masked(topic) => {
+                MaskRoute::Topic
+            }
+            PersonMask::Auto => MaskRoute::Perception,
+        }
+    }
+
+    /// A camera frame: to perception, to the mask pairing, or on as a whole frame; with
+    /// `inputs.pose_source: camera` every frame also goes to perception for the pose.
+    fn on_camera_frame(&mut self, frame: CameraFrame, now: Duration) {
+        let route = self.route(&frame.topic);
+        match (route, self.perception.as_mut()) {
+            (MaskRoute::Perception, Some(perception)) => perception.submit(frame),
+            (MaskRoute::Perception, None) => self.on_frame(frame, None, now),
+            (MaskRoute::Topic | MaskRoute::Whole, perception) => {
+                if let (PoseSource::Camera, Some(p)) = (self.animation.source, perception) {
+                    p.submit(frame.clone());
+                }
+                if route == MaskRoute::Topic {
+                    let ready = self.masks.frame(frame, now);
+                    self.admit(ready, now);
+                } else {
+                    self.on_frame(frame, None, now);
+                }
+            }
+        }
+        self.take_perceived(now);
+    }
+
+    /// Handles the frames perception has finished.
+    fn take_perceived(&mut self, now: Duration) {
+        let Some(perception) = self.perception.as_mut() else {
+            return;
+        };
+        for done in perception.take_results() {
+            self.on_perceived(done, now);
+        }
+        self.perception_due = now + PERCEPTION_POLL;
+    }
+
+    /// A perceived frame: its mask is published, the person's landmarks update the camera
+    /// pose, and frames routed to perception go on to the frame store cropped by the mask (or,
+    /// with nobody in them, no further).
+    fn on_perceived(&mut self, done: PerceivedFrame, now: Duration) {
+        let PerceivedFrame {
+            frame,
+            person,
+            took,
+        } = done;
+        self.stats.perceived += 1;
+        self.stats.perception_times.record(took);
+        if self.publish_masks && self.outputs.live() {
+            let empty;
+            let mask = match &person {
+                Some(p) => p.mask.as_ref(),
+                None => {
+                    empty = GrayImage::new(frame.image.width(), frame.image.height());
+                    &empty
+                }
+            };
+            self.outputs
+                .mask(&frame.topic, mask, frame.stamp_ns, &frame.frame_id);
+        }
+        if let Some(p) = &person {
+            self.on_camera_landmarks(&frame, &p.world, now);
+        }
+        if self.route(&frame.topic) != MaskRoute::Perception {
+            return;
+        }
+        match person {
+            Some(p) => {
+                self.stats.perception_masked += 1;
+                self.on_frame(frame, Some(p.mask), now);
+            }
+            None => {
+                self.stats.no_person += 1;
+                tracing::debug!(topic = %frame.topic, "no person in the frame: not stored");
+            }
+        }
+    }
+
+    /// Updates the camera pose from `camera`'s world landmarks when that camera drives the
+    /// pose (the current pose camera, or any camera once it has not seen the person for
+    /// [`POSE_CAMERA_HOLD`]), and publishes it.
+    fn on_camera_landmarks(
+        &mut self,
+        frame: &CameraFrame,
+        world: &[Landmark; BODY_LANDMARKS],
+        now: Duration,
+    ) {
+        let animation = &mut self.animation;
+        let Some(estimator) = animation.estimator.as_mut() else {
+            return;
+        };
+        if let Some(current) = &animation.camera_pose {
+            if current.camera != frame.topic {
+                if now.saturating_sub(current.at) < POSE_CAMERA_HOLD {
+                    return;
+                }
+                estimator.reset();
+            }
+        }
+        let t = if frame.stamp_ns > 0 {
+            frame.stamp_ns as f64 * 1e-9
+        } else {
+            frame.arrival.as_secs_f64()
+        };
+        let pose = estimator.update(t, world);
+        self.stats.camera_poses += 1;
+        if let (Some(world_frame), true) = (&animation.publish, self.outputs.live()) {
+            let header = Header::new(Time::from_nanos(frame.stamp_ns), world_frame.as_str());
+            self.outputs
+                .pose(&BodyPose::from_pose(header, self.person.clone(), &pose));
+        }
+        animation.track.push_back(pose.clone());
+        while animation.track.len() > POSE_TRACK_KEPT {
+            animation.track.pop_front();
+        }
+        animation.camera_pose = Some(CameraPose {
+            pose,
+            camera: frame.topic.clone(),
+            at: now,
+        });
+    }
+
     /// Frames whose mask pairing is settled go on to preprocessing and the frame store.
     fn admit(&mut self, ready: Vec<Paired>, now: Duration) {
         for (frame, mask) in ready {
+            self.stats.masked += u64::from(mask.is_some());
             self.on_frame(frame, mask, now);
         }
     }
 
     fn on_frame(&mut self, frame: CameraFrame, mask: Option<Arc<GrayImage>>, now: Duration) {
-        self.stats.masked += u64::from(mask.is_some());
         let subject = mask.as_deref().map_or(Subject::FullFrame, Subject::Mask);
         let image = match preprocess(&frame.image, subject, &self.preprocess) {
             Ok(image) => Arc::new(image),
@@ -476,6 +754,7 @@ impl Pipeline {
 
     /// Runs whatever is due at `now`: reconstructions whose debounce expired, frame rendering.
     pub fn step(&mut self, now: Duration, clock: impl Fn() -> Duration) {
+        self.take_perceived(now);
         let unmasked = self.masks.expired(now);
         if !unmasked.is_empty() {
             tracing::debug!(
@@ -564,7 +843,7 @@ impl Pipeline {
         let (Some(current), true) = (&self.current, self.outputs.live()) else {
             return;
         };
-        let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
+        let pose = display_pose(self.animation.pose(now), now.as_secs_f32());
         let matrices = self.recon.template().skeleton.skinning_matrices(&pose);
         let posed = current.avatar.animate(&matrices);
         self.outputs.preview(&posed, unix_now_ns());
@@ -712,7 +991,7 @@ impl Pipeline {
         let (Some(current), true) = (&self.current, self.outputs.live()) else {
             return;
         };
-        let pose = display_pose(self.pose.as_ref(), now.as_secs_f32());
+        let pose = display_pose(self.animation.pose(now), now.as_secs_f32());
         let started = std::time::Instant::now();
         let frames = render_frames(
             &current.avatar,
@@ -732,10 +1011,11 @@ impl Pipeline {
         self.stats.rendered_frames += frames.len() as u64;
     }
 
-    /// Renders a short animation of the latest avatar walking (the built-in walk cycle) from
-    /// every virtual camera and hands it to the outputs that store it (the files write
-    /// `frames/<person>_cam<i>_<f>.png`); nothing is rendered when none does. Returns the
-    /// frames stored.
+    /// Renders a short animation of the latest avatar from every virtual camera and hands it
+    /// to the outputs that store it (the files write `frames/<person>_cam<i>_<f>.png`);
+    /// nothing is rendered when none does. The animation replays the poses read from the
+    /// cameras when they drove the avatar (every one kept, up to the last 240), else `frames`
+    /// frames of the built-in walk cycle. Returns the frames stored.
     pub fn write_animation(&mut self, frames: usize) -> usize {
         let Some(current) = &self.current else {
             return 0;
@@ -743,9 +1023,24 @@ impl Pipeline {
         let Some(mut animation) = self.outputs.animation() else {
             return 0;
         };
+        let camera_driven = matches!(self.animation.source, PoseSource::Auto | PoseSource::Camera)
+            && self.animation.topic_pose.is_none();
+        let track: Vec<Pose> = if camera_driven {
+            self.animation.track.iter().cloned().collect()
+        } else {
+            Vec::new()
+        };
+        let frames = if track.is_empty() {
+            frames
+        } else {
+            track.len()
+        };
         let mut written = 0;
         for f in 0..frames {
-            let pose = display_pose(None, f as f32 / 24.0);
+            let pose = track
+                .get(f)
+                .cloned()
+                .unwrap_or_else(|| display_pose(None, f as f32 / 24.0));
             let started = std::time::Instant::now();
             let images = render_frames(
                 &current.avatar,
@@ -765,6 +1060,57 @@ impl Pipeline {
         self.stats.rendered_frames += written as u64;
         written
     }
+}
+
+/// The perception stage `config` needs: none when no camera can be routed to perception and
+/// the pose does not come from the cameras; live runs perceive on a worker thread, bag
+/// replays every frame in order.
+fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, PerceptionError> {
+    let inputs = &config.inputs;
+    let cameras = inputs.image_topics.len() + inputs.compressed_image_topics.len();
+    let some_camera_unmasked =
+        inputs.mask_topic.trim().is_empty() && inputs.mask_topics.len() < cameras;
+    let needed = match inputs.person_mask {
+        PersonMask::Perception => true,
+        PersonMask::Auto => some_camera_unmasked,
+        PersonMask::Topic | PersonMask::Off => false,
+    } || inputs.pose_source == PoseSource::Camera;
+    if !needed {
+        return Ok(None);
+    }
+    let p = &config.perception;
+    let model = match p.landmark_model {
+        LandmarkModelChoice::Lite => LandmarkModel::Lite,
+        LandmarkModelChoice::Full => LandmarkModel::Full,
+        LandmarkModelChoice::Heavy => LandmarkModel::Heavy,
+    };
+    let heavy = (!p.heavy_weights.is_empty()).then(|| Path::new(&p.heavy_weights));
+    let networks = Arc::new(PoseNetworks::load(model, heavy)?);
+    let live = config.replay.bag.is_empty();
+    tracing::info!(
+        landmark_model = model.name(),
+        threads = p.threads,
+        mode = if live {
+            "worker, newest frame per camera"
+        } else {
+            "every frame, in order"
+        },
+        "camera-only perception ready"
+    );
+    Ok(Some(Perception::new(
+        networks,
+        TrackerConfig {
+            min_detection_score: p.min_detection_score,
+            min_presence: p.min_presence,
+            smooth_masks: live,
+        },
+        MaskSettings {
+            threshold: p.mask_threshold,
+            feather: p.mask_feather,
+        },
+        p.threads,
+        live,
+    )))
 }
 
 fn unix_now_ns() -> i64 {

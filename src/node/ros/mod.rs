@@ -26,7 +26,7 @@ pub use live_inputs::LiveInputs;
 pub use ports::{rgb8_image, OutputTopics, PublishOutcome};
 pub use sink::InputStats;
 
-use crate::config::{FrameQos, ImageQos, NodeConfig};
+use crate::config::{FrameQos, ImageQos, NodeConfig, PersonMask, PoseSource};
 use crate::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, PointCloud2,
     ReconstructionStatus, RosMessage, TFMessage,
@@ -113,6 +113,11 @@ pub struct RosNodeOptions {
     pub frame_qos: FrameQos,
     /// TF frame of the preview cloud and its parent on `/tf`; `None` disables both.
     pub preview_frames: Option<(String, String)>,
+    /// Publish each camera's person mask on its `person_mask` topic.
+    pub person_masks: bool,
+    /// Publish the pose read from the cameras on the pose topic (the node's own pose
+    /// messages are not taken as input).
+    pub camera_pose: bool,
     /// Also send input-error reports to `/rosout`.
     pub rosout: bool,
 }
@@ -160,6 +165,8 @@ impl RosNodeOptions {
                     cfg.outputs.world_frame.clone(),
                 )
             }),
+            person_masks: cfg.outputs.masks && perception_masks(cfg),
+            camera_pose: cfg.outputs.camera_pose && cfg.inputs.pose_source != PoseSource::Walk,
             rosout: true,
         })
     }
@@ -186,6 +193,9 @@ pub struct ResolvedTopics {
     pub camera_masks: Vec<(String, String)>,
     /// BodyPose topic.
     pub pose: Option<String>,
+    /// Each camera topic and the topic of its person mask as perceived by the node
+    /// (`<camera namespace>/person_mask`).
+    pub person_masks: Vec<(String, String)>,
     /// BodyShape topic.
     pub shape: Option<String>,
     /// GaussianAvatar topic.
@@ -241,6 +251,12 @@ impl ResolvedTopics {
                 .as_deref()
                 .map(|t| names.resolve(t))
                 .transpose()?,
+            person_masks: person_mask_topics(
+                &all(&opts.image_topics)?
+                    .into_iter()
+                    .chain(all(&opts.compressed_image_topics)?)
+                    .collect::<Vec<_>>(),
+            ),
             avatar: names.resolve(&opts.outputs.avatar)?,
             status: names.resolve(&opts.outputs.status)?,
             frames: all(&opts.outputs.frames)?,
@@ -261,6 +277,9 @@ pub struct RosNode {
     status: LatchedPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
     preview: Option<Preview>,
+    /// Person-mask publishers by camera topic.
+    masks: BTreeMap<String, OutputPort<Image>>,
+    pose: Option<OutputPort<BodyPose>>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
     spinner: tokio::task::JoinHandle<()>,
     start: Instant,
@@ -358,15 +377,31 @@ impl RosNode {
                 Ok(encoded(t, a, max_side, message))
             }));
         }
+        // The pose read from the cameras goes out on the pose topic; created before the
+        // subscription so that the subscription can skip the node's own messages.
+        let pose_out = match (&topics.pose, opts.camera_pose) {
+            (Some(topic), true) => Some(advertise::<BodyPose>(
+                &mut node,
+                topic,
+                frame_output_qos(FrameQos::Reliable),
+            )?),
+            _ => None,
+        };
         if let Some(topic) = &topics.pose {
             let sub = subscribe::<BodyPose>(&mut node, topic, reliable_input_qos())?;
-            tasks.push(sink.spawn(topic.clone(), sub, |t, pose, arrival| {
+            let convert = |t: &str, pose, arrival| {
                 Ok(Incoming::Event(InputEvent::BodyPose {
                     topic: t.to_owned(),
                     arrival,
                     pose: Box::new(pose),
                 }))
-            }));
+            };
+            tasks.push(match &pose_out {
+                Some(own) => {
+                    sink.spawn_from_others(topic.clone(), sub, own.publisher.gid(), convert)
+                }
+                None => sink.spawn(topic.clone(), sub, convert),
+            });
         }
         if let Some(topic) = &topics.shape {
             let sub = subscribe::<BodyShape>(&mut node, topic, reliable_input_qos())?;
@@ -396,6 +431,19 @@ impl RosNode {
                 world.clone(),
             )),
             None => None,
+        };
+
+        let masks = if opts.person_masks {
+            topics
+                .person_masks
+                .iter()
+                .map(|(camera, topic)| {
+                    let port = advertise(&mut node, topic, frame_output_qos(FrameQos::Reliable))?;
+                    Ok((camera.clone(), port))
+                })
+                .collect::<Result<BTreeMap<_, _>, RosError>>()?
+        } else {
+            BTreeMap::new()
         };
 
         let spinner = node
@@ -432,6 +480,8 @@ impl RosNode {
                 status,
                 frames,
                 preview,
+                masks,
+                pose: pose_out,
                 tasks,
                 spinner,
                 start: origin,
@@ -495,6 +545,27 @@ impl RosNode {
         Ok(())
     }
 
+    /// Publishes camera `camera`'s (resolved topic) person mask when a reader is matched to
+    /// its `person_mask` topic; whether it was handed to DDS.
+    pub fn publish_mask(&self, camera: &str, msg: Image) -> Result<bool, RosError> {
+        let Some(port) = self.masks.get(camera) else {
+            return Ok(false);
+        };
+        if port.matched_readers(&self.node) == 0 {
+            return Ok(false);
+        }
+        Ok(port.publish(msg)? == PublishOutcome::Sent)
+    }
+
+    /// Publishes the pose read from the cameras on the pose topic (nothing when
+    /// `outputs.camera_pose` is off).
+    pub fn publish_pose(&self, msg: BodyPose) -> Result<(), RosError> {
+        if let Some(port) = &self.pose {
+            port.publish(msg)?;
+        }
+        Ok(())
+    }
+
     /// Matched readers of the avatar topic.
     pub fn avatar_subscribers(&self) -> usize {
         self.avatar.subscribers()
@@ -535,6 +606,8 @@ impl RosNode {
             status,
             frames,
             preview,
+            masks,
+            pose,
             tasks,
             spinner,
             ..
@@ -555,7 +628,7 @@ impl RosNode {
             .flatten()
             .collect::<Vec<_>>();
         waiters.iter().for_each(wait);
-        drop((sink, avatar, status, frames, preview));
+        drop((sink, avatar, status, frames, preview, masks, pose));
         drop(node);
         wait(&spinner);
         if !spinner.is_finished() {
@@ -565,6 +638,44 @@ impl RosNode {
         // Last: the participant, once nothing of the node needs its event loop.
         drop(context);
     }
+}
+
+/// Whether perception can produce masks for some camera under `cfg` (the mask outputs exist
+/// only then).
+fn perception_masks(cfg: &NodeConfig) -> bool {
+    match cfg.inputs.person_mask {
+        PersonMask::Perception => true,
+        PersonMask::Auto => {
+            let cameras = cfg.inputs.image_topics.len() + cfg.inputs.compressed_image_topics.len();
+            cfg.inputs.mask_topic.trim().is_empty() && cfg.inputs.mask_topics.len() < cameras
+        }
+        PersonMask::Topic | PersonMask::Off => false,
+    }
+}
+
+/// `<camera namespace>/person_mask` for each resolved camera topic (a trailing `/compressed`
+/// is dropped first: `/cam0/image_raw/compressed` → `/cam0/person_mask`); cameras that would
+/// share one take `<camera topic>/person_mask` instead.
+fn person_mask_topics(cameras: &[String]) -> Vec<(String, String)> {
+    let by_namespace = |camera: &str| {
+        let base = camera.strip_suffix("/compressed").unwrap_or(camera);
+        let parent = base.rsplit_once('/').map_or("", |(p, _)| p);
+        format!("{parent}/person_mask")
+    };
+    let names: Vec<String> = cameras.iter().map(|c| by_namespace(c)).collect();
+    cameras
+        .iter()
+        .zip(&names)
+        .map(|(camera, name)| {
+            let shared = names.iter().filter(|n| *n == name).count() > 1;
+            let topic = if shared {
+                format!("{camera}/person_mask")
+            } else {
+                name.clone()
+            };
+            (camera.clone(), topic)
+        })
+        .collect()
 }
 
 /// An image message of topic `t` queued for decoding when taken.
@@ -655,6 +766,24 @@ mod tests {
                 "/robot/render/cam0/image_raw",
                 "/robot/render/cam1/image_raw"
             ]
+        );
+    }
+
+    #[test]
+    fn person_masks_go_next_to_their_camera_unless_two_would_share_a_topic() {
+        let t = |v: &[&str]| {
+            person_mask_topics(&v.iter().map(|s| s.to_string()).collect::<Vec<_>>())
+                .into_iter()
+                .map(|(_, m)| m)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            t(&["/cam0/image_raw", "/cam1/image_raw/compressed"]),
+            ["/cam0/person_mask", "/cam1/person_mask"]
+        );
+        assert_eq!(
+            t(&["/image", "/image2"]),
+            ["/image/person_mask", "/image2/person_mask"]
         );
     }
 

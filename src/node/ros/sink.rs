@@ -7,6 +7,7 @@ use crate::node::input_queue::QueueSender;
 use crate::node::rejections::{RejectReason, Rejections};
 use futures::StreamExt;
 use ros2_client::dds::{NodeLoggingHandle, RosoutRaw, Subscription};
+use ros2_client::gid::Gid;
 use ros2_client::log::LogLevel;
 use serde::de::DeserializeOwned;
 use std::collections::BTreeMap;
@@ -218,7 +219,29 @@ impl<E: Send + 'static> InputSink<E> {
         M: DeserializeOwned + Send + Sync + 'static,
         F: Fn(&str, M, Duration) -> Result<E, String> + Send + 'static,
     {
-        tokio::spawn(read_subscription(self.clone(), topic, sub, convert))
+        tokio::spawn(read_subscription(self.clone(), topic, sub, None, convert))
+    }
+
+    /// [`InputSink::spawn`] that skips the messages written by `own` (the node's own
+    /// publisher on the same topic), uncounted.
+    pub(crate) fn spawn_from_others<M, F>(
+        &self,
+        topic: String,
+        sub: Subscription<M>,
+        own: Gid,
+        convert: F,
+    ) -> tokio::task::JoinHandle<()>
+    where
+        M: DeserializeOwned + Send + Sync + 'static,
+        F: Fn(&str, M, Duration) -> Result<E, String> + Send + 'static,
+    {
+        tokio::spawn(read_subscription(
+            self.clone(),
+            topic,
+            sub,
+            Some(own),
+            convert,
+        ))
     }
 }
 
@@ -227,6 +250,7 @@ async fn read_subscription<E, M, F>(
     sink: InputSink<E>,
     topic: String,
     sub: Subscription<M>,
+    ignore: Option<Gid>,
     convert: F,
 ) where
     E: Send + 'static,
@@ -237,6 +261,11 @@ async fn read_subscription<E, M, F>(
     futures::pin_mut!(stream);
     let mut last_taken = None;
     while let Some(item) = stream.next().await {
+        if let (Ok((_, info)), Some(own)) = (&item, ignore) {
+            if info.publisher_gid() == own {
+                continue;
+            }
+        }
         if sink.over_rate(&topic, &mut last_taken, sink.now()) {
             continue;
         }

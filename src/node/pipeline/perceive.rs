@@ -1,0 +1,262 @@
+//! Camera-only perception inside the pipeline: each camera's frames go through its own
+//! [`PersonTracker`] (person mask, landmarks), either on the pipeline's thread (bag replay:
+//! every frame, in order) or on a worker thread of its own (live: one pending frame per camera,
+//! the newest wins, so perception never stalls the pipeline and its memory stays bounded).
+
+use crate::node::inputs::CameraFrame;
+use crate::perception::{
+    Landmark, PerceptionError, PersonTracker, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
+};
+use image::GrayImage;
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Results waiting for the pipeline, at most this many (the oldest is then dropped, counted).
+const RESULTS_KEPT: usize = 8;
+
+/// How perception turns a frame into a mask.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MaskSettings {
+    /// Person probability at the mask's edge.
+    pub threshold: f32,
+    /// Half-width of the soft edge, in probability.
+    pub feather: f32,
+}
+
+/// The person perception found in a frame.
+#[derive(Debug, Clone)]
+pub struct PersonSeen {
+    /// Thresholded, feathered mask over the whole frame.
+    pub mask: Arc<GrayImage>,
+    /// World landmarks (metres, hip-centred, the camera's axes).
+    pub world: [Landmark; BODY_LANDMARKS],
+}
+
+/// What perception made of one frame.
+#[derive(Debug, Clone)]
+pub struct PerceivedFrame {
+    /// The frame.
+    pub frame: CameraFrame,
+    /// The person, if one was found.
+    pub person: Option<PersonSeen>,
+    /// Time the networks took for this frame.
+    pub took: Duration,
+}
+
+/// One tracker per camera topic, sharing the networks.
+struct CameraTrackers {
+    networks: Arc<PoseNetworks>,
+    config: TrackerConfig,
+    masks: MaskSettings,
+    trackers: HashMap<String, PersonTracker>,
+    pool: rayon::ThreadPool,
+}
+
+impl CameraTrackers {
+    fn perceive(&mut self, frame: CameraFrame) -> PerceivedFrame {
+        let started = Instant::now();
+        let tracker = self
+            .trackers
+            .entry(frame.topic.clone())
+            .or_insert_with(|| PersonTracker::new(self.networks.clone(), self.config));
+        let result: Result<_, PerceptionError> =
+            self.pool.install(|| tracker.perceive(&frame.image));
+        let person = match result {
+            Ok(found) => found.map(|p| PersonSeen {
+                mask: Arc::new(p.mask.to_mask(self.masks.threshold, self.masks.feather)),
+                world: p.landmarks.world,
+            }),
+            Err(e) => {
+                tracing::error!(topic = %frame.topic, "perception failed: {e}");
+                tracker.reset();
+                None
+            }
+        };
+        PerceivedFrame {
+            frame,
+            person,
+            took: started.elapsed(),
+        }
+    }
+}
+
+/// Frames waiting for the worker and results waiting for the pipeline.
+#[derive(Default)]
+struct Exchange {
+    /// The newest frame of each camera not yet taken by the worker.
+    pending: BTreeMap<String, CameraFrame>,
+    results: VecDeque<PerceivedFrame>,
+    /// Pending frames replaced by a newer one of their camera.
+    replaced: u64,
+    /// Results dropped because the pipeline did not take them in time.
+    overflowed: u64,
+    /// The worker is perceiving a frame.
+    working: bool,
+    stop: bool,
+}
+
+/// The live worker: a thread of its own, fed through [`Exchange`].
+struct Worker {
+    shared: Arc<(Mutex<Exchange>, Condvar)>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Worker {
+    fn start(mut trackers: CameraTrackers) -> Self {
+        let shared = Arc::new((Mutex::new(Exchange::default()), Condvar::new()));
+        let theirs = shared.clone();
+        let thread = std::thread::Builder::new()
+            .name("lhmpp-perception".into())
+            .spawn(move || {
+                let (lock, wake) = &*theirs;
+                loop {
+                    let frame = {
+                        let mut x = lock.lock().expect("perception exchange poisoned");
+                        loop {
+                            if x.stop {
+                                return;
+                            }
+                            // The camera whose pending frame arrived first goes first.
+                            let next = x
+                                .pending
+                                .iter()
+                                .min_by_key(|(_, f)| f.arrival)
+                                .map(|(topic, _)| topic.clone());
+                            if let Some(frame) = next.and_then(|t| x.pending.remove(&t)) {
+                                x.working = true;
+                                break frame;
+                            }
+                            x = wake.wait(x).expect("perception exchange poisoned");
+                        }
+                    };
+                    let done = trackers.perceive(frame);
+                    let mut x = lock.lock().expect("perception exchange poisoned");
+                    x.working = false;
+                    x.results.push_back(done);
+                    while x.results.len() > RESULTS_KEPT {
+                        x.results.pop_front();
+                        x.overflowed += 1;
+                    }
+                }
+            })
+            .expect("spawning the perception thread");
+        Self {
+            shared,
+            thread: Some(thread),
+        }
+    }
+
+    fn exchange(&self) -> std::sync::MutexGuard<'_, Exchange> {
+        self.shared.0.lock().expect("perception exchange poisoned")
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        self.exchange().stop = true;
+        self.shared.1.notify_all();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Where the trackers run.
+enum Runner {
+    /// On the caller's thread, every frame in order.
+    Inline {
+        trackers: Box<CameraTrackers>,
+        done: VecDeque<PerceivedFrame>,
+    },
+    /// On a worker thread, the newest frame per camera.
+    Worker(Worker),
+}
+
+/// The pipeline's perception stage.
+pub struct Perception {
+    runner: Runner,
+}
+
+impl Perception {
+    /// A stage running the networks on `threads` CPU threads; `live` puts them on a worker
+    /// thread (newest frame per camera wins), otherwise every frame is perceived in order on
+    /// the caller's thread.
+    pub fn new(
+        networks: Arc<PoseNetworks>,
+        config: TrackerConfig,
+        masks: MaskSettings,
+        threads: usize,
+        live: bool,
+    ) -> Self {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads.max(1))
+            .thread_name(|i| format!("lhmpp-perception-{i}"))
+            .build()
+            .expect("building the perception thread pool");
+        let trackers = CameraTrackers {
+            networks,
+            config,
+            masks,
+            trackers: HashMap::new(),
+            pool,
+        };
+        let runner = if live {
+            Runner::Worker(Worker::start(trackers))
+        } else {
+            Runner::Inline {
+                trackers: Box::new(trackers),
+                done: VecDeque::new(),
+            }
+        };
+        Self { runner }
+    }
+
+    /// Hands a frame to perception (live: it replaces the camera's pending frame).
+    pub fn submit(&mut self, frame: CameraFrame) {
+        match &mut self.runner {
+            Runner::Inline { trackers, done } => done.push_back(trackers.perceive(frame)),
+            Runner::Worker(worker) => {
+                {
+                    let mut x = worker.exchange();
+                    if x.pending.insert(frame.topic.clone(), frame).is_some() {
+                        x.replaced += 1;
+                    }
+                }
+                worker.shared.1.notify_all();
+            }
+        }
+    }
+
+    /// The frames perceived since the last call, oldest first.
+    pub fn take_results(&mut self) -> Vec<PerceivedFrame> {
+        match &mut self.runner {
+            Runner::Inline { done, .. } => done.drain(..).collect(),
+            Runner::Worker(worker) => worker.exchange().results.drain(..).collect(),
+        }
+    }
+
+    /// Whether frames are pending or being perceived.
+    pub fn busy(&self) -> bool {
+        match &self.runner {
+            Runner::Inline { done, .. } => !done.is_empty(),
+            Runner::Worker(worker) => {
+                let x = worker.exchange();
+                x.working || !x.pending.is_empty() || !x.results.is_empty()
+            }
+        }
+    }
+
+    /// Frames dropped unperceived: replaced by a newer frame of their camera, or results the
+    /// pipeline did not take in time.
+    pub fn dropped(&self) -> u64 {
+        match &self.runner {
+            Runner::Inline { .. } => 0,
+            Runner::Worker(worker) => {
+                let x = worker.exchange();
+                x.replaced + x.overflowed
+            }
+        }
+    }
+}
