@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod avatar;
 mod bag;
 mod bench;
 mod body;
@@ -41,6 +42,10 @@ struct Cli {
 enum Command {
     /// Run the node: live ROS 2 topics, or replay a bag (`run --config launch_configs/demo.yaml`).
     Run(run::RunArgs),
+    /// Photos of one person in, an animatable avatar out: each photo masked by camera-only
+    /// perception, avatar PLY, turntable and walk as PNG frames and GIFs
+    /// (`avatar IMAGE... -o DIR`).
+    Avatar(avatar::AvatarArgs),
     /// Validate a launch config (ROS 2 parameter file) and print the resolved parameters
     /// (`--markdown`: the parameter reference table).
     Config(config_cmd::ConfigArgs),
@@ -113,6 +118,7 @@ pub fn main() -> anyhow::Result<()> {
     init_logging(cli.log.as_deref().unwrap_or(DEFAULT_LOG_FILTER));
     match cli.command {
         Command::Run(args) => run::run(args),
+        Command::Avatar(args) => avatar::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Config(args) => config_cmd::run(args),

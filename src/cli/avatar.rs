@@ -1,0 +1,309 @@
+//! `lhmpp avatar IMAGE... -o DIR`: photos of one person in, an animatable avatar out. Each
+//! photo is masked by camera-only perception (no mask topic, no segmentation node), the views
+//! go through the reconstruction network together, and the avatar is written with pictures to
+//! look at:
+//!
+//! * `avatar.ply`: the canonical Gaussians with their skinning (3DGS layout);
+//! * `turntable/NNN.png` + `turntable.gif`: the avatar at rest, turning once;
+//! * `walk/NNN.png` + `walk.gif`: the avatar walking the built-in cycle, seen from the front;
+//! * `posed_<photo>.png`: the avatar in the pose read from each photo, from the front;
+//! * `masks/<photo>_mask.png` and `masks/<photo>_overlay.png`: what perception used.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use glam::Vec3;
+use image::codecs::gif::{GifEncoder, Repeat};
+use image::{Delay, Frame, GrayImage, RgbImage};
+use indicatif::{ProgressBar, ProgressStyle};
+use lhmpp::avatar::Avatar;
+use lhmpp::body::{motion, BodyTemplate, Pose};
+use lhmpp::config::ModelConfig;
+use lhmpp::perception::overlay::draw_overlay;
+use lhmpp::perception::pose::{PoseEstimator, PoseEstimatorConfig};
+use lhmpp::perception::{LandmarkModel, PersonTracker, PoseNetworks, TrackerConfig};
+use lhmpp::reconstruct::preprocess::{preprocess, PreprocessConfig, Preprocessed, Subject};
+use lhmpp::reconstruct::Reconstructor;
+use lhmpp::splat::{render, Camera, Gaussians, Intrinsics, RenderOptions};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Options of `lhmpp avatar`.
+#[derive(Args, Debug)]
+pub struct AvatarArgs {
+    /// Photos of one person (JPEG or PNG), any number, from any side.
+    #[arg(required = true)]
+    images: Vec<PathBuf>,
+    /// Output directory (created if missing).
+    #[arg(short, long)]
+    out: PathBuf,
+    /// Network preset (`lhmpp model info` lists them); the default is the embedded model.
+    #[arg(long, default_value = "tiny")]
+    preset: String,
+    /// Checkpoint (safetensors file or hub folder); empty = the embedded default.
+    #[arg(long, default_value = "")]
+    checkpoint: String,
+    /// Landmark model of the perception: `lite`, `full` or `heavy`.
+    #[arg(long, default_value = "full")]
+    landmark_model: String,
+    /// The converted heavy landmark model (with `--landmark-model heavy`).
+    #[arg(long)]
+    heavy_weights: Option<PathBuf>,
+    /// Use these masks (mono8 PNG, one per photo, same order) instead of perception's.
+    #[arg(long, num_args = 1..)]
+    masks: Vec<PathBuf>,
+    /// Side of the rendered pictures, pixels.
+    #[arg(long, default_value_t = 384)]
+    size: u32,
+    /// Turntable frames.
+    #[arg(long, default_value_t = 36)]
+    turntable_frames: usize,
+    /// Walk frames (24 per second; the cycle is 40 frames).
+    #[arg(long, default_value_t = 40)]
+    walk_frames: usize,
+}
+
+/// One photo's view and what perception read from it.
+struct PhotoView {
+    stem: String,
+    view: Preprocessed,
+    pose: Option<Pose>,
+}
+
+/// Masks the photos, reconstructs, writes the avatar and its pictures.
+pub fn run(args: AvatarArgs) -> Result<()> {
+    if !args.masks.is_empty() && args.masks.len() != args.images.len() {
+        bail!(
+            "--masks: {} masks for {} photos (one per photo, in the same order)",
+            args.masks.len(),
+            args.images.len()
+        );
+    }
+    let model = ModelConfig {
+        preset: args.preset.clone(),
+        checkpoint: args.checkpoint.clone(),
+        ..ModelConfig::default()
+    };
+    let mut recon = Reconstructor::new(&model, args.images.len().max(1))?;
+    let (out_h, out_w) = recon.input_size();
+    let prep = PreprocessConfig {
+        out_height: out_h,
+        out_width: out_w,
+        ..PreprocessConfig::default()
+    };
+    let landmark_model = LandmarkModel::from_name(&args.landmark_model).with_context(|| {
+        format!(
+            "--landmark-model `{}`: expected lite, full or heavy",
+            args.landmark_model
+        )
+    })?;
+    let networks = Arc::new(PoseNetworks::load(
+        landmark_model,
+        args.heavy_weights.as_deref(),
+    )?);
+    let masks_dir = args.out.join("masks");
+    std::fs::create_dir_all(&masks_dir)
+        .with_context(|| format!("creating {}", masks_dir.display()))?;
+
+    let mut views = Vec::new();
+    for (i, path) in args.images.iter().enumerate() {
+        let given = args.masks.get(i).map(PathBuf::as_path);
+        match photo_view(path, given, &networks, recon.template(), &prep, &masks_dir) {
+            Ok(Some(v)) => views.push(v),
+            Ok(None) => tracing::warn!(photo = %path.display(), "no person found: photo skipped"),
+            Err(e) => tracing::error!(photo = %path.display(), "{}", super::error_line(&e)),
+        }
+    }
+    if views.is_empty() {
+        bail!(
+            "no person found in any of the {} photo(s)",
+            args.images.len()
+        );
+    }
+    let started = std::time::Instant::now();
+    let refs: Vec<(u64, &Preprocessed)> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (i as u64, &v.view))
+        .collect();
+    let avatar = recon.reconstruct(&refs)?;
+    tracing::info!(
+        views = views.len(),
+        ms = format!("{:.0}", started.elapsed().as_secs_f64() * 1e3),
+        "avatar reconstructed"
+    );
+    let ply = args.out.join("avatar.ply");
+    avatar
+        .save_ply(&ply)
+        .with_context(|| format!("writing {}", ply.display()))?;
+
+    let template = recon.template();
+    let stage = Stage::new(&avatar, args.size);
+    let rest = Pose::identity();
+    let turntable: Vec<RgbImage> = (0..args.turntable_frames)
+        .map(|i| stage.render(&avatar, template, &rest, i, args.turntable_frames))
+        .collect::<Result<_>>()?;
+    write_sequence(&args.out, "turntable", &turntable)?;
+    let walk: Vec<RgbImage> = (0..args.walk_frames)
+        .map(|f| stage.render(&avatar, template, &motion::walk_pose(f as f32), 0, 1))
+        .collect::<Result<_>>()?;
+    write_sequence(&args.out, "walk", &walk)?;
+    for v in &views {
+        if let Some(pose) = &v.pose {
+            let image = stage.render(&avatar, template, pose, 0, 1)?;
+            let path = args.out.join(format!("posed_{}.png", v.stem));
+            image
+                .save(&path)
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+    }
+    println!(
+        "avatar from {} of {} photo(s): {} ({} Gaussians), turntable and walk in {}",
+        views.len(),
+        args.images.len(),
+        ply.display(),
+        avatar.canonical.len(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Reads a photo, masks it (the given mask, else perception's), writes the mask and overlay,
+/// and preprocesses the view; `None` when perception finds nobody.
+fn photo_view(
+    path: &Path,
+    given_mask: Option<&Path>,
+    networks: &Arc<PoseNetworks>,
+    template: &BodyTemplate,
+    prep: &PreprocessConfig,
+    masks_dir: &Path,
+) -> Result<Option<PhotoView>> {
+    let image = image::open(path)
+        .with_context(|| format!("reading {}", path.display()))?
+        .to_rgb8();
+    let stem = path
+        .file_stem()
+        .map_or_else(|| "photo".into(), |s| s.to_string_lossy().into_owned());
+    let config = TrackerConfig {
+        smooth_masks: false,
+        ..TrackerConfig::default()
+    };
+    let perceived = PersonTracker::new(networks.clone(), config).perceive(&image)?;
+    let mask: GrayImage = match (given_mask, &perceived) {
+        (Some(m), _) => image::open(m)
+            .with_context(|| format!("reading mask {}", m.display()))?
+            .to_luma8(),
+        (None, Some(p)) => p.mask.to_mask(0.5, 0.1),
+        (None, None) => return Ok(None),
+    };
+    let pose = match &perceived {
+        Some(p) => {
+            let cfg = PoseEstimatorConfig {
+                filter: None,
+                ..PoseEstimatorConfig::default()
+            };
+            Some(PoseEstimator::new(template, cfg)?.update(0.0, &p.landmarks.world))
+        }
+        None => None,
+    };
+    let save = |name: String, img: &dyn Fn(&Path) -> image::ImageResult<()>| {
+        let target = masks_dir.join(name);
+        img(&target).with_context(|| format!("writing {}", target.display()))
+    };
+    save(format!("{stem}_mask.png"), &|t| mask.save(t))?;
+    let overlay = draw_overlay(
+        &image,
+        Some(&mask),
+        perceived.as_ref().map(|p| &p.landmarks.image),
+        0.5,
+    );
+    save(format!("{stem}_overlay.png"), &|t| overlay.save(t))?;
+    let view = preprocess(&image, Subject::Mask(&mask), prep)
+        .with_context(|| format!("preprocessing {}", path.display()))?;
+    Ok(Some(PhotoView { stem, view, pose }))
+}
+
+/// Cameras framing the avatar's canonical body.
+struct Stage {
+    target: Vec3,
+    radius: f32,
+    intrinsics: Intrinsics,
+    options: RenderOptions,
+}
+
+impl Stage {
+    fn new(avatar: &Avatar, size: u32) -> Self {
+        let (lo, hi) = bounds(&avatar.canonical);
+        let fov = 40f32.to_radians();
+        let extent = (hi - lo).max_element().max(0.1);
+        Self {
+            target: 0.5 * (lo + hi),
+            radius: 0.62 * extent / (0.5 * fov).tan() + 0.5 * (hi.z - lo.z),
+            intrinsics: Intrinsics::from_fov_y(size, size, fov),
+            options: RenderOptions {
+                background: Vec3::ONE,
+                ..RenderOptions::default()
+            },
+        }
+    }
+
+    /// The avatar at `pose`, from camera `i` of `n` on a ring (camera 0 in front).
+    fn render(
+        &self,
+        avatar: &Avatar,
+        template: &BodyTemplate,
+        pose: &Pose,
+        i: usize,
+        n: usize,
+    ) -> Result<RgbImage> {
+        let matrices = template.skeleton.try_skinning_matrices(pose)?;
+        avatar.check_matrices(&matrices)?;
+        let posed = avatar.animate(&matrices);
+        let camera = Camera::orbit(i, n, self.radius, 0.0, self.target, self.intrinsics);
+        Ok(render(&posed, &camera, &self.options).to_rgb8())
+    }
+}
+
+/// Bounds of the finite Gaussian centres.
+fn bounds(g: &Gaussians) -> (Vec3, Vec3) {
+    g.positions
+        .iter()
+        .filter(|p| p.is_finite())
+        .fold((Vec3::MAX, Vec3::MIN), |(l, h), p| (l.min(*p), h.max(*p)))
+}
+
+/// Writes `DIR/NAME/NNN.png` and `DIR/NAME.gif` (24 fps, looping).
+fn write_sequence(dir: &Path, name: &str, frames: &[RgbImage]) -> Result<()> {
+    let folder = dir.join(name);
+    std::fs::create_dir_all(&folder).with_context(|| format!("creating {}", folder.display()))?;
+    let bar = ProgressBar::new(frames.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template(&format!("{name} {{bar:30}} {{pos}}/{{len}}"))
+            .expect("valid template"),
+    );
+    for (i, f) in frames.iter().enumerate() {
+        let path = folder.join(format!("{i:03}.png"));
+        f.save(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let gif = dir.join(format!("{name}.gif"));
+    let file =
+        std::fs::File::create(&gif).with_context(|| format!("creating {}", gif.display()))?;
+    let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+    encoder
+        .set_repeat(Repeat::Infinite)
+        .with_context(|| format!("writing {}", gif.display()))?;
+    let delay = Delay::from_numer_denom_ms(1000, 24);
+    encoder
+        .encode_frames(frames.iter().map(|f| {
+            Frame::from_parts(
+                image::DynamicImage::ImageRgb8(f.clone()).to_rgba8(),
+                0,
+                0,
+                delay,
+            )
+        }))
+        .with_context(|| format!("writing {}", gif.display()))?;
+    Ok(())
+}
