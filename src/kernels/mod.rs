@@ -20,6 +20,8 @@ pub mod fast_exp;
 pub mod feature_map;
 pub mod fused_attention;
 pub mod gelu;
+#[cfg(target_arch = "x86_64")]
+mod gemm_avx2;
 pub mod layer_norm;
 pub mod linear;
 mod matmul;

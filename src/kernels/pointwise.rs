@@ -14,7 +14,6 @@
 use rayon::prelude::*;
 
 use super::nhwc::Epilogue;
-use crate::simd::simd_dispatch;
 
 /// Floats of input rows per cache block (128 KiB).
 const BLOCK_FLOATS: usize = 1 << 15;
@@ -41,6 +40,8 @@ pub struct PackedGemm {
     panels: Vec<Panel>,
     data: Vec<f32>,
     bias: Vec<f32>,
+    /// `bias` with zeros up to the last panel's width.
+    padded_bias: Vec<f32>,
 }
 
 impl PackedGemm {
@@ -51,11 +52,7 @@ impl PackedGemm {
         let mut panels = Vec::new();
         let (mut col, mut offset) = (0, 0);
         while col < n {
-            let width = match n - col {
-                r if r > 16 => 32,
-                r if r > 8 => 16,
-                _ => 8,
-            };
+            let width = if n - col > 8 { 16 } else { 8 };
             panels.push(Panel { col, width, offset });
             offset += k * width;
             col += width;
@@ -68,12 +65,15 @@ impl PackedGemm {
                 }
             }
         }
+        let mut padded_bias = bias.to_vec();
+        padded_bias.resize(col, 0.0);
         Self {
             k,
             n,
             panels,
             data,
             bias: bias.to_vec(),
+            padded_bias,
         }
     }
 
@@ -152,19 +152,34 @@ pub(crate) fn rows_per_task(m: usize, macs: usize) -> usize {
     m.div_ceil(tasks).div_ceil(12).max(1) * 12
 }
 
-simd_dispatch! {
-    avx2_fma;
-    fn gemm_block[](
-        w: &PackedGemm,
-        a: &[f32],
-        lda: usize,
-        m: usize,
-        epi: Epilogue,
-        out: &mut [f32],
-    ) = gemm_block_portable;
+/// All panels over rows `0..m` (one cache block): the AVX2/FMA micro-kernels where the CPU
+/// has them, else the portable loops.
+fn gemm_block(w: &PackedGemm, a: &[f32], lda: usize, m: usize, epi: Epilogue, out: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if super::gemm_avx2::available() {
+        for p in &w.panels {
+            let po = super::gemm_avx2::PanelOut {
+                n: w.n,
+                col: p.col,
+                valid: p.width.min(w.n - p.col),
+                bias: &w.padded_bias[p.col..p.col + p.width],
+            };
+            let panel = &w.data[p.offset..p.offset + w.k * p.width];
+            // SAFETY: the CPU has AVX2 and FMA (checked above).
+            unsafe {
+                if p.width == 16 {
+                    super::gemm_avx2::panel16(panel, w.k, a, lda, m, po, epi, out);
+                } else {
+                    super::gemm_avx2::panel8(panel, w.k, a, lda, m, po, epi, out);
+                }
+            }
+        }
+        return;
+    }
+    gemm_block_portable(w, a, lda, m, epi, out);
 }
 
-#[inline(always)]
+/// [`gemm_block`] on the portable loops.
 fn gemm_block_portable(
     w: &PackedGemm,
     a: &[f32],
@@ -174,24 +189,22 @@ fn gemm_block_portable(
     out: &mut [f32],
 ) {
     for p in &w.panels {
-        let panel = &w.data[p.offset..p.offset + w.k * p.width];
-        match p.width {
-            32 => panel_rows::<6, 32>(w, p, panel, a, lda, m, epi, out),
-            16 => panel_rows::<12, 16>(w, p, panel, a, lda, m, epi, out),
-            _ => panel_rows::<12, 8>(w, p, panel, a, lda, m, epi, out),
+        if p.width == 16 {
+            panel_rows::<12, 16, 1>(w, p, a, lda, m, epi, out);
+        } else {
+            panel_rows::<12, 8, 1>(w, p, a, lda, m, epi, out);
         }
     }
 }
 
-/// One panel over rows `0..m` in blocks of `M`; a short last block is moved back to overlap
-/// the one before it (recomputing equal values), and a total shorter than `M` is copied into
-/// a zero-padded block.
+/// One panel over rows `0..m` in blocks of `M` (the panel is `NV` vectors of `V` lanes wide);
+/// a short last block is moved back to overlap the one before it (recomputing equal values),
+/// and a total shorter than `M` is copied into a zero-padded block.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn panel_rows<const M: usize, const W: usize>(
+fn panel_rows<const M: usize, const V: usize, const NV: usize>(
     w: &PackedGemm,
     p: &Panel,
-    panel: &[f32],
     a: &[f32],
     lda: usize,
     m: usize,
@@ -199,20 +212,21 @@ fn panel_rows<const M: usize, const W: usize>(
     out: &mut [f32],
 ) {
     let k = w.k;
+    let panel = &w.data[p.offset..p.offset + k * NV * V];
     if m < M {
         let mut padded = vec![0.0f32; M * k];
         for r in 0..m {
             padded[r * k..(r + 1) * k].copy_from_slice(&a[r * lda..r * lda + k]);
         }
-        let acc = tile::<M, W>(&padded, k, panel, k);
-        store::<M, W>(&acc, w, p, 0, m, epi, out);
+        let acc = tile::<M, V, NV>(&padded, k, panel, k);
+        store::<M, V, NV>(&acc, w, p, 0, m, epi, out);
         return;
     }
     let mut r0 = 0;
     loop {
         let start = r0.min(m - M);
-        let acc = tile::<M, W>(&a[start * lda..], lda, panel, k);
-        store::<M, W>(&acc, w, p, start, M, epi, out);
+        let acc = tile::<M, V, NV>(&a[start * lda..], lda, panel, k);
+        store::<M, V, NV>(&acc, w, p, start, M, epi, out);
         r0 += M;
         if r0 >= m {
             break;
@@ -220,23 +234,36 @@ fn panel_rows<const M: usize, const W: usize>(
     }
 }
 
-/// The `M × W` product block of rows `a[r·lda .. r·lda + k]` and a `[k][W]` panel.
+/// `acc += x · b`, lane by lane.
 #[inline(always)]
-fn tile<const M: usize, const W: usize>(
+fn fma_lanes<const V: usize>(acc: &mut [f32; V], x: f32, b: &[f32; V]) {
+    for (a, &b) in acc.iter_mut().zip(b) {
+        *a = x.mul_add(b, *a);
+    }
+}
+
+/// The `M × (NV·V)` product block of rows `a[r·lda .. r·lda + k]` and a `[k][NV·V]` panel.
+/// (This shape — one lane loop per accumulator vector, the panel row read as whole vectors —
+/// is what the compiler turns into one broadcast and `NV` vector multiply-adds per row.)
+#[inline(always)]
+fn tile<const M: usize, const V: usize, const NV: usize>(
     a: &[f32],
     lda: usize,
     panel: &[f32],
     k: usize,
-) -> [[f32; W]; M] {
-    assert!(a.len() >= (M - 1) * lda + k && panel.len() >= k * W);
-    let mut acc = [[0.0f32; W]; M];
-    for (p, b) in panel.chunks_exact(W).take(k).enumerate() {
-        let b: &[f32; W] = b.try_into().unwrap();
+) -> [[[f32; V]; NV]; M] {
+    assert!(a.len() >= (M - 1) * lda + k && panel.len() >= k * NV * V);
+    let mut acc = [[[0.0f32; V]; NV]; M];
+    for p in 0..k {
+        // SAFETY: `p·NV·V + NV·V ≤ k·NV·V ≤ panel.len()` (asserted), and `[[f32; V]; NV]` has
+        // the layout of `NV·V` consecutive f32 with f32's alignment.
+        let b: &[[f32; V]; NV] =
+            unsafe { &*(panel.as_ptr().add(p * NV * V) as *const [[f32; V]; NV]) };
         for (r, row) in acc.iter_mut().enumerate() {
             // SAFETY: r·lda + p ≤ (M − 1)·lda + k − 1 < a.len() (asserted above).
             let x = unsafe { *a.get_unchecked(r * lda + p) };
-            for (acc, &bv) in row.iter_mut().zip(b) {
-                *acc = x.mul_add(bv, *acc);
+            for (acc, b) in row.iter_mut().zip(b) {
+                fma_lanes(acc, x, b);
             }
         }
     }
@@ -246,8 +273,9 @@ fn tile<const M: usize, const W: usize>(
 /// Stores rows `0..rows` of `acc` as output rows `first..first + rows`, panel columns that
 /// exist only, through the epilogue.
 #[inline(always)]
-fn store<const M: usize, const W: usize>(
-    acc: &[[f32; W]; M],
+#[allow(clippy::too_many_arguments)]
+fn store<const M: usize, const V: usize, const NV: usize>(
+    acc: &[[[f32; V]; NV]; M],
     w: &PackedGemm,
     p: &Panel,
     first: usize,
@@ -256,22 +284,47 @@ fn store<const M: usize, const W: usize>(
     out: &mut [f32],
 ) {
     let n = w.n;
-    let valid = W.min(n - p.col);
+    let valid = (NV * V).min(n - p.col);
     let bias = &w.bias[p.col..p.col + valid];
     let (lo1, hi1) = epi.pre.bounds();
     let (lo2, hi2) = epi.post.bounds();
     for (r, acc_row) in acc.iter().enumerate().take(rows) {
         let at = (first + r) * n + p.col;
+        if valid == NV * V {
+            // whole vectors: fixed-length lane loops
+            for (v, acc) in acc_row.iter().enumerate() {
+                let o = at + v * V;
+                let dst: &mut [f32; V] = (&mut out[o..o + V]).try_into().unwrap();
+                let b: &[f32; V] = w.bias[p.col + v * V..p.col + (v + 1) * V]
+                    .try_into()
+                    .unwrap();
+                match epi.residual {
+                    Some(res) => {
+                        let x: &[f32; V] = res[o..o + V].try_into().unwrap();
+                        for l in 0..V {
+                            dst[l] = ((acc[l] + b[l]).max(lo1).min(hi1) + x[l]).max(lo2).min(hi2);
+                        }
+                    }
+                    None => {
+                        for l in 0..V {
+                            dst[l] = (acc[l] + b[l]).max(lo1).min(hi1);
+                        }
+                    }
+                }
+            }
+            continue;
+        }
         let dst = &mut out[at..at + valid];
+        let values = acc_row.iter().flatten();
         match epi.residual {
             Some(res) => {
                 let res = &res[at..at + valid];
-                for (((o, &v), &b), &x) in dst.iter_mut().zip(acc_row).zip(bias).zip(res) {
+                for (((o, &v), &b), &x) in dst.iter_mut().zip(values).zip(bias).zip(res) {
                     *o = ((v + b).max(lo1).min(hi1) + x).max(lo2).min(hi2);
                 }
             }
             None => {
-                for ((o, &v), &b) in dst.iter_mut().zip(acc_row).zip(bias) {
+                for ((o, &v), &b) in dst.iter_mut().zip(values).zip(bias) {
                     *o = (v + b).max(lo1).min(hi1);
                 }
             }

@@ -40,6 +40,50 @@ pub struct PerceptionBenchArgs {
     /// Steps listed per profile.
     #[arg(long, default_value_t = 15)]
     top: usize,
+    /// Instead of the networks, time the 1×1-convolution product kernel alone on
+    /// representative shapes (pixels×in→out, one thread) and print GMAC/s.
+    #[arg(long)]
+    kernels: bool,
+}
+
+/// GMAC/s of the packed product kernel on one thread, shapes from the landmark models.
+fn bench_kernels(runs: usize) {
+    use lhmpp::kernels::nhwc::Epilogue;
+    use lhmpp::kernels::pointwise::PackedGemm;
+    println!(
+        "{:<22} {:>10} {:>8}",
+        "pixels×in→out", "median_us", "GMAC/s"
+    );
+    for (m, k, n) in [
+        (16384, 16, 64),
+        (4096, 24, 144),
+        (4096, 144, 24),
+        (256, 88, 528),
+        (256, 528, 88),
+        (64, 864, 288),
+        (1200, 256, 256),
+        (65536, 8, 8),
+    ] {
+        let a: Vec<f32> = (0..m * k).map(|i| (i % 17) as f32 * 0.01).collect();
+        let w: Vec<f32> = (0..n * k).map(|i| (i % 13) as f32 * 0.01).collect();
+        let packed = PackedGemm::from_rows(&w, k, n, &vec![0.0; n]);
+        let mut out = vec![0.0; m * n];
+        let mut times: Vec<Duration> = (0..runs.max(3))
+            .map(|_| {
+                let t = Instant::now();
+                packed.run_serial(&a, k, m, Epilogue::default(), &mut out);
+                t.elapsed()
+            })
+            .collect();
+        times.sort();
+        let t = times[times.len() / 2];
+        let label = format!("{m}×{k}→{n}");
+        println!(
+            "{label:<22} {:>10.1} {:>8.1}",
+            t.as_secs_f64() * 1e6,
+            (m * k * n) as f64 / t.as_secs_f64() / 1e9
+        );
+    }
 }
 
 /// A deterministic input in the network's range (values do not change the work done).
@@ -67,6 +111,10 @@ fn ms(d: Duration) -> f64 {
 
 /// Runs `lhmpp bench perception`.
 pub fn run(a: PerceptionBenchArgs) -> Result<()> {
+    if a.kernels {
+        bench_kernels(a.runs);
+        return Ok(());
+    }
     let mut nets: Vec<(&str, Network, bool)> = Vec::new();
     for name in &a.only {
         let (net, signed) = match name.as_str() {

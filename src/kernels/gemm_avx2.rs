@@ -1,0 +1,200 @@
+//! The x86-64 micro-kernels of [`super::pointwise`], written with AVX2 + FMA intrinsics: a
+//! 6 × 16 block (twelve 256-bit accumulators) for 16-wide weight panels and a 12 × 8 block for
+//! 8-wide ones, each running over `k` with one broadcast input value per row. (Left to the
+//! auto-vectoriser, the same loops came out with some accumulators spilled or shuffled lane by
+//! lane depending on the surrounding code; AVX-512 intrinsics would need a newer compiler than
+//! the crate's minimum, and 256-bit multiply-adds have the same throughput on the CPUs we
+//! target.) Every function here needs AVX2 and FMA: callers check with [`available`].
+
+use std::arch::x86_64::*;
+
+use super::nhwc::Epilogue;
+
+/// Whether the CPU has AVX2 and FMA.
+pub(crate) fn available() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// Where a panel's results go: its columns `col..col + valid` of `n`-wide output rows.
+#[derive(Clone, Copy)]
+pub(crate) struct PanelOut<'a> {
+    /// Output row width.
+    pub n: usize,
+    /// First column.
+    pub col: usize,
+    /// Columns that exist (`≤` the panel width).
+    pub valid: usize,
+    /// The panel's bias, padded to the panel width.
+    pub bias: &'a [f32],
+}
+
+/// One 16-wide panel (`[k][16]`) over rows `0..m` of `a` (rows `lda` apart).
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA.
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn panel16(
+    panel: &[f32],
+    k: usize,
+    a: &[f32],
+    lda: usize,
+    m: usize,
+    po: PanelOut,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    rows::<6, 2>(panel, k, a, lda, m, po, epi, out)
+}
+
+/// One 8-wide panel (`[k][8]`) over rows `0..m`.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA.
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn panel8(
+    panel: &[f32],
+    k: usize,
+    a: &[f32],
+    lda: usize,
+    m: usize,
+    po: PanelOut,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    rows::<12, 1>(panel, k, a, lda, m, po, epi, out)
+}
+
+/// Blocks of `M` rows × `NV` vectors; a short last block overlaps the one before it, and
+/// fewer than `M` rows in all are copied into a zero-padded block.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn rows<const M: usize, const NV: usize>(
+    panel: &[f32],
+    k: usize,
+    a: &[f32],
+    lda: usize,
+    m: usize,
+    po: PanelOut,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    assert!(panel.len() >= k * NV * 8 && po.bias.len() >= NV * 8 && po.valid <= NV * 8);
+    assert!(out.len() >= m * po.n && po.col + po.valid <= po.n);
+    if let Some(r) = epi.residual {
+        assert!(r.len() >= m * po.n);
+    }
+    if m == 0 {
+        return;
+    }
+    if m < M {
+        let mut padded = vec![0.0f32; M * k];
+        for r in 0..m {
+            padded[r * k..(r + 1) * k].copy_from_slice(&a[r * lda..r * lda + k]);
+        }
+        let acc = block::<M, NV>(padded.as_ptr(), k, panel.as_ptr(), k);
+        store::<M, NV>(&acc, 0, m, po, epi, out);
+        return;
+    }
+    assert!(a.len() >= (m - 1) * lda + k);
+    let mut r0 = 0;
+    loop {
+        let start = r0.min(m - M);
+        let acc = block::<M, NV>(a.as_ptr().add(start * lda), lda, panel.as_ptr(), k);
+        store::<M, NV>(&acc, start, M, po, epi, out);
+        r0 += M;
+        if r0 >= m {
+            break;
+        }
+    }
+}
+
+/// `M` rows × `NV` 8-lane vectors of `a · panel`.
+///
+/// Safety: rows `a + r·lda`, `r < M`, hold `k` readable values; `panel` holds `k·NV·8`.
+#[inline(always)]
+unsafe fn block<const M: usize, const NV: usize>(
+    a: *const f32,
+    lda: usize,
+    panel: *const f32,
+    k: usize,
+) -> [[__m256; NV]; M] {
+    let mut acc = [[_mm256_setzero_ps(); NV]; M];
+    let mut b = panel;
+    for p in 0..k {
+        let mut bv = [_mm256_setzero_ps(); NV];
+        for (v, bv) in bv.iter_mut().enumerate() {
+            *bv = _mm256_loadu_ps(b.add(v * 8));
+        }
+        for (r, acc) in acc.iter_mut().enumerate() {
+            let x = _mm256_broadcast_ss(&*a.add(r * lda + p));
+            for (acc, &bv) in acc.iter_mut().zip(&bv) {
+                *acc = _mm256_fmadd_ps(x, bv, *acc);
+            }
+        }
+        b = b.add(NV * 8);
+    }
+    acc
+}
+
+/// Rows `0..rows` of `acc` to output rows `first..`, through the epilogue.
+#[inline(always)]
+unsafe fn store<const M: usize, const NV: usize>(
+    acc: &[[__m256; NV]; M],
+    first: usize,
+    rows: usize,
+    po: PanelOut,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    let (lo1, hi1) = epi.pre.bounds();
+    let (lo2, hi2) = epi.post.bounds();
+    let (lo1, hi1, lo2, hi2) = (
+        _mm256_set1_ps(lo1),
+        _mm256_set1_ps(hi1),
+        _mm256_set1_ps(lo2),
+        _mm256_set1_ps(hi2),
+    );
+    let full = po.valid == NV * 8;
+    for (r, acc) in acc.iter().enumerate().take(rows) {
+        let at = (first + r) * po.n + po.col;
+        let mut vals = [_mm256_setzero_ps(); NV];
+        for (v, (val, &acc)) in vals.iter_mut().zip(acc).enumerate() {
+            let b = _mm256_loadu_ps(po.bias.as_ptr().add(v * 8));
+            *val = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(acc, b), lo1), hi1);
+        }
+        if full {
+            let dst = out[at..at + NV * 8].as_mut_ptr();
+            match epi.residual {
+                Some(res) => {
+                    let src = res[at..at + NV * 8].as_ptr();
+                    for (v, &val) in vals.iter().enumerate() {
+                        let x = _mm256_add_ps(val, _mm256_loadu_ps(src.add(v * 8)));
+                        _mm256_storeu_ps(dst.add(v * 8), _mm256_min_ps(_mm256_max_ps(x, lo2), hi2));
+                    }
+                }
+                None => {
+                    for (v, &val) in vals.iter().enumerate() {
+                        _mm256_storeu_ps(dst.add(v * 8), val);
+                    }
+                }
+            }
+        } else {
+            let mut lanes = [0.0f32; 16];
+            for (v, &val) in vals.iter().enumerate() {
+                _mm256_storeu_ps(lanes.as_mut_ptr().add(v * 8), val);
+            }
+            let dst = &mut out[at..at + po.valid];
+            match epi.residual {
+                Some(res) => {
+                    let (lo2, hi2) = epi.post.bounds();
+                    for ((d, &l), &x) in dst.iter_mut().zip(&lanes).zip(&res[at..at + po.valid]) {
+                        *d = (l + x).max(lo2).min(hi2);
+                    }
+                }
+                None => dst.copy_from_slice(&lanes[..po.valid]),
+            }
+        }
+    }
+}
