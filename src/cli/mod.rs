@@ -9,6 +9,7 @@ mod body;
 mod config_cmd;
 mod config_source;
 mod eval;
+mod eval_perception;
 mod fuzz;
 mod loadgen;
 mod model;
@@ -21,6 +22,7 @@ mod run;
 mod shm_echo;
 mod synth;
 mod synth_dataset;
+mod synth_motion;
 mod udp_buffers;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
@@ -53,10 +55,16 @@ enum Command {
     Replay(replay::ReplayArgs),
     /// Render a seeded synthetic person into an MCAP bag with ground truth.
     Synth(synth::SynthArgs),
+    /// Render a seeded synthetic person moving in front of fixed cameras, the true pose of each
+    /// frame on /truth/body_pose (the camera-only pose demo).
+    SynthMotion(synth_motion::SynthMotionArgs),
     /// Write training samples (synthetic people, preprocessed views, ground truth) as shards.
     SynthDataset(synth_dataset::SynthDatasetArgs),
     /// Score reconstructions on held-out views of synthetic bags (PSNR, SSIM, mask IoU).
     Eval(eval::EvalArgs),
+    /// Score camera-only perception on synthetic bags: persons found, mask IoU, 2D landmark
+    /// and 3D joint errors against the ground truth (`eval-perception BAG... --model lite`).
+    EvalPerception(eval_perception::EvalPerceptionArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`), recover damaged ones
     /// (`bag recover IN -o OUT`).
     Bag(bag::BagArgs),
@@ -121,6 +129,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Avatar(args) => avatar::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::EvalPerception(args) => eval_perception::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),
@@ -132,6 +141,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Render(args) => render::run(args),
         Command::Synth(args) => synth::run(args),
         Command::SynthDataset(args) => synth_dataset::run(args),
+        Command::SynthMotion(args) => synth_motion::run(args),
         Command::Model(args) => model::run(args),
         Command::ShmEcho(args) => shm_echo::run(args),
     }

@@ -157,7 +157,8 @@ fn header(ns: u64, frame: &str) -> Header {
     Header::new(Time::from_nanos(ns as i64), frame)
 }
 
-fn rgb_image(view: &RenderedView, ns: u64) -> Image {
+/// The rgb8 image message of a rendered view, stamped `ns`.
+pub(crate) fn rgb_image(view: &RenderedView, ns: u64) -> Image {
     let rgb = view.output.to_rgb8();
     Image {
         header: header(ns, &optical_frame(&view.rig.name)),
@@ -170,7 +171,8 @@ fn rgb_image(view: &RenderedView, ns: u64) -> Image {
     }
 }
 
-fn mask_image(view: &RenderedView, ns: u64) -> Image {
+/// The true mono8 mask of a rendered view (255 where its alpha is at least ½), stamped `ns`.
+pub(crate) fn mask_image(view: &RenderedView, ns: u64) -> Image {
     let data: Vec<u8> = view
         .output
         .alpha
@@ -207,7 +209,8 @@ pub fn camera_info(rig: &RigCamera, ns: u64) -> CameraInfo {
     }
 }
 
-fn camera_transform(rig: &RigCamera, ns: u64) -> TransformStamped {
+/// The world pose of `rig`'s optical frame, stamped `ns`.
+pub(crate) fn camera_transform(rig: &RigCamera, ns: u64) -> TransformStamped {
     let (_, rotation, translation) = rig.camera.world_from_camera.to_scale_rotation_translation();
     TransformStamped {
         header: header(ns, WORLD_FRAME),

@@ -4,6 +4,7 @@
 
 pub mod capture;
 pub mod dataset;
+pub mod motion;
 pub mod outfit;
 pub mod person;
 pub mod random_pose;
