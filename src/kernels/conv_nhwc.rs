@@ -17,12 +17,20 @@ const GATHER_FLOATS: usize = 1 << 15;
 thread_local! {
     /// Each thread's gather buffer, kept between calls.
     static GATHER: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
+    /// Each thread's row of zeros that padding taps point at.
+    static ZEROS: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
 }
+
+/// Output channels up to which a layer runs as dot products over contiguous input runs.
+const DOT_MAX_OUT: usize = 4;
 
 /// A packed `kh×kw` convolution with a stride.
 #[derive(Debug, Clone)]
 pub struct ConvNhwc {
     gemm: PackedGemm,
+    /// The weight as given (`[C_out][kh][kw][C_in]`), kept for layers of few outputs.
+    rows: Option<Vec<f32>>,
+    bias: Vec<f32>,
     kernel: (usize, usize),
     stride: (usize, usize),
     c_in: usize,
@@ -42,6 +50,8 @@ impl ConvNhwc {
         let k = kernel.0 * kernel.1 * c_in;
         Self {
             gemm: PackedGemm::from_rows(weight, k, c_out, bias),
+            rows: (c_out <= DOT_MAX_OUT).then(|| weight.to_vec()),
+            bias: bias.to_vec(),
             kernel,
             stride,
             c_in,
@@ -104,10 +114,158 @@ impl ConvNhwc {
             self.gemm.run(input, self.c_in, m, epi, out);
             return;
         }
+        let n = self.gemm.n();
+        let rows = rows_per_task(m, m * n * self.gemm.k());
+        #[cfg(target_arch = "x86_64")]
+        if super::gemm_avx2::available() {
+            out.par_chunks_mut(rows * n)
+                .enumerate()
+                .for_each(|(t, chunk)| {
+                    let first = t * rows;
+                    if self.rows.is_some() {
+                        self.run_dots(input, shape, pad, os, first, epi, chunk);
+                    } else {
+                        self.run_indirect(input, shape, pad, os, first, epi, chunk);
+                    }
+                });
+            return;
+        }
+        self.run_gathered(input, shape, pad, os, rows, epi, out);
+    }
+
+    /// The output pixels of `chunk` (from `first`) as products over input rows read in place
+    /// through a table of tap pointers (padding taps read a row of zeros).
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
+    fn run_indirect(
+        &self,
+        input: &[f32],
+        shape: Shape,
+        pad: Padding,
+        os: Shape,
+        first: usize,
+        epi: Epilogue,
+        chunk: &mut [f32],
+    ) {
+        let (kh, kw) = self.kernel;
+        let c = self.c_in;
+        let n = self.gemm.n();
+        let count = chunk.len() / n;
+        ZEROS.with(|z| {
+            let mut z = z.borrow_mut();
+            if z.len() < c {
+                z.resize(c, 0.0);
+            }
+            let zero = z.as_ptr();
+            let mut taps = vec![[zero; 12]; kh * kw];
+            let mut q = 0;
+            while q < count {
+                let m = 12.min(count - q);
+                for r in 0..m {
+                    let (oy, ox) = ((first + q + r) / os.width, (first + q + r) % os.width);
+                    for ky in 0..kh {
+                        let iy = (oy * self.stride.0 + ky)
+                            .checked_sub(pad.top)
+                            .filter(|&y| y < shape.height);
+                        for kx in 0..kw {
+                            let ix = (ox * self.stride.1 + kx)
+                                .checked_sub(pad.left)
+                                .filter(|&x| x < shape.width);
+                            taps[ky * kw + kx][r] = match (iy, ix) {
+                                (Some(iy), Some(ix)) => {
+                                    input[(iy * shape.width + ix) * c..][..c].as_ptr()
+                                }
+                                _ => zero,
+                            };
+                        }
+                    }
+                }
+                let e = Epilogue {
+                    residual: epi
+                        .residual
+                        .map(|x| &x[(first + q) * n..(first + q + m) * n]),
+                    ..epi
+                };
+                // SAFETY: AVX2/FMA are present (checked by the caller); every table entry
+                // points at `c` values of `input` or of the zero row, both alive here.
+                unsafe {
+                    self.gemm
+                        .run_indirect(&taps, c, m, 0, e, &mut chunk[q * n..(q + m) * n]);
+                }
+                q += m;
+            }
+        });
+    }
+
+    /// Few output channels: each output value is a sum of dot products over the contiguous
+    /// in-bounds run of each kernel row (`kw·C_in` values inside the image).
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
+    fn run_dots(
+        &self,
+        input: &[f32],
+        shape: Shape,
+        pad: Padding,
+        os: Shape,
+        first: usize,
+        epi: Epilogue,
+        chunk: &mut [f32],
+    ) {
+        let weight = self
+            .rows
+            .as_deref()
+            .expect("dot layers keep their weight rows");
+        let (kh, kw) = self.kernel;
+        let c = self.c_in;
+        let n = self.gemm.n();
+        let (lo1, hi1) = epi.pre.bounds();
+        let (lo2, hi2) = epi.post.bounds();
+        for (i, px) in chunk.chunks_exact_mut(n).enumerate() {
+            let q = first + i;
+            let (oy, ox) = (q / os.width, q % os.width);
+            let x0 = (ox * self.stride.1) as isize - pad.left as isize;
+            let kx_lo = (-x0).max(0) as usize;
+            let kx_hi = ((shape.width as isize - x0).max(0) as usize).min(kw);
+            for (o, v) in px.iter_mut().enumerate() {
+                let mut sum = self.bias[o];
+                for ky in 0..kh {
+                    let Some(iy) = (oy * self.stride.0 + ky).checked_sub(pad.top) else {
+                        continue;
+                    };
+                    if iy >= shape.height || kx_lo >= kx_hi {
+                        continue;
+                    }
+                    let xs = &input[(iy * shape.width + (x0 + kx_lo as isize) as usize) * c..]
+                        [..(kx_hi - kx_lo) * c];
+                    let ws = &weight[((o * kh + ky) * kw + kx_lo) * c..][..(kx_hi - kx_lo) * c];
+                    // SAFETY: AVX2/FMA are present (checked by the caller); both runs hold
+                    // `xs.len()` values.
+                    sum += unsafe { super::gemm_avx2::dot(xs.as_ptr(), ws.as_ptr(), xs.len()) };
+                }
+                let mut y = sum.max(lo1).min(hi1);
+                if let Some(r) = epi.residual {
+                    y = (y + r[q * n + o]).max(lo2).min(hi2);
+                }
+                *v = y;
+            }
+        }
+    }
+
+    /// The portable path: gather each block of output pixels' rows, then one product.
+    #[allow(clippy::too_many_arguments)]
+    fn run_gathered(
+        &self,
+        input: &[f32],
+        shape: Shape,
+        pad: Padding,
+        os: Shape,
+        rows: usize,
+        epi: Epilogue,
+        out: &mut [f32],
+    ) {
         let k = self.gemm.k();
         let n = self.gemm.n();
         let block = (GATHER_FLOATS / k).clamp(12, 480) / 12 * 12;
-        let rows = rows_per_task(m, m * n * k);
         out.par_chunks_mut(rows * n)
             .enumerate()
             .for_each(|(t, chunk)| {
@@ -251,6 +409,22 @@ mod tests {
                 },
             ),
             (40, 31, 4, 18, (5, 5), (2, 2), Padding::uniform(2)),
+            (13, 17, 8, 1, (3, 3), (1, 1), Padding::uniform(1)),
+            (
+                11,
+                9,
+                24,
+                3,
+                (3, 3),
+                (2, 2),
+                Padding {
+                    top: 0,
+                    left: 1,
+                    bottom: 1,
+                    right: 0,
+                },
+            ),
+            (6, 5, 3, 30, (3, 3), (1, 1), Padding::uniform(1)),
         ];
         for (h, w, ci, co, k, st, pad) in cases {
             let s = Shape::new(h, w, ci);

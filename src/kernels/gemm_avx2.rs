@@ -66,6 +66,116 @@ pub(crate) unsafe fn panel8(
     rows::<12, 1>(panel, k, a, lda, m, po, epi, out)
 }
 
+/// One 16-wide panel over `m ≤ 6` output pixels of a k×k convolution whose input rows are
+/// read through `taps[t][r]` (the `c` input values of tap `t` under output pixel `r`, or a
+/// row of zeros): the product without gathering the rows first.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA, and every pointer in `taps[..][..m]` must point at `c`
+/// readable values.
+#[target_feature(enable = "avx2,fma")]
+pub(crate) unsafe fn indirect16(
+    panel: &[f32],
+    taps: &[[*const f32; 12]],
+    c: usize,
+    m: usize,
+    first: usize,
+    po: PanelOut,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    indirect::<6, 2>(panel, taps, c, m, first, po, epi, out)
+}
+
+/// [`indirect16`] for an 8-wide panel and `m ≤ 12` pixels.
+///
+/// # Safety
+/// As [`indirect16`].
+#[target_feature(enable = "avx2,fma")]
+pub(crate) unsafe fn indirect8(
+    panel: &[f32],
+    taps: &[[*const f32; 12]],
+    c: usize,
+    m: usize,
+    first: usize,
+    po: PanelOut,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    indirect::<12, 1>(panel, taps, c, m, first, po, epi, out)
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn indirect<const M: usize, const NV: usize>(
+    panel: &[f32],
+    taps: &[[*const f32; 12]],
+    c: usize,
+    m: usize,
+    first: usize,
+    po: PanelOut,
+    epi: Epilogue,
+    out: &mut [f32],
+) {
+    assert!(m <= M && panel.len() >= taps.len() * c * NV * 8);
+    assert!(out.len() >= (first + m) * po.n && po.col + po.valid <= po.n);
+    if let Some(r) = epi.residual {
+        assert!(r.len() >= (first + m) * po.n);
+    }
+    let mut acc = [[_mm256_setzero_ps(); NV]; M];
+    let mut b = panel.as_ptr();
+    for rows in taps {
+        for ch in 0..c {
+            let mut bv = [_mm256_setzero_ps(); NV];
+            for (v, bv) in bv.iter_mut().enumerate() {
+                *bv = _mm256_loadu_ps(b.add(v * 8));
+            }
+            for (acc, &row) in acc.iter_mut().zip(rows) {
+                let x = _mm256_broadcast_ss(&*row.add(ch));
+                for (acc, &bv) in acc.iter_mut().zip(&bv) {
+                    *acc = _mm256_fmadd_ps(x, bv, *acc);
+                }
+            }
+            b = b.add(NV * 8);
+        }
+    }
+    store::<M, NV>(&acc, first, m, po, epi, out);
+}
+
+/// `Σ a[i]·b[i]` over `len` values.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA; `a` and `b` hold `len` readable values.
+#[target_feature(enable = "avx2,fma")]
+pub(crate) unsafe fn dot(a: *const f32, b: *const f32, len: usize) -> f32 {
+    let mut acc0 = _mm256_setzero_ps();
+    let mut acc1 = _mm256_setzero_ps();
+    let mut i = 0;
+    while i + 16 <= len {
+        acc0 = _mm256_fmadd_ps(_mm256_loadu_ps(a.add(i)), _mm256_loadu_ps(b.add(i)), acc0);
+        acc1 = _mm256_fmadd_ps(
+            _mm256_loadu_ps(a.add(i + 8)),
+            _mm256_loadu_ps(b.add(i + 8)),
+            acc1,
+        );
+        i += 16;
+    }
+    if i + 8 <= len {
+        acc0 = _mm256_fmadd_ps(_mm256_loadu_ps(a.add(i)), _mm256_loadu_ps(b.add(i)), acc0);
+        i += 8;
+    }
+    let v = _mm256_add_ps(acc0, acc1);
+    let h = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
+    let h = _mm_add_ps(h, _mm_movehl_ps(h, h));
+    let h = _mm_add_ss(h, _mm_shuffle_ps::<1>(h, h));
+    let mut sum = _mm_cvtss_f32(h);
+    while i < len {
+        sum += *a.add(i) * *b.add(i);
+        i += 1;
+    }
+    sum
+}
+
 /// Blocks of `M` rows × `NV` vectors; a short last block overlaps the one before it, and
 /// fewer than `M` rows in all are copied into a zero-padded block.
 #[inline(always)]

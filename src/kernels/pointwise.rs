@@ -141,6 +141,60 @@ impl PackedGemm {
     }
 }
 
+impl PackedGemm {
+    /// Output rows `first..first + m` (`m ≤ 12`) of a product whose input rows are read
+    /// through `taps[t][r]`: `k` is `taps.len() · c`, tap `t` of row `r` is the `c` values at
+    /// `taps[t][r]`.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and FMA, and every pointer in `taps[..][..m]` must
+    /// point at `c` readable values.
+    #[cfg(target_arch = "x86_64")]
+    pub(crate) unsafe fn run_indirect(
+        &self,
+        taps: &[[*const f32; 12]],
+        c: usize,
+        m: usize,
+        first: usize,
+        epi: Epilogue,
+        out: &mut [f32],
+    ) {
+        use super::gemm_avx2::{indirect16, indirect8, PanelOut};
+        assert!(
+            m <= 12 && taps.len() * c == self.k,
+            "indirect product: shape"
+        );
+        let mut upper: Vec<[*const f32; 12]> = Vec::new();
+        for p in &self.panels {
+            let po = PanelOut {
+                n: self.n,
+                col: p.col,
+                valid: p.width.min(self.n - p.col),
+                bias: &self.padded_bias[p.col..p.col + p.width],
+            };
+            let panel = &self.data[p.offset..p.offset + self.k * p.width];
+            if p.width == 8 {
+                indirect8(panel, taps, c, m, first, po, epi, out);
+                continue;
+            }
+            indirect16(panel, taps, c, m.min(6), first, po, epi, out);
+            if m > 6 {
+                if upper.is_empty() {
+                    upper = taps
+                        .iter()
+                        .map(|row| {
+                            let mut r = *row;
+                            r.rotate_left(6);
+                            r
+                        })
+                        .collect();
+                }
+                indirect16(panel, &upper, c, m - 6, first + 6, po, epi, out);
+            }
+        }
+    }
+}
+
 /// Rows per rayon task: one task below [`MIN_TASK_MACS`] or on one thread, else about four
 /// tasks per thread, in multiples of 12 rows.
 pub(crate) fn rows_per_task(m: usize, macs: usize) -> usize {
