@@ -8,15 +8,21 @@ use super::roi::RotatedRect;
 use glam::Vec2;
 use image::GrayImage;
 
-/// A person-probability map over a whole frame, row-major.
+/// A person-probability map over a whole frame, stored only over the region the landmark crop
+/// covered (zero elsewhere), so a 1080p frame costs a fraction of its pixels.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProbabilityMap {
     /// Frame width, pixels.
     pub width: u32,
     /// Frame height, pixels.
     pub height: u32,
-    /// `width × height` probabilities in [0, 1].
-    pub values: Vec<f32>,
+    /// Stored region: columns `x0..x1`, rows `y0..y1`.
+    x0: u32,
+    y0: u32,
+    x1: u32,
+    y1: u32,
+    /// Probabilities in [0, 1] over the region, row-major.
+    values: Vec<f32>,
 }
 
 impl ProbabilityMap {
@@ -25,34 +31,62 @@ impl ProbabilityMap {
     pub fn from_crop_logits(logits: &[f32], roi: &RotatedRect, width: u32, height: u32) -> Self {
         let side = LANDMARK_INPUT;
         let probs: Vec<f32> = logits.iter().map(|&x| sigmoid(x)).collect();
-        let mut values = vec![0.0f32; width as usize * height as usize];
         let (min, max) = roi.bounds();
-        let x0 = min.x.floor().max(0.0) as u32;
-        let y0 = min.y.floor().max(0.0) as u32;
-        let x1 = (max.x.ceil().max(0.0) as u32).min(width);
-        let y1 = (max.y.ceil().max(0.0) as u32).min(height);
+        let x0 = (min.x.floor().max(0.0) as u32).min(width);
+        let y0 = (min.y.floor().max(0.0) as u32).min(height);
+        let x1 = (max.x.ceil().max(0.0) as u32).clamp(x0, width);
+        let y1 = (max.y.ceil().max(0.0) as u32).clamp(y0, height);
+        let mut values = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
         for y in y0..y1 {
             for x in x0..x1 {
                 let uv = roi.frame_to_crop(Vec2::new(x as f32, y as f32)) * side as f32;
-                values[(y * width + x) as usize] = bilinear(&probs, side, uv);
+                values.push(bilinear(&probs, side, uv));
             }
         }
         Self {
             width,
             height,
+            x0,
+            y0,
+            x1,
+            y1,
             values,
         }
     }
 
+    /// A map of `width × height` from row-major probabilities over the whole frame.
+    pub fn from_values(width: u32, height: u32, values: Vec<f32>) -> Option<Self> {
+        (values.len() == width as usize * height as usize).then_some(Self {
+            width,
+            height,
+            x0: 0,
+            y0: 0,
+            x1: width,
+            y1: height,
+            values,
+        })
+    }
+
+    /// The probability at pixel `(x, y)` (0 outside the frame or the stored region).
+    pub fn at(&self, x: u32, y: u32) -> f32 {
+        if x < self.x0 || x >= self.x1 || y < self.y0 || y >= self.y1 {
+            return 0.0;
+        }
+        self.values[((y - self.y0) * (self.x1 - self.x0) + (x - self.x0)) as usize]
+    }
+
     /// Blends towards `previous` where this map is uncertain (near 0.5): MediaPipe's
-    /// polynomial for the binary entropy, weighted by `ratio` (0.7 in its pose graph).
-    /// Maps of another size are ignored.
+    /// polynomial for the binary entropy, weighted by `ratio` (0.7 in its pose graph). Outside
+    /// this map's region it is a certain 0 and stays so. Maps of another size are ignored.
     pub fn smooth_with(&mut self, previous: &ProbabilityMap, ratio: f32) {
         if previous.width != self.width || previous.height != self.height {
             return;
         }
         const C: [f32; 5] = [5.68842, -0.748699, -57.8051, 291.309, -624.717];
-        for (v, &p) in self.values.iter_mut().zip(&previous.values) {
+        let row = (self.x1 - self.x0) as usize;
+        for (i, v) in self.values.iter_mut().enumerate() {
+            let (x, y) = (self.x0 + (i % row) as u32, self.y0 + (i / row) as u32);
+            let p = previous.at(x, y);
             let t = *v - 0.5;
             let x = t * t;
             let certainty = (x * (C[0] + x * (C[1] + x * (C[2] + x * (C[3] + x * C[4]))))).min(1.0);
@@ -60,18 +94,24 @@ impl ProbabilityMap {
         }
     }
 
-    /// A mono8 mask: 255 where the probability is at least `threshold + feather`, 0 at or
-    /// below `threshold − feather`, a linear ramp between (a feathered threshold).
+    /// A mono8 mask over the whole frame: 255 where the probability is at least
+    /// `threshold + feather`, 0 at or below `threshold − feather`, a linear ramp between (a
+    /// feathered threshold).
     pub fn to_mask(&self, threshold: f32, feather: f32) -> GrayImage {
         let lo = threshold - feather;
         let span = (2.0 * feather).max(f32::EPSILON);
-        let pixels = self
-            .values
-            .iter()
-            .map(|&p| (((p - lo) / span).clamp(0.0, 1.0) * 255.0).round() as u8)
-            .collect();
-        GrayImage::from_raw(self.width, self.height, pixels)
-            .expect("one value per pixel of the frame")
+        let level = |p: f32| (((p - lo) / span).clamp(0.0, 1.0) * 255.0).round() as u8;
+        let mut mask = GrayImage::from_pixel(self.width, self.height, image::Luma([level(0.0)]));
+        let row = (self.x1 - self.x0) as usize;
+        if row > 0 {
+            for (i, chunk) in self.values.chunks(row).enumerate() {
+                let y = self.y0 + i as u32;
+                for (j, &p) in chunk.iter().enumerate() {
+                    mask.put_pixel(self.x0 + j as u32, y, image::Luma([level(p)]));
+                }
+            }
+        }
+        mask
     }
 }
 
@@ -120,7 +160,7 @@ mod tests {
         };
         let logits = square_logits(|x, _| x < 128);
         let map = ProbabilityMap::from_crop_logits(&logits, &roi, 200, 120);
-        let at = |x: u32, y: u32| map.values[(y * 200 + x) as usize];
+        let at = |x: u32, y: u32| map.at(x, y);
         assert!(at(60, 60) > 0.99, "left half of the crop");
         assert!(at(140, 60) < 0.01, "right half of the crop");
         assert!(at(10, 60) < 0.01, "outside the crop");
@@ -131,28 +171,16 @@ mod tests {
 
     #[test]
     fn smoothing_keeps_confident_pixels_and_steadies_uncertain_ones() {
-        let mut current = ProbabilityMap {
-            width: 2,
-            height: 1,
-            values: vec![1.0, 0.5],
-        };
-        let previous = ProbabilityMap {
-            width: 2,
-            height: 1,
-            values: vec![0.0, 1.0],
-        };
+        let mut current = ProbabilityMap::from_values(2, 1, vec![1.0, 0.5]).unwrap();
+        let previous = ProbabilityMap::from_values(2, 1, vec![0.0, 1.0]).unwrap();
         current.smooth_with(&previous, 0.7);
-        assert!((current.values[0] - 1.0).abs() < 1e-3);
-        assert!((current.values[1] - 0.85).abs() < 1e-6);
+        assert!((current.at(0, 0) - 1.0).abs() < 1e-3);
+        assert!((current.at(1, 0) - 0.85).abs() < 1e-6);
     }
 
     #[test]
     fn feathering_ramps_between_the_bounds() {
-        let map = ProbabilityMap {
-            width: 3,
-            height: 1,
-            values: vec![0.4, 0.55, 0.6],
-        };
+        let map = ProbabilityMap::from_values(3, 1, vec![0.4, 0.55, 0.6]).unwrap();
         let m = map.to_mask(0.5, 0.1);
         assert_eq!(m.as_raw(), &vec![0, 191, 255]);
     }

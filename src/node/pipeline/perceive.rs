@@ -14,7 +14,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 /// Results waiting for the pipeline, at most this many (the oldest is then dropped, counted).
-const RESULTS_KEPT: usize = 8;
+const RESULTS_KEPT: usize = 4;
 
 /// How perception turns a frame into a mask.
 #[derive(Debug, Clone, Copy, PartialEq)]
