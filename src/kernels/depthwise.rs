@@ -127,7 +127,7 @@ impl Depthwise {
                         .map(|r| &r[first * row..first * row + chunk.len()]),
                     ..epi
                 };
-                run_rows(&job, epi, chunk);
+                run_rows_fast(&job, epi, chunk);
             });
     }
 }
@@ -144,35 +144,57 @@ struct Rows<'a> {
 
 simd_dispatch! {
     avx2_fma;
-    fn run_rows[](job: &Rows, epi: Epilogue, out: &mut [f32]) = run_rows_portable;
+    fn run_rows[](job: &Rows, epi: Epilogue, out: &mut [f32], skip_channels: usize) = run_rows_skipping;
 }
 
 #[inline(always)]
+#[cfg(test)]
 fn run_rows_portable(job: &Rows, epi: Epilogue, out: &mut [f32]) {
+    run_rows_skipping(job, epi, out, 0);
+}
+
+/// The job's rows on the portable loops, except the interior pixels of channels
+/// `0..skip_channels`, which the caller computes.
+#[inline(always)]
+fn run_rows_skipping(job: &Rows, epi: Epilogue, out: &mut [f32], skip_channels: usize) {
     match job.dw.kernel {
-        (3, 3) => blocks::<3, 9>(job, epi, out),
-        (5, 5) => blocks::<5, 25>(job, epi, out),
-        _ => blocks::<0, 0>(job, epi, out),
+        (3, 3) => blocks::<3, 9>(job, epi, out, skip_channels),
+        (5, 5) => blocks::<5, 25>(job, epi, out, skip_channels),
+        _ => blocks::<0, 0>(job, epi, out, skip_channels),
     }
+}
+
+/// The job's rows: interior pixels of whole 8-channel blocks with the AVX2/FMA kernel where
+/// the CPU has it, everything else on the portable loops.
+fn run_rows_fast(job: &Rows, epi: Epilogue, out: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if super::gemm_avx2::available() {
+        let skip = job.dw.channels / 8 * 8;
+        // SAFETY: the CPU has AVX2 and FMA (checked above).
+        unsafe { avx2::interior_rows(job, epi, out) };
+        run_rows(job, epi, out, skip);
+        return;
+    }
+    run_rows(job, epi, out, 0);
 }
 
 /// All channel blocks of the job's rows. `K` is the square kernel side the register path is
 /// compiled for (`T = K²`), 0 for the generic path.
 #[inline(always)]
-fn blocks<const K: usize, const T: usize>(job: &Rows, epi: Epilogue, out: &mut [f32]) {
+fn blocks<const K: usize, const T: usize>(job: &Rows, epi: Epilogue, out: &mut [f32], skip: usize) {
     const { assert!(T == K * K) };
     let c = job.dw.channels;
     let mut c0 = 0;
     while c0 + 16 <= c {
-        block::<K, T, 16>(job, c0, epi, out);
+        block::<K, T, 16>(job, c0, epi, out, c0 + 16 <= skip);
         c0 += 16;
     }
     while c0 + 8 <= c {
-        block::<K, T, 8>(job, c0, epi, out);
+        block::<K, T, 8>(job, c0, epi, out, c0 + 8 <= skip);
         c0 += 8;
     }
     while c0 < c {
-        block::<K, T, 1>(job, c0, epi, out);
+        block::<K, T, 1>(job, c0, epi, out, c0 < skip);
         c0 += 1;
     }
 }
@@ -186,6 +208,7 @@ fn block<const K: usize, const T: usize, const L: usize>(
     c0: usize,
     epi: Epilogue,
     out: &mut [f32],
+    interior_done: bool,
 ) {
     let dw = job.dw;
     let (c, (kh, kw), sw) = (dw.channels, dw.kernel, dw.stride.1);
@@ -216,7 +239,7 @@ fn block<const K: usize, const T: usize, const L: usize>(
             let acc = border_pixel::<L>(job, c0, bias, y0, ox);
             store::<L>(&acc, epi, res_row, ox * c + c0, out_row);
         }
-        if lo < hi {
+        if lo < hi && !interior_done {
             let line0 = (y0 as usize * w) * c + c0;
             let mut ox = lo;
             while ox + 4 <= hi {
@@ -331,6 +354,95 @@ fn store<const L: usize>(
 fn madd<const L: usize>(acc: &mut [f32; L], x: &[f32; L], w: &[f32; L]) {
     for ((a, &x), &w) in acc.iter_mut().zip(x).zip(w) {
         *a = x.mul_add(w, *a);
+    }
+}
+
+/// The interior pixels of whole 8-channel blocks with AVX2/FMA intrinsics: eight output
+/// pixels at a time, each tap's weights loaded once for the eight.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use super::{Epilogue, Rows};
+
+    /// Interior pixels (windows inside the image) of every row of the job, channels
+    /// `0..C / 8 · 8`.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and FMA.
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn interior_rows(job: &Rows, epi: Epilogue, out: &mut [f32]) {
+        let dw = job.dw;
+        let (c, (kh, kw), (sh, sw)) = (dw.channels, dw.kernel, dw.stride);
+        let (h, w) = (job.shape.height, job.shape.width);
+        let ow = job.out_shape.width;
+        let left = job.pad.left;
+        let ox_lo = left.div_ceil(sw).min(ow);
+        let ox_hi = if w + left >= kw {
+            ((w + left - kw) / sw + 1).min(ow).max(ox_lo)
+        } else {
+            ox_lo
+        };
+        let rows = out.len() / (ow * c);
+        assert!(job.input.len() >= h * w * c && dw.weight.len() >= kh * kw * c);
+        assert!(epi.residual.is_none_or(|r| r.len() >= out.len()));
+        let (lo1, hi1) = epi.pre.bounds();
+        let (lo2, hi2) = epi.post.bounds();
+        let (lo1, hi1, lo2, hi2) = (
+            _mm256_set1_ps(lo1),
+            _mm256_set1_ps(hi1),
+            _mm256_set1_ps(lo2),
+            _mm256_set1_ps(hi2),
+        );
+        let input = job.input.as_ptr();
+        for r in 0..rows {
+            let oy = job.first + r;
+            let y0 = (oy * sh) as isize - job.pad.top as isize;
+            if ox_lo >= ox_hi || y0 < 0 || y0 as usize + kh > h {
+                continue;
+            }
+            let line0 = y0 as usize * w * c;
+            let out_row = out[r * ow * c..(r + 1) * ow * c].as_mut_ptr();
+            let res_row = epi.residual.map(|x| x[r * ow * c..].as_ptr());
+            for c0 in (0..c / 8 * 8).step_by(8) {
+                let bias = _mm256_loadu_ps(dw.bias.as_ptr().add(c0));
+                let wts = dw.weight.as_ptr().add(c0);
+                let mut ox = ox_lo;
+                while ox < ox_hi {
+                    let p = (ox_hi - ox).min(8);
+                    let mut acc = [bias; 8];
+                    for ky in 0..kh {
+                        let line = input.add(line0 + ky * w * c + c0);
+                        for kx in 0..kw {
+                            let wv = _mm256_loadu_ps(wts.add((ky * kw + kx) * c));
+                            // interior: (ox + i)·sw + kx ≥ left for every i
+                            let x0 = line.add(((ox * sw + kx) - left) * c);
+                            if p == 8 {
+                                for (i, acc) in acc.iter_mut().enumerate() {
+                                    let x = _mm256_loadu_ps(x0.add(i * sw * c));
+                                    *acc = _mm256_fmadd_ps(x, wv, *acc);
+                                }
+                            } else {
+                                for (i, acc) in acc.iter_mut().enumerate().take(p) {
+                                    let x = _mm256_loadu_ps(x0.add(i * sw * c));
+                                    *acc = _mm256_fmadd_ps(x, wv, *acc);
+                                }
+                            }
+                        }
+                    }
+                    for (i, &acc) in acc.iter().enumerate().take(p) {
+                        let at = (ox + i) * c + c0;
+                        let mut v = _mm256_min_ps(_mm256_max_ps(acc, lo1), hi1);
+                        if let Some(res) = res_row {
+                            v = _mm256_add_ps(v, _mm256_loadu_ps(res.add(at)));
+                            v = _mm256_min_ps(_mm256_max_ps(v, lo2), hi2);
+                        }
+                        _mm256_storeu_ps(out_row.add(at), v);
+                    }
+                    ox += p;
+                }
+            }
+        }
     }
 }
 
