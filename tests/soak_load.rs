@@ -5,37 +5,11 @@
 //! under 1 GB, its queue waits stay bounded, and its counters add up. scripts/soak runs the same
 //! for 10 minutes and plots the memory (RELIABILITY.md).
 
+mod load_support;
+
+use load_support::{interrupt, lhmpp, number_after, KillOnDrop};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::time::Duration;
-
-struct KillOnDrop(Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn lhmpp() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
-    c.env_remove("RUST_LOG").env_remove("ROS_DOMAIN_ID");
-    c
-}
-
-/// The number after `key ` in `line` (`received 1747,` → 1747).
-fn number_after(line: &str, key: &str) -> f64 {
-    let at = line
-        .find(key)
-        .unwrap_or_else(|| panic!("`{key}` not in `{line}`"));
-    line[at + key.len()..]
-        .trim_start()
-        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .next()
-        .and_then(|n| n.parse().ok())
-        .unwrap_or_else(|| panic!("no number after `{key}` in `{line}`"))
-}
+use std::process::Stdio;
 
 #[test]
 fn a_minute_of_four_1080p_streams_keeps_the_node_reconstructing_and_the_counters_true() {
@@ -78,10 +52,7 @@ fn a_minute_of_four_1080p_streams_keeps_the_node_reconstructing_and_the_counters
     );
 
     let mut node = node;
-    Command::new("kill")
-        .args(["-INT", &pid.to_string()])
-        .status()
-        .unwrap();
+    interrupt(pid);
     let mut waited = Duration::ZERO;
     while node.0.try_wait().unwrap().is_none() && waited < Duration::from_secs(20) {
         std::thread::sleep(Duration::from_millis(100));

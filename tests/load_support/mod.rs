@@ -1,0 +1,45 @@
+//! Shared by the load tests: a child process killed when dropped, the `lhmpp` binary without
+//! inherited ROS settings, and numbers read off the node's summary lines.
+
+#![allow(dead_code)]
+
+use std::process::{Child, Command};
+
+/// A child process (the node under load) killed and reaped when dropped.
+pub struct KillOnDrop(pub Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// The `lhmpp` binary, without `RUST_LOG` and `ROS_DOMAIN_ID` from the environment.
+pub fn lhmpp() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_lhmpp"));
+    c.env_remove("RUST_LOG").env_remove("ROS_DOMAIN_ID");
+    c
+}
+
+/// The number after `key ` in `line` (`received 1747,` → 1747).
+pub fn number_after(line: &str, key: &str) -> f64 {
+    let at = line
+        .find(key)
+        .unwrap_or_else(|| panic!("`{key}` not in `{line}`"));
+    line[at + key.len()..]
+        .trim_start()
+        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .next()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no number after `{key}` in `{line}`"))
+}
+
+/// Sends SIGINT to `pid` (the node's clean stop).
+pub fn interrupt(pid: u32) {
+    let ok = Command::new("kill")
+        .args(["-INT", &pid.to_string()])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(ok, "kill -INT {pid}");
+}
