@@ -3,7 +3,7 @@
 //! perception on its own (a fresh [`PersonTracker`] per image, mask smoothing off) and is
 //! scored against the bag's ground truth.
 //!
-//! * **Mask IoU**: the perceived person probability ≥ 0.5 against the bag's mask (≥ 128); a
+//! * **Mask IoU**: the perceived person probability > 0.5 against the bag's mask (≥ 128); a
 //!   view where nobody is found scores 0.
 //! * **2D landmarks**: the 33 landmarks of the posed, shaped template ([`template_landmarks`]
 //!   of the bag's true pose on the template shaped by its `BodyShape`, as `lhmpp synth` shapes
@@ -435,18 +435,17 @@ pub fn read_scene(path: &Path) -> Result<SyntheticScene, PerceptionEvalError> {
     })
 }
 
-/// IoU of `perceived` (probability ≥ 0.5) against `truth` (≥ 128); 1 when both are empty, 0
+/// IoU of two mono8 masks, pixels ≥ 128 counting as person (`perceived`: perception's map
+/// through [`ProbabilityMap::to_mask`](crate::perception::segmentation::ProbabilityMap::to_mask)
+/// at threshold 0.5 without feather, i.e. probability above 0.5); 1 when both are empty, 0
 /// when the sizes differ.
-pub fn mask_iou(
-    perceived: &crate::perception::segmentation::ProbabilityMap,
-    truth: &GrayImage,
-) -> f64 {
-    if (perceived.width, perceived.height) != truth.dimensions() {
+pub fn mask_iou(perceived: &GrayImage, truth: &GrayImage) -> f64 {
+    if perceived.dimensions() != truth.dimensions() {
         return 0.0;
     }
     let (mut inter, mut union) = (0u64, 0u64);
-    for (p, t) in perceived.values.iter().zip(truth.as_raw()) {
-        let (a, b) = (*p >= 0.5, *t >= 128);
+    for (p, t) in perceived.as_raw().iter().zip(truth.as_raw()) {
+        let (a, b) = (*p >= 128, *t >= 128);
         inter += u64::from(a && b);
         union += u64::from(a || b);
     }
@@ -635,21 +634,17 @@ pub fn best_rotation(from: &[Vec3], to: &[Vec3]) -> Quat {
                 let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
                 let c = 1.0 / (t * t + 1.0).sqrt();
                 let sn = t * c;
-                for k in 0..4 {
-                    let (kp, kq) = (n[k][p], n[k][q]);
-                    n[k][p] = c * kp - sn * kq;
-                    n[k][q] = sn * kp + c * kq;
-                }
-                for k in 0..4 {
-                    let (pk, qk) = (n[p][k], n[q][k]);
-                    n[p][k] = c * pk - sn * qk;
-                    n[q][k] = sn * pk + c * qk;
-                }
-                for row in v.iter_mut() {
+                // N ← Jᵀ N J and V ← V J, J the rotation in the (p, q) plane.
+                let turn_columns = |row: &mut [f64; 4]| {
                     let (kp, kq) = (row[p], row[q]);
                     row[p] = c * kp - sn * kq;
                     row[q] = sn * kp + c * kq;
-                }
+                };
+                n.iter_mut().for_each(turn_columns);
+                let (rp, rq) = (n[p], n[q]);
+                n[p] = std::array::from_fn(|k| c * rp[k] - sn * rq[k]);
+                n[q] = std::array::from_fn(|k| sn * rp[k] + c * rq[k]);
+                v.iter_mut().for_each(turn_columns);
             }
         }
     }
@@ -696,19 +691,26 @@ pub fn evaluate_scene(
                 joints_3d: None,
                 perception_ms,
             },
-            Some(p) => ViewResult {
-                name: view.name.clone(),
-                heldout: view.heldout,
-                box_height,
-                facing_deg,
-                truth_px,
-                mask_iou: mask_iou(&p.mask, &view.mask),
-                mask: Some(p.mask.to_mask(0.5, 0.0)),
-                landmarks_2d: Some(landmark_error_2d(&truth_px, &p.landmarks.image, box_height)),
-                joints_3d: Some(scorer.score(&view.camera, &p.landmarks.world)),
-                landmarks: Some(p.landmarks),
-                perception_ms,
-            },
+            Some(p) => {
+                let perceived_mask = p.mask.to_mask(0.5, 0.0);
+                ViewResult {
+                    name: view.name.clone(),
+                    heldout: view.heldout,
+                    box_height,
+                    facing_deg,
+                    truth_px,
+                    mask_iou: mask_iou(&perceived_mask, &view.mask),
+                    mask: Some(perceived_mask),
+                    landmarks_2d: Some(landmark_error_2d(
+                        &truth_px,
+                        &p.landmarks.image,
+                        box_height,
+                    )),
+                    joints_3d: Some(scorer.score(&view.camera, &p.landmarks.world)),
+                    landmarks: Some(p.landmarks),
+                    perception_ms,
+                }
+            }
         };
         results.push(result);
     }
@@ -809,16 +811,14 @@ mod tests {
         }
         assert_eq!(box_height(&mask), 4.0);
         assert_eq!(box_height(&GrayImage::new(4, 4)), 0.0);
-        let mut values = vec![0.0f32; 64];
+        let mut seen = GrayImage::new(8, 8);
         for y in 2..6 {
-            values[y * 8 + 1] = 0.9;
+            seen.put_pixel(1, y, image::Luma([200]));
+            seen.put_pixel(5, y, image::Luma([127]));
         }
-        let map = crate::perception::segmentation::ProbabilityMap {
-            width: 8,
-            height: 8,
-            values,
-        };
-        assert!((mask_iou(&map, &mask) - 0.5).abs() < 1e-12);
+        assert!((mask_iou(&seen, &mask) - 0.5).abs() < 1e-12);
+        assert_eq!(mask_iou(&GrayImage::new(8, 8), &GrayImage::new(8, 8)), 1.0);
+        assert_eq!(mask_iou(&seen, &GrayImage::new(4, 8)), 0.0);
     }
 
     #[test]
