@@ -11,9 +11,10 @@
 //! | full | 84/84 | 0.975 | 0.035 | 0.92 | 111 | 87 |
 //! | lite | 84/84 | 0.964 | 0.037 | 0.93 | 124 | 98 |
 //!
-//! Most of the error is in views of the person's back (pelvis turned ≥ 90° from the camera),
-//! which BlazePose often reads as front views with left and right swapped (the synthetic head
-//! has no face); views of the front hold a tighter floor. The same perceived landmarks fed to a
+//! Most of the error is in views of the person's back (pelvis turned ≥ 90° from the camera):
+//! 3 of the 22 views turned ≥ 135° away are read as front views, left and right swapped (2D
+//! PCK@0.1 ≤ 0.08, 3D ≈ 410–440 mm in camera axes but ≈ 115–135 mm after the best rotation:
+//! the whole body turned round); views of the front hold a tighter floor. The same perceived landmarks fed to a
 //! broken solver (left/right swapped, the camera-axis conversion dropped, or the landmarks
 //! ignored) fail the joint floor. Frames with nobody in them give no person.
 
