@@ -722,7 +722,7 @@ const TILE: u32 = 256;
 
 /// A picture of views: per view, the image with the perceived mask tinted and the perceived
 /// skeleton (or "nobody found": the bare image with a red border) beside the true mask with
-/// the true landmarks' skeleton; two views per row, tiles [`TILE`] pixels high.
+/// the true landmarks' skeleton; two views per row, tiles 256 pixels high.
 pub fn contact_sheet(views: &[(&SyntheticView, &ViewResult)]) -> RgbImage {
     use image::imageops::{resize, FilterType};
     let gap = 6;
