@@ -122,7 +122,9 @@ impl ConvNhwc {
                 .enumerate()
                 .for_each(|(t, chunk)| {
                     let first = t * rows;
-                    if self.rows.is_some() {
+                    if self.rows.is_some() && self.c_in % 8 == 0 {
+                        self.run_dots8(input, shape, pad, os, first, epi, chunk);
+                    } else if self.rows.is_some() {
                         self.run_dots(input, shape, pad, os, first, epi, chunk);
                     } else {
                         self.run_indirect(input, shape, pad, os, first, epi, chunk);
@@ -161,25 +163,7 @@ impl ConvNhwc {
             let mut q = 0;
             while q < count {
                 let m = 12.min(count - q);
-                for r in 0..m {
-                    let (oy, ox) = ((first + q + r) / os.width, (first + q + r) % os.width);
-                    for ky in 0..kh {
-                        let iy = (oy * self.stride.0 + ky)
-                            .checked_sub(pad.top)
-                            .filter(|&y| y < shape.height);
-                        for kx in 0..kw {
-                            let ix = (ox * self.stride.1 + kx)
-                                .checked_sub(pad.left)
-                                .filter(|&x| x < shape.width);
-                            taps[ky * kw + kx][r] = match (iy, ix) {
-                                (Some(iy), Some(ix)) => {
-                                    input[(iy * shape.width + ix) * c..][..c].as_ptr()
-                                }
-                                _ => zero,
-                            };
-                        }
-                    }
-                }
+                self.fill_taps(input, shape, pad, os, first + q, m, zero, &mut taps);
                 let e = Epilogue {
                     residual: epi
                         .residual
@@ -191,6 +175,113 @@ impl ConvNhwc {
                 unsafe {
                     self.gemm
                         .run_indirect(&taps, c, m, 0, e, &mut chunk[q * n..(q + m) * n]);
+                }
+                q += m;
+            }
+        });
+    }
+
+    /// Points `taps[ky·kw + kx][r]` at the input row under output pixel `first + r`, `r < m`
+    /// (at `zero` where the tap falls on padding).
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
+    fn fill_taps(
+        &self,
+        input: &[f32],
+        shape: Shape,
+        pad: Padding,
+        os: Shape,
+        first: usize,
+        m: usize,
+        zero: *const f32,
+        taps: &mut [[*const f32; 12]],
+    ) {
+        let (kh, kw) = self.kernel;
+        let c = self.c_in;
+        let (h, w) = (shape.height as isize, shape.width as isize);
+        let base = input.as_ptr();
+        let (mut oy, mut ox) = (first / os.width, first % os.width);
+        for r in 0..m {
+            let y0 = (oy * self.stride.0) as isize - pad.top as isize;
+            let x0 = (ox * self.stride.1) as isize - pad.left as isize;
+            if y0 >= 0 && x0 >= 0 && y0 + kh as isize <= h && x0 + kw as isize <= w {
+                // every tap inside the image
+                let corner = (y0 * w + x0) as usize * c;
+                for ky in 0..kh {
+                    for kx in 0..kw {
+                        let at = corner + (ky * shape.width + kx) * c;
+                        taps[ky * kw + kx][r] = base.wrapping_add(at);
+                    }
+                }
+            } else {
+                for ky in 0..kh {
+                    let iy = y0 + ky as isize;
+                    for kx in 0..kw {
+                        let ix = x0 + kx as isize;
+                        taps[ky * kw + kx][r] = if iy >= 0 && iy < h && ix >= 0 && ix < w {
+                            base.wrapping_add((iy * w + ix) as usize * c)
+                        } else {
+                            zero
+                        };
+                    }
+                }
+            }
+            ox += 1;
+            if ox == os.width {
+                ox = 0;
+                oy += 1;
+            }
+        }
+        debug_assert!(input.len() >= shape.len());
+    }
+
+    /// Few output channels with `C_in` a multiple of 8: eight output pixels at a time, each
+    /// output channel's eight sums accumulated in vector lanes over the tap table.
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
+    fn run_dots8(
+        &self,
+        input: &[f32],
+        shape: Shape,
+        pad: Padding,
+        os: Shape,
+        first: usize,
+        epi: Epilogue,
+        chunk: &mut [f32],
+    ) {
+        let weight = self
+            .rows
+            .as_deref()
+            .expect("dot layers keep their weight rows");
+        let (kh, kw) = self.kernel;
+        let (c, n) = (self.c_in, self.gemm.n());
+        let count = chunk.len() / n;
+        let (lo1, hi1) = epi.pre.bounds();
+        let (lo2, hi2) = epi.post.bounds();
+        ZEROS.with(|z| {
+            let mut z = z.borrow_mut();
+            if z.len() < c {
+                z.resize(c, 0.0);
+            }
+            let zero = z.as_ptr();
+            let mut taps = vec![[zero; 12]; kh * kw];
+            let per_out = kh * kw * c;
+            let mut q = 0;
+            while q < count {
+                let m = 8.min(count - q);
+                self.fill_taps(input, shape, pad, os, first + q, m, zero, &mut taps);
+                for o in 0..n {
+                    let w = &weight[o * per_out..(o + 1) * per_out];
+                    // SAFETY: AVX2/FMA are present (checked by the caller); the table points
+                    // at `c` values of `input` or of the zero row, and `w` holds `taps · c`.
+                    let sums = unsafe { super::gemm_avx2::indirect_dot8(&taps, c, w, m) };
+                    for (r, &sum) in sums.iter().enumerate().take(m) {
+                        let mut y = (sum + self.bias[o]).max(lo1).min(hi1);
+                        if let Some(res) = epi.residual {
+                            y = (y + res[(first + q + r) * n + o]).max(lo2).min(hi2);
+                        }
+                        chunk[(q + r) * n + o] = y;
+                    }
                 }
                 q += m;
             }

@@ -153,8 +153,8 @@ fn run_rows_portable(job: &Rows, epi: Epilogue, out: &mut [f32]) {
     run_rows_skipping(job, epi, out, 0);
 }
 
-/// The job's rows on the portable loops, except the interior pixels of channels
-/// `0..skip_channels`, which the caller computes.
+/// The job's rows on the portable loops, channels `skip_channels..` only (the caller computes
+/// the others).
 #[inline(always)]
 fn run_rows_skipping(job: &Rows, epi: Epilogue, out: &mut [f32], skip_channels: usize) {
     match job.dw.kernel {
@@ -164,14 +164,14 @@ fn run_rows_skipping(job: &Rows, epi: Epilogue, out: &mut [f32], skip_channels: 
     }
 }
 
-/// The job's rows: interior pixels of whole 8-channel blocks with the AVX2/FMA kernel where
-/// the CPU has it, everything else on the portable loops.
+/// The job's rows: whole 8-channel blocks with the AVX2/FMA kernel where the CPU has it, the
+/// remaining channels (or all, elsewhere) on the portable loops.
 fn run_rows_fast(job: &Rows, epi: Epilogue, out: &mut [f32]) {
     #[cfg(target_arch = "x86_64")]
     if super::gemm_avx2::available() {
         let skip = job.dw.channels / 8 * 8;
         // SAFETY: the CPU has AVX2 and FMA (checked above).
-        unsafe { avx2::interior_rows(job, epi, out) };
+        unsafe { avx2::rows(job, epi, out) };
         run_rows(job, epi, out, skip);
         return;
     }
@@ -184,17 +184,17 @@ fn run_rows_fast(job: &Rows, epi: Epilogue, out: &mut [f32]) {
 fn blocks<const K: usize, const T: usize>(job: &Rows, epi: Epilogue, out: &mut [f32], skip: usize) {
     const { assert!(T == K * K) };
     let c = job.dw.channels;
-    let mut c0 = 0;
+    let mut c0 = skip;
     while c0 + 16 <= c {
-        block::<K, T, 16>(job, c0, epi, out, c0 + 16 <= skip);
+        block::<K, T, 16>(job, c0, epi, out);
         c0 += 16;
     }
     while c0 + 8 <= c {
-        block::<K, T, 8>(job, c0, epi, out, c0 + 8 <= skip);
+        block::<K, T, 8>(job, c0, epi, out);
         c0 += 8;
     }
     while c0 < c {
-        block::<K, T, 1>(job, c0, epi, out, c0 < skip);
+        block::<K, T, 1>(job, c0, epi, out);
         c0 += 1;
     }
 }
@@ -208,7 +208,6 @@ fn block<const K: usize, const T: usize, const L: usize>(
     c0: usize,
     epi: Epilogue,
     out: &mut [f32],
-    interior_done: bool,
 ) {
     let dw = job.dw;
     let (c, (kh, kw), sw) = (dw.channels, dw.kernel, dw.stride.1);
@@ -239,7 +238,7 @@ fn block<const K: usize, const T: usize, const L: usize>(
             let acc = border_pixel::<L>(job, c0, bias, y0, ox);
             store::<L>(&acc, epi, res_row, ox * c + c0, out_row);
         }
-        if lo < hi && !interior_done {
+        if lo < hi {
             let line0 = (y0 as usize * w) * c + c0;
             let mut ox = lo;
             while ox + 4 <= hi {
@@ -357,21 +356,21 @@ fn madd<const L: usize>(acc: &mut [f32; L], x: &[f32; L], w: &[f32; L]) {
     }
 }
 
-/// The interior pixels of whole 8-channel blocks with AVX2/FMA intrinsics: eight output
-/// pixels at a time, each tap's weights loaded once for the eight.
+/// Whole 8-channel blocks with AVX2/FMA intrinsics: eight output pixels at a time where their
+/// windows lie inside the image, each tap's weights loaded once for the eight.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::*;
 
     use super::{Epilogue, Rows};
 
-    /// Interior pixels (windows inside the image) of every row of the job, channels
-    /// `0..C / 8 · 8`.
+    /// Every pixel of the job's rows, channels `0..C / 8 · 8`: windows inside the image eight
+    /// pixels at a time, the others one at a time over their in-bounds taps.
     ///
     /// # Safety
     /// The CPU must have AVX2 and FMA.
     #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn interior_rows(job: &Rows, epi: Epilogue, out: &mut [f32]) {
+    pub(super) unsafe fn rows(job: &Rows, epi: Epilogue, out: &mut [f32]) {
         let dw = job.dw;
         let (c, (kh, kw), (sh, sw)) = (dw.channels, dw.kernel, dw.stride);
         let (h, w) = (job.shape.height, job.shape.width);
@@ -398,48 +397,59 @@ mod avx2 {
         for r in 0..rows {
             let oy = job.first + r;
             let y0 = (oy * sh) as isize - job.pad.top as isize;
-            if ox_lo >= ox_hi || y0 < 0 || y0 as usize + kh > h {
-                continue;
-            }
-            let line0 = y0 as usize * w * c;
+            let ky_lo = (-y0).max(0) as usize;
+            let ky_hi = ((h as isize - y0).max(0) as usize).min(kh);
+            let inside = ky_lo == 0 && ky_hi == kh;
             let out_row = out[r * ow * c..(r + 1) * ow * c].as_mut_ptr();
             let res_row = epi.residual.map(|x| x[r * ow * c..].as_ptr());
+            let store = |at: usize, acc: __m256| {
+                let mut v = _mm256_min_ps(_mm256_max_ps(acc, lo1), hi1);
+                if let Some(res) = res_row {
+                    v = _mm256_add_ps(v, _mm256_loadu_ps(res.add(at)));
+                    v = _mm256_min_ps(_mm256_max_ps(v, lo2), hi2);
+                }
+                _mm256_storeu_ps(out_row.add(at), v);
+            };
             for c0 in (0..c / 8 * 8).step_by(8) {
                 let bias = _mm256_loadu_ps(dw.bias.as_ptr().add(c0));
                 let wts = dw.weight.as_ptr().add(c0);
-                let mut ox = ox_lo;
-                while ox < ox_hi {
-                    let p = (ox_hi - ox).min(8);
-                    let mut acc = [bias; 8];
-                    for ky in 0..kh {
-                        let line = input.add(line0 + ky * w * c + c0);
-                        for kx in 0..kw {
-                            let wv = _mm256_loadu_ps(wts.add((ky * kw + kx) * c));
-                            // interior: (ox + i)·sw + kx ≥ left for every i
-                            let x0 = line.add(((ox * sw + kx) - left) * c);
-                            if p == 8 {
+                let mut ox = 0;
+                while ox < ow {
+                    if inside && ox >= ox_lo && ox + 8 <= ox_hi {
+                        // eight pixels, every tap inside the image
+                        let mut acc = [bias; 8];
+                        for ky in 0..kh {
+                            let line = input.add((y0 as usize + ky) * w * c + c0);
+                            for kx in 0..kw {
+                                let wv = _mm256_loadu_ps(wts.add((ky * kw + kx) * c));
+                                let x0 = line.add((ox * sw + kx - left) * c);
                                 for (i, acc) in acc.iter_mut().enumerate() {
-                                    let x = _mm256_loadu_ps(x0.add(i * sw * c));
-                                    *acc = _mm256_fmadd_ps(x, wv, *acc);
-                                }
-                            } else {
-                                for (i, acc) in acc.iter_mut().enumerate().take(p) {
                                     let x = _mm256_loadu_ps(x0.add(i * sw * c));
                                     *acc = _mm256_fmadd_ps(x, wv, *acc);
                                 }
                             }
                         }
-                    }
-                    for (i, &acc) in acc.iter().enumerate().take(p) {
-                        let at = (ox + i) * c + c0;
-                        let mut v = _mm256_min_ps(_mm256_max_ps(acc, lo1), hi1);
-                        if let Some(res) = res_row {
-                            v = _mm256_add_ps(v, _mm256_loadu_ps(res.add(at)));
-                            v = _mm256_min_ps(_mm256_max_ps(v, lo2), hi2);
+                        for (i, &acc) in acc.iter().enumerate() {
+                            store((ox + i) * c + c0, acc);
                         }
-                        _mm256_storeu_ps(out_row.add(at), v);
+                        ox += 8;
+                        continue;
                     }
-                    ox += p;
+                    // one pixel over its in-bounds taps
+                    let x0 = (ox * sw) as isize - left as isize;
+                    let kx_lo = (-x0).max(0) as usize;
+                    let kx_hi = ((w as isize - x0).max(0) as usize).min(kw);
+                    let mut acc = bias;
+                    for ky in ky_lo..ky_hi {
+                        let line = input.add((y0 + ky as isize) as usize * w * c + c0);
+                        for kx in kx_lo..kx_hi {
+                            let wv = _mm256_loadu_ps(wts.add((ky * kw + kx) * c));
+                            let x = _mm256_loadu_ps(line.add((x0 + kx as isize) as usize * c));
+                            acc = _mm256_fmadd_ps(x, wv, acc);
+                        }
+                    }
+                    store(ox * c + c0, acc);
+                    ox += 1;
                 }
             }
         }

@@ -142,6 +142,44 @@ unsafe fn indirect<const M: usize, const NV: usize>(
     store::<M, NV>(&acc, first, m, po, epi, out);
 }
 
+/// Output pixels `0..m` (`m ≤ 8`) of one output channel whose input rows are read through
+/// `taps[t][r]` (`c` values each, `c` a multiple of 8) against `weight [taps][c]`: the eight
+/// sums `Σ_t Σ_i taps[t][r][i] · weight[t][i]`.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA; every pointer in `taps[..][..m]` must point at `c`
+/// readable values and `weight` hold `taps.len() · c`.
+#[target_feature(enable = "avx2,fma")]
+pub(crate) unsafe fn indirect_dot8(
+    taps: &[[*const f32; 12]],
+    c: usize,
+    weight: &[f32],
+    m: usize,
+) -> [f32; 8] {
+    assert!(m <= 8 && c % 8 == 0 && weight.len() >= taps.len() * c);
+    let mut acc = [_mm256_setzero_ps(); 8];
+    for (t, rows) in taps.iter().enumerate() {
+        for c0 in (0..c).step_by(8) {
+            let wv = _mm256_loadu_ps(weight.as_ptr().add(t * c + c0));
+            for (acc, &row) in acc.iter_mut().zip(rows).take(m) {
+                *acc = _mm256_fmadd_ps(_mm256_loadu_ps(row.add(c0)), wv, *acc);
+            }
+        }
+    }
+    // eight horizontal sums into one vector
+    let s01 = _mm256_hadd_ps(acc[0], acc[1]);
+    let s23 = _mm256_hadd_ps(acc[2], acc[3]);
+    let s45 = _mm256_hadd_ps(acc[4], acc[5]);
+    let s67 = _mm256_hadd_ps(acc[6], acc[7]);
+    let s0123 = _mm256_hadd_ps(s01, s23);
+    let s4567 = _mm256_hadd_ps(s45, s67);
+    let lo = _mm256_permute2f128_ps::<0x20>(s0123, s4567);
+    let hi = _mm256_permute2f128_ps::<0x31>(s0123, s4567);
+    let mut sums = [0.0f32; 8];
+    _mm256_storeu_ps(sums.as_mut_ptr(), _mm256_add_ps(lo, hi));
+    sums
+}
+
 /// `Σ a[i]·b[i]` over `len` values.
 ///
 /// # Safety

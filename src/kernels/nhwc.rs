@@ -326,27 +326,50 @@ pub fn resize_bilinear_half_pixel(
         .for_each(|(oy, row)| {
             let (y0, y1, fy) = half_pixel_source(oy, sy, shape.height);
             let line = |y: usize| &input[y * shape.width * c..(y + 1) * shape.width * c];
-            let (top, bottom) = (line(y0), line(y1));
             let res = residual.map(|r| &r[oy * ow * c..(oy + 1) * ow * c]);
-            for (ox, px) in row.chunks_exact_mut(c).enumerate() {
-                let (x0, x1, fx) = cols[ox];
-                let (a, b) = (&top[x0 * c..][..c], &top[x1 * c..][..c]);
-                let (d, e) = (&bottom[x0 * c..][..c], &bottom[x1 * c..][..c]);
-                for i in 0..c {
-                    // TFLite's reference: the four corners weighted by (1-fy)(1-fx), fy(1-fx), …
-                    let v = a[i] * (1.0 - fy) * (1.0 - fx)
-                        + d[i] * fy * (1.0 - fx)
-                        + b[i] * (1.0 - fy) * fx
-                        + e[i] * fy * fx;
-                    px[i] = v;
-                }
-                if let Some(r) = res {
-                    for (o, &v) in px.iter_mut().zip(&r[ox * c..][..c]) {
-                        *o += v;
-                    }
-                }
-            }
+            resize_row(line(y0), line(y1), fy, &cols, c, res, row);
         });
+}
+
+#[inline(always)]
+fn resize_row_portable(
+    top: &[f32],
+    bottom: &[f32],
+    fy: f32,
+    cols: &[(usize, usize, f32)],
+    c: usize,
+    residual: Option<&[f32]>,
+    row: &mut [f32],
+) {
+    for (ox, px) in row.chunks_exact_mut(c).enumerate() {
+        let (x0, x1, fx) = cols[ox];
+        let (a, b) = (&top[x0 * c..][..c], &top[x1 * c..][..c]);
+        let (d, e) = (&bottom[x0 * c..][..c], &bottom[x1 * c..][..c]);
+        // TFLite's reference: the four corners weighted by (1-fy)(1-fx), fy(1-fx), …
+        let (wa, wd) = ((1.0 - fy) * (1.0 - fx), fy * (1.0 - fx));
+        let (wb, we) = ((1.0 - fy) * fx, fy * fx);
+        for ((((o, &a), &b), &d), &e) in px.iter_mut().zip(a).zip(b).zip(d).zip(e) {
+            *o = a * wa + d * wd + b * wb + e * we;
+        }
+        if let Some(r) = residual {
+            for (o, &v) in px.iter_mut().zip(&r[ox * c..][..c]) {
+                *o += v;
+            }
+        }
+    }
+}
+
+simd_dispatch! {
+    avx2;
+    fn resize_row[](
+        top: &[f32],
+        bottom: &[f32],
+        fy: f32,
+        cols: &[(usize, usize, f32)],
+        c: usize,
+        residual: Option<&[f32]>,
+        row: &mut [f32],
+    ) = resize_row_portable;
 }
 
 /// Concatenates row-major tensors along one axis: each input is `outer × inner_i` values
