@@ -11,19 +11,17 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use glam::Vec3;
 use image::codecs::gif::{GifEncoder, Repeat};
-use image::{Delay, Frame, GrayImage, RgbImage};
+use image::{Delay, Frame, RgbImage};
 use indicatif::{ProgressBar, ProgressStyle};
-use lhmpp::avatar::Avatar;
-use lhmpp::body::{motion, BodyTemplate, Pose};
+use lhmpp::body::{motion, Pose};
 use lhmpp::config::ModelConfig;
 use lhmpp::perception::overlay::draw_overlay;
-use lhmpp::perception::pose::{PoseEstimator, PoseEstimatorConfig};
-use lhmpp::perception::{LandmarkModel, PersonTracker, PoseNetworks, TrackerConfig};
-use lhmpp::reconstruct::preprocess::{preprocess, PreprocessConfig, Preprocessed, Subject};
+use lhmpp::perception::{LandmarkModel, PoseNetworks};
+use lhmpp::reconstruct::photos::{
+    photo_view, preprocess_config, reconstruct_photos, FrontStage, PersonHint, PhotoView,
+};
 use lhmpp::reconstruct::Reconstructor;
-use lhmpp::splat::{render, Camera, Gaussians, Intrinsics, RenderOptions};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -62,13 +60,6 @@ pub struct AvatarArgs {
     walk_frames: usize,
 }
 
-/// One photo's view and what perception read from it.
-struct PhotoView {
-    stem: String,
-    view: Preprocessed,
-    pose: Option<Pose>,
-}
-
 /// Masks the photos, reconstructs, writes the avatar and its pictures.
 pub fn run(args: AvatarArgs) -> Result<()> {
     if !args.masks.is_empty() && args.masks.len() != args.images.len() {
@@ -84,12 +75,7 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         ..ModelConfig::default()
     };
     let mut recon = Reconstructor::new(&model, args.images.len().max(1))?;
-    let (out_h, out_w) = recon.input_size();
-    let prep = PreprocessConfig {
-        out_height: out_h,
-        out_width: out_w,
-        ..PreprocessConfig::default()
-    };
+    let prep = preprocess_config(&recon);
     let landmark_model = LandmarkModel::from_name(&args.landmark_model).with_context(|| {
         format!(
             "--landmark-model `{}`: expected lite, full or heavy",
@@ -107,7 +93,20 @@ pub fn run(args: AvatarArgs) -> Result<()> {
     let mut views = Vec::new();
     for (i, path) in args.images.iter().enumerate() {
         let given = args.masks.get(i).map(PathBuf::as_path);
-        match photo_view(path, given, &networks, recon.template(), &prep, &masks_dir) {
+        let view = photo_view(
+            path,
+            given,
+            Some(&PersonHint::Best),
+            &networks,
+            recon.template(),
+            &prep,
+        )
+        .map_err(anyhow::Error::from)
+        .and_then(|v| {
+            v.map(|v| write_mask(&v, &masks_dir).map(|()| v))
+                .transpose()
+        });
+        match view {
             Ok(Some(v)) => views.push(v),
             Ok(None) => tracing::warn!(photo = %path.display(), "no person found: photo skipped"),
             Err(e) => tracing::error!(photo = %path.display(), "{}", super::error_line(&e)),
@@ -120,12 +119,7 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         );
     }
     let started = std::time::Instant::now();
-    let refs: Vec<(u64, &Preprocessed)> = views
-        .iter()
-        .enumerate()
-        .map(|(i, v)| (i as u64, &v.view))
-        .collect();
-    let avatar = recon.reconstruct(&refs)?;
+    let avatar = reconstruct_photos(&mut recon, &views)?;
     tracing::info!(
         views = views.len(),
         ms = format!("{:.0}", started.elapsed().as_secs_f64() * 1e3),
@@ -137,19 +131,19 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         .with_context(|| format!("writing {}", ply.display()))?;
 
     let template = recon.template();
-    let stage = Stage::new(&avatar, args.size);
+    let stage = FrontStage::new(&avatar, args.size);
     let rest = Pose::identity();
     let turntable: Vec<RgbImage> = (0..args.turntable_frames)
-        .map(|i| stage.render(&avatar, template, &rest, i, args.turntable_frames))
-        .collect::<Result<_>>()?;
+        .map(|i| stage.render_rgb8(&avatar, template, &rest, i, args.turntable_frames))
+        .collect::<Result<_, _>>()?;
     write_sequence(&args.out, "turntable", &turntable)?;
     let walk: Vec<RgbImage> = (0..args.walk_frames)
-        .map(|f| stage.render(&avatar, template, &motion::walk_pose(f as f32), 0, 1))
-        .collect::<Result<_>>()?;
+        .map(|f| stage.render_rgb8(&avatar, template, &motion::walk_pose(f as f32), 0, 1))
+        .collect::<Result<_, _>>()?;
     write_sequence(&args.out, "walk", &walk)?;
     for v in &views {
         if let Some(pose) = &v.pose {
-            let image = stage.render(&avatar, template, pose, 0, 1)?;
+            let image = stage.render_rgb8(&avatar, template, pose, 0, 1)?;
             let path = args.out.join(format!("posed_{}.png", v.stem));
             image
                 .save(&path)
@@ -167,108 +161,21 @@ pub fn run(args: AvatarArgs) -> Result<()> {
     Ok(())
 }
 
-/// Reads a photo, masks it (the given mask, else perception's), writes the mask and overlay,
-/// and preprocesses the view; `None` when perception finds nobody.
-fn photo_view(
-    path: &Path,
-    given_mask: Option<&Path>,
-    networks: &Arc<PoseNetworks>,
-    template: &BodyTemplate,
-    prep: &PreprocessConfig,
-    masks_dir: &Path,
-) -> Result<Option<PhotoView>> {
-    let image = image::open(path)
-        .with_context(|| format!("reading {}", path.display()))?
-        .to_rgb8();
-    let stem = path
-        .file_stem()
-        .map_or_else(|| "photo".into(), |s| s.to_string_lossy().into_owned());
-    let config = TrackerConfig {
-        smooth_masks: false,
-        ..TrackerConfig::default()
-    };
-    let perceived = PersonTracker::new(networks.clone(), config).perceive(&image)?;
-    let mask: GrayImage = match (given_mask, &perceived) {
-        (Some(m), _) => image::open(m)
-            .with_context(|| format!("reading mask {}", m.display()))?
-            .to_luma8(),
-        (None, Some(p)) => p.mask.to_mask(0.5, 0.1),
-        (None, None) => return Ok(None),
-    };
-    let pose = match &perceived {
-        Some(p) => {
-            let cfg = PoseEstimatorConfig {
-                filter: None,
-                ..PoseEstimatorConfig::default()
-            };
-            Some(PoseEstimator::new(template, cfg)?.update(0.0, &p.landmarks.world))
-        }
-        None => None,
-    };
+/// Writes what perception used for one photo: `<stem>_mask.png` (the mask) and
+/// `<stem>_overlay.png` (the mask tinted and the landmark skeleton).
+fn write_mask(view: &PhotoView, masks_dir: &Path) -> Result<()> {
     let save = |name: String, img: &dyn Fn(&Path) -> image::ImageResult<()>| {
         let target = masks_dir.join(name);
         img(&target).with_context(|| format!("writing {}", target.display()))
     };
-    save(format!("{stem}_mask.png"), &|t| mask.save(t))?;
+    save(format!("{}_mask.png", view.stem), &|t| view.mask.save(t))?;
     let overlay = draw_overlay(
-        &image,
-        Some(&mask),
-        perceived.as_ref().map(|p| &p.landmarks.image),
+        &view.image,
+        Some(&view.mask),
+        view.perceived.as_ref().map(|p| &p.landmarks.image),
         0.5,
     );
-    save(format!("{stem}_overlay.png"), &|t| overlay.save(t))?;
-    let view = preprocess(&image, Subject::Mask(&mask), prep)
-        .with_context(|| format!("preprocessing {}", path.display()))?;
-    Ok(Some(PhotoView { stem, view, pose }))
-}
-
-/// Cameras framing the avatar's canonical body.
-struct Stage {
-    target: Vec3,
-    radius: f32,
-    intrinsics: Intrinsics,
-    options: RenderOptions,
-}
-
-impl Stage {
-    fn new(avatar: &Avatar, size: u32) -> Self {
-        let (lo, hi) = bounds(&avatar.canonical);
-        let fov = 40f32.to_radians();
-        let extent = (hi - lo).max_element().max(0.1);
-        Self {
-            target: 0.5 * (lo + hi),
-            radius: 0.62 * extent / (0.5 * fov).tan() + 0.5 * (hi.z - lo.z),
-            intrinsics: Intrinsics::from_fov_y(size, size, fov),
-            options: RenderOptions {
-                background: Vec3::ONE,
-                ..RenderOptions::default()
-            },
-        }
-    }
-
-    /// The avatar at `pose`, from camera `i` of `n` on a ring (camera 0 in front).
-    fn render(
-        &self,
-        avatar: &Avatar,
-        template: &BodyTemplate,
-        pose: &Pose,
-        i: usize,
-        n: usize,
-    ) -> Result<RgbImage> {
-        let matrices = template.skeleton.try_skinning_matrices(pose)?;
-        avatar.check_matrices(&matrices)?;
-        let posed = avatar.animate(&matrices);
-        let camera = Camera::orbit(i, n, self.radius, 0.0, self.target, self.intrinsics);
-        Ok(render(&posed, &camera, &self.options).to_rgb8())
-    }
-}
-
-/// Bounds of the finite Gaussian centres.
-fn bounds(g: &Gaussians) -> (Vec3, Vec3) {
-    g.positions
-        .iter()
-        .filter(|p| p.is_finite())
-        .fold((Vec3::MAX, Vec3::MIN), |(l, h), p| (l.min(*p), h.max(*p)))
+    save(format!("{}_overlay.png", view.stem), &|t| overlay.save(t))
 }
 
 /// Writes `DIR/NAME/NNN.png` and `DIR/NAME.gif` (24 fps, looping).

@@ -10,6 +10,7 @@ mod config_cmd;
 mod config_source;
 mod eval;
 mod eval_perception;
+mod eval_photos;
 mod fuzz;
 mod loadgen;
 mod model;
@@ -65,6 +66,10 @@ enum Command {
     /// Score camera-only perception on synthetic bags: persons found, mask IoU, 2D landmark
     /// and 3D joint errors against the ground truth (`eval-perception BAG... --model lite`).
     EvalPerception(eval_perception::EvalPerceptionArgs),
+    /// Score the avatar's colours on real photos: per body region, the median colour on the
+    /// photo and on the avatar rendered in the photo's pose, compared with CIEDE2000
+    /// (`eval-photos --manifest scripts/devset/photos.json`).
+    EvalPhotos(eval_photos::EvalPhotosArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`), recover damaged ones
     /// (`bag recover IN -o OUT`).
     Bag(bag::BagArgs),
@@ -130,6 +135,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Replay(args) => replay::run(args),
         Command::Eval(args) => eval::run(args),
         Command::EvalPerception(args) => eval_perception::run(args),
+        Command::EvalPhotos(args) => eval_photos::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),

@@ -6,9 +6,12 @@
 //! The node (`crate::node`), the held-out evaluation (`crate::eval`), the synthetic data sets
 //! and the official-checkpoint tests all reconstruct through this module. [`part_rules`]
 //! applies the official decoder's per-part rules to avatars made on the SMPL-X prior.
+//! [`photos`] is the photos → masked views → avatar → front render path of `lhmpp avatar` and
+//! `lhmpp eval-photos` (camera-only perception for the masks and poses).
 
 pub mod image_decode;
 pub mod part_rules;
+pub mod photos;
 pub mod preprocess;
 pub mod reconstructor;
 pub mod shape;

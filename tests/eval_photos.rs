@@ -1,0 +1,278 @@
+//! The real-photo colour score (`lhmpp::eval::photos`, `lhmpp eval-photos`) on synthetic
+//! people, whose clothing colours are known: a front render of a seeded person stands in for
+//! the photo, perception reads its landmarks, and the regions must find the shirt on the
+//! torso and the trousers on the thighs; the same image scores ΔE00 = 0; a known colour shift
+//! scores its CIEDE2000; and a planted failure (shirt and trouser colours swapped) scores
+//! large. The command runs end to end on a folder of renders and on a two-view manifest.
+
+use glam::Vec3;
+use lhmpp::body::Pose;
+use lhmpp::eval::photos::colour::{ciede2000, Srgb8};
+use lhmpp::eval::photos::regions::{seen_parts, Region, RegionConfig};
+use lhmpp::eval::photos::{
+    photo_regions, region_colours, render_mask, score_view, RegionStatus, ViewPicture,
+};
+use lhmpp::perception::{Landmark, LandmarkModel, PoseNetworks, BODY_LANDMARKS};
+use lhmpp::reconstruct::photos::{perceive_person, PersonHint};
+use lhmpp::splat::{Camera, Intrinsics};
+use lhmpp::synth::capture::render_views;
+use lhmpp::synth::outfit::Outfit;
+use lhmpp::synth::{RigCamera, SyntheticPerson};
+use std::sync::{Arc, OnceLock};
+
+const SIZE: u32 = 384;
+
+fn networks() -> Arc<PoseNetworks> {
+    static NETS: OnceLock<Arc<PoseNetworks>> = OnceLock::new();
+    NETS.get_or_init(|| Arc::new(PoseNetworks::load(LandmarkModel::Full, None).unwrap()))
+        .clone()
+}
+
+fn rgb8(c: [f32; 3]) -> Srgb8 {
+    c.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+}
+
+/// The first seed whose outfit has a plain long-sleeved shirt far (ΔE00 > 30) from the
+/// trousers: the torso and upper arms wear the shirt, the thighs and shins the trousers.
+fn plain_seed() -> u64 {
+    (1..200)
+        .find(|&s| {
+            let o = Outfit::random(s);
+            o.stripes.is_none()
+                && !o.short_sleeves
+                && ciede2000(rgb8(o.shirt), rgb8(o.trousers)) > 30.0
+        })
+        .expect("a plain outfit among 200 seeds")
+}
+
+/// A front view of a synthetic person: the image, its true mask and the person.
+struct Photo {
+    person: SyntheticPerson,
+    image: image::RgbImage,
+    mask: image::GrayImage,
+}
+
+fn camera(person: &SyntheticPerson, angle: f32) -> RigCamera {
+    let h = person.template.height();
+    let target = Vec3::new(0.0, 0.5 * h, 0.0);
+    let distance = 0.62 * h / (0.5f32 * 0.75).tan();
+    let eye = target + Vec3::new(angle.sin(), 0.1, angle.cos()) * distance;
+    RigCamera {
+        name: "front".into(),
+        camera: Camera::look_at(
+            eye,
+            target,
+            Vec3::Y,
+            Intrinsics::from_fov_y(SIZE, SIZE, 0.75),
+        ),
+    }
+}
+
+fn photo(angle: f32) -> Photo {
+    let person = SyntheticPerson::new(plain_seed(), 20_000).unwrap();
+    let cams = [camera(&person, angle)];
+    let views = render_views(&person, &Pose::identity(), &cams).unwrap();
+    let out = &views[0].output;
+    Photo {
+        image: out.to_rgb8(),
+        mask: render_mask(out),
+        person,
+    }
+}
+
+fn front() -> &'static Photo {
+    static FRONT: OnceLock<Photo> = OnceLock::new();
+    FRONT.get_or_init(|| photo(0.0))
+}
+
+fn landmarks(image: &image::RgbImage) -> [Landmark; BODY_LANDMARKS] {
+    perceive_person(&networks(), image, &PersonHint::Best)
+        .unwrap()
+        .expect("perception finds the synthetic person")
+        .landmarks
+        .image
+}
+
+fn delta(v: &ViewPicture, region: Region) -> f64 {
+    let r = v.regions[region.index()];
+    assert_eq!(r.status, RegionStatus::Scored, "{region:?}: {r:?}");
+    r.delta_e.unwrap()
+}
+
+#[test]
+fn regions_find_the_colours_the_person_wears() {
+    let p = front();
+    let config = RegionConfig::default();
+    let l = landmarks(&p.image);
+    let sides = seen_parts(&l, &config);
+    for region in [Region::Torso, Region::Head] {
+        assert!(sides[region.index()][0], "{region:?} not seen: {sides:?}");
+    }
+    for region in [Region::UpperArms, Region::Thighs, Region::Shins] {
+        assert_eq!(sides[region.index()], [true, true], "{region:?}");
+    }
+    let map = photo_regions(&l, &p.mask, &config);
+    let colours = region_colours(&p.image, &map);
+    let outfit = &p.person.outfit;
+    for (region, wears) in [
+        (Region::Torso, outfit.shirt),
+        (Region::UpperArms, outfit.shirt),
+        (Region::Thighs, outfit.trousers),
+        (Region::Shins, outfit.trousers),
+    ] {
+        let c = colours[region.index()].expect("pixels in the region");
+        assert!(c.pixels >= config.min_pixels, "{region:?}: {c:?}");
+        let e = ciede2000(c.rgb, rgb8(wears));
+        assert!(
+            e < 3.0,
+            "{region:?}: median {:?} vs worn {:?}: ΔE00 {e:.2}",
+            c.rgb,
+            rgb8(wears)
+        );
+    }
+}
+
+#[test]
+fn the_same_image_scores_zero_and_a_known_shift_its_ciede2000() {
+    let p = front();
+    let config = RegionConfig::default();
+    let l = landmarks(&p.image);
+    let same = score_view(&p.image, &p.mask, Some(&l), &p.image, &p.mask, &l, &config);
+    let scored: Vec<f64> = same.regions.iter().filter_map(|r| r.delta_e).collect();
+    assert!(scored.len() >= 5, "{:?}", same.regions);
+    assert!(scored.iter().all(|e| *e == 0.0), "{scored:?}");
+
+    // Every person pixel shifted by a fixed offset: each region's median moves by the same
+    // offset (clamping is monotone, so medians commute with it).
+    let offset = [24i16, -16, 8];
+    let shift = |c: Srgb8| -> Srgb8 {
+        std::array::from_fn(|k| (i16::from(c[k]) + offset[k]).clamp(0, 255) as u8)
+    };
+    let mut shifted = p.image.clone();
+    for (px, m) in shifted.pixels_mut().zip(p.mask.pixels()) {
+        if m.0[0] >= 128 {
+            px.0 = shift(px.0);
+        }
+    }
+    let v = score_view(&p.image, &p.mask, Some(&l), &shifted, &p.mask, &l, &config);
+    for r in &v.regions {
+        if let (Some(photo), Some(e)) = (r.photo, r.delta_e) {
+            let want = ciede2000(photo.rgb, shift(photo.rgb));
+            assert!((e - want).abs() < 1e-9, "{:?}: {e} vs {want}", r.region);
+            assert!(e > 1.0, "{:?}: a visible shift scores {e}", r.region);
+        }
+    }
+    let shirt = rgb8(p.person.outfit.shirt);
+    let want = ciede2000(shirt, shift(shirt));
+    let torso = delta(&v, Region::Torso);
+    assert!((torso - want).abs() < 1.5, "torso {torso:.2} vs {want:.2}");
+}
+
+#[test]
+fn swapped_garment_colours_score_large() {
+    let p = front();
+    let config = RegionConfig::default();
+    let l = landmarks(&p.image);
+    let outfit = &p.person.outfit;
+    let (shirt, trousers) = (rgb8(outfit.shirt), rgb8(outfit.trousers));
+    let near = |a: Srgb8, b: Srgb8| a.iter().zip(b).all(|(x, y)| x.abs_diff(y) <= 12);
+    let mut swapped = p.image.clone();
+    for px in swapped.pixels_mut() {
+        if near(px.0, shirt) {
+            px.0 = trousers;
+        } else if near(px.0, trousers) {
+            px.0 = shirt;
+        }
+    }
+    // The render's landmarks from perception on the render itself, as eval-photos does.
+    let lr = landmarks(&swapped);
+    let v = score_view(&p.image, &p.mask, Some(&l), &swapped, &p.mask, &lr, &config);
+    let expected = ciede2000(shirt, trousers);
+    for region in [
+        Region::Torso,
+        Region::UpperArms,
+        Region::Thighs,
+        Region::Shins,
+    ] {
+        let e = delta(&v, region);
+        assert!(
+            e > 0.8 * expected && e > 25.0,
+            "{region:?}: ΔE00 {e:.1}, the garments differ by {expected:.1}"
+        );
+    }
+    // Head and feet kept their colours.
+    assert!(delta(&v, Region::Head) < 3.0);
+    let same = score_view(&p.image, &p.mask, Some(&l), &p.image, &p.mask, &lr, &config);
+    assert!(delta(&same, Region::Torso) < 3.0);
+}
+
+#[test]
+fn eval_photos_scores_a_folder_and_a_two_view_manifest() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = front();
+    let side = photo(0.6);
+    p.image.save(dir.path().join("front.png")).unwrap();
+    p.mask.save(dir.path().join("front_mask.png")).unwrap();
+    side.image.save(dir.path().join("side.png")).unwrap();
+    let json = dir.path().join("scores.json");
+    let sheet = dir.path().join("sheet.png");
+    let run = |args: &[&std::ffi::OsStr]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_lhmpp"))
+            .arg("eval-photos")
+            .args(args)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "{stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        stdout
+    };
+    let stdout = run(&[
+        dir.path().as_os_str(),
+        "--json".as_ref(),
+        json.as_os_str(),
+        "--picture".as_ref(),
+        sheet.as_os_str(),
+        "--render-size".as_ref(),
+        "384".as_ref(),
+    ]);
+    for needle in [
+        "### front (1 photo)",
+        "| front (given mask) | torso |",
+        "| side | thighs |",
+        "**overall**",
+        "weights: embedded default",
+    ] {
+        assert!(stdout.contains(needle), "no `{needle}` in\n{stdout}");
+    }
+    let value: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let people = value["people"].as_array().unwrap();
+    assert_eq!(people.len(), 2);
+    let torso = &people[0]["views"][0]["regions"][0];
+    assert_eq!(torso["region"], "torso");
+    assert_eq!(torso["status"], "scored");
+    assert!(torso["photo"]["hex"].as_str().unwrap().starts_with('#'));
+    let e = torso["delta_e00"].as_f64().unwrap();
+    assert!(e.is_finite() && e >= 0.0, "{e}");
+    let mean = value["overall_mean_delta_e00"].as_f64().unwrap();
+    assert!(mean > 0.0 && mean < 100.0, "{mean}");
+    let picture = image::open(&sheet).unwrap();
+    assert_eq!(picture.height(), 2 * (300 + 6) + 6, "two rows");
+
+    // The two renders as two views of one person, through a manifest.
+    let manifest = dir.path().join("people.json");
+    std::fs::write(
+        &manifest,
+        r#"{"people": [{"name": "synthetic", "views": [
+            {"photo": "front.png", "mask": "front_mask.png"},
+            {"photo": "side.png", "person": "largest"}]}]}"#,
+    )
+    .unwrap();
+    let stdout = run(&["--manifest".as_ref(), manifest.as_os_str()]);
+    assert!(stdout.contains("### synthetic (2 photos)"), "{stdout}");
+    assert!(stdout.contains("| side | torso |"), "{stdout}");
+}
