@@ -9,7 +9,8 @@
 //! [`winograd`], [`conv_transpose`]) and a bilinear resize ([`upsample`]). All of them reach the
 //! `gemm` crate through one checked call (`matmul`). The perception networks (MobileNet-style
 //! graphs on one NHWC image in a buffer arena) use slice kernels of their own: register-blocked
-//! products for 1×1 and k×k convolutions ([`pointwise`], [`conv_nhwc`]), depthwise convolution
+//! products for 1×1 and k×k convolutions ([`pointwise`], [`conv_nhwc`]), 1×1 convolutions over
+//! mostly-zero weights ([`sparse_pointwise`]), depthwise convolution
 //! ([`depthwise`]) and the small NHWC operations ([`nhwc`]).
 
 pub mod conv2d;
@@ -28,6 +29,7 @@ mod matmul;
 pub mod nhwc;
 pub mod pointwise;
 pub mod softmax;
+pub mod sparse_pointwise;
 pub mod upsample;
 pub mod winograd;
 

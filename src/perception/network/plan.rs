@@ -13,12 +13,20 @@ use std::ops::Range;
 use crate::kernels::conv_nhwc::ConvNhwc;
 use crate::kernels::depthwise::Depthwise;
 use crate::kernels::nhwc::{Activation, Padding, Shape};
+use crate::kernels::sparse_pointwise::SparsePointwise;
 
 use super::graph::{resolve_axis, Graph, Op, OpKind, PadMode};
 use crate::perception::PerceptionError;
 
 /// Arena ranges start on multiples of this many floats (one 64-byte cache line).
 const ALIGN: usize = 16;
+
+/// 1×1 layers whose weights are at most this share non-zero (and have at least
+/// [`SPARSE_MIN_INPUTS`] input channels) multiply only their non-zero weights.
+const SPARSE_MAX_DENSITY: f64 = 0.5;
+
+/// See [`SPARSE_MAX_DENSITY`].
+const SPARSE_MIN_INPUTS: usize = 32;
 
 /// One executable step.
 #[derive(Debug)]
@@ -41,6 +49,14 @@ pub(crate) enum StepKind {
         conv: ConvNhwc,
         input: Shape,
         pad: Padding,
+        pre: Activation,
+        residual: Option<usize>,
+        post: Activation,
+    },
+    /// A 1×1 convolution over mostly-zero weights with fused epilogue.
+    SparseConv {
+        conv: SparsePointwise,
+        pixels: usize,
         pre: Activation,
         residual: Option<usize>,
         post: Activation,
@@ -341,7 +357,40 @@ fn build_step(
                 bottom: own.bottom + extra.bottom,
                 right: own.right + extra.right,
             };
-            if let OpKind::Conv { .. } = op.kind {
+            let pointwise = kernel == (1, 1) && *stride == (1, 1) && pad == Padding::default();
+            let sparse = pointwise && input.channels >= SPARSE_MIN_INPUTS && {
+                let w = weight(0)?;
+                let nonzero = w.iter().filter(|v| **v != 0.0).count();
+                let max: f64 = std::env::var("TMP_SPARSE")
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(SPARSE_MAX_DENSITY);
+                let kmax: usize = std::env::var("TMP_SPARSE_K")
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(usize::MAX);
+                input.channels <= kmax && (nonzero as f64) <= max * w.len() as f64
+            };
+            if matches!(op.kind, OpKind::Conv { .. }) && sparse {
+                let conv =
+                    SparsePointwise::new(weight(0)?, input.channels, out_shape[3], weight(1)?);
+                (
+                    format!(
+                        "conv 1×1 sparse {:.0}% {}→{} @{}{res_label}",
+                        100.0 * conv.density(),
+                        input.channels,
+                        out_shape[3],
+                        dims(&out_shape[1..3])
+                    ),
+                    StepKind::SparseConv {
+                        conv,
+                        pixels: input.pixels(),
+                        pre: *act,
+                        residual,
+                        post,
+                    },
+                )
+            } else if let OpKind::Conv { .. } = op.kind {
                 let conv = ConvNhwc::new(
                     weight(0)?,
                     weight(1)?,

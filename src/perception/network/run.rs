@@ -53,6 +53,20 @@ fn run_step<'a>(step: &Step, read: &impl Fn(usize) -> &'a [f32], out: &mut [f32]
             };
             conv.run(input(), *shape, *pad, epi, out);
         }
+        StepKind::SparseConv {
+            conv,
+            pixels,
+            pre,
+            residual,
+            post,
+        } => {
+            let epi = Epilogue {
+                pre: *pre,
+                residual: residual.map(read),
+                post: *post,
+            };
+            conv.run(input(), *pixels, epi, out);
+        }
         StepKind::Depthwise {
             dw,
             input: shape,
