@@ -361,15 +361,7 @@ fn build_step(
             let sparse = pointwise && input.channels >= SPARSE_MIN_INPUTS && {
                 let w = weight(0)?;
                 let nonzero = w.iter().filter(|v| **v != 0.0).count();
-                let max: f64 = std::env::var("TMP_SPARSE")
-                    .ok()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(SPARSE_MAX_DENSITY);
-                let kmax: usize = std::env::var("TMP_SPARSE_K")
-                    .ok()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(usize::MAX);
-                input.channels <= kmax && (nonzero as f64) <= max * w.len() as f64
+                (nonzero as f64) <= SPARSE_MAX_DENSITY * w.len() as f64
             };
             if matches!(op.kind, OpKind::Conv { .. }) && sparse {
                 let conv =
