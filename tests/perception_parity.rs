@@ -7,7 +7,7 @@
 //! The heavy model is not shipped; with `LHMPP_HEAVY_FIXTURE` set (a fixture made by
 //! reference.py from pose_landmark_heavy.tflite) the last test checks it too, loading the
 //! weights from `LHMPP_HEAVY_WEIGHTS` or target/perception/pose_landmark_heavy.safetensors
-//! (see assets/perception/README.md).
+//! (see assets/perception/README.md); without it, that test only says it did not check.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -19,6 +19,12 @@ use serde_json::Value;
 
 /// The largest relative difference parity allows.
 const TOLERANCE: f32 = 1e-4;
+
+/// The heavy model's segmentation logits (`Identity_2`) are the one output where float32
+/// rounding alone moves results by more than 1e-4: LiteRT's own reference kernels differ from
+/// its XNNPACK path by 1.6e-4 relative on the heavy fixture (1.9e-4 on the full model's, whose
+/// committed check passes at 1e-4). The heavy check allows that output 3e-4.
+const HEAVY_SEGMENTATION_TOLERANCE: f32 = 3e-4;
 
 /// A fixture: the network input and LiteRT's outputs by name.
 struct Fixture {
