@@ -2,7 +2,8 @@
 
 use super::config_source::ConfigSource;
 use anyhow::{Context, Result};
-use lhmpp::eval::heldout::{evaluate_bag, InputCrop};
+use lhmpp::body::MakeHumanShape;
+use lhmpp::eval::heldout::{evaluate_bag, InputCrop, ShapeSource};
 use std::path::PathBuf;
 
 /// Arguments of `lhmpp eval`.
@@ -23,6 +24,12 @@ pub struct EvalArgs {
     /// node does when `inputs.mask_topics` are set.
     #[arg(long)]
     full_frame: bool,
+    /// Body shape to reconstruct on: `bag` (the bag's BodyShape when it has one, as the node
+    /// with a shape topic), `template` (the template's own shape, as the node without one),
+    /// `estimate` (read by perception from the calibrated input views) or `H,G` (MakeHuman
+    /// height and girth scales).
+    #[arg(long, default_value = "bag")]
+    shape: String,
     /// The model settings (`--set model.checkpoint=x.safetensors`).
     #[command(flatten)]
     pub source: ConfigSource,
@@ -34,13 +41,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
     println!(
         "| bag | input views | held-out views | PSNR (dB) | SSIM | mask IoU |\n| --- | ---: | ---: | ---: | ---: | ---: |"
     );
+    let shape = parse_shape(&args.shape)?;
     for (b, bag) in args.bags.iter().enumerate() {
         let crop = if args.full_frame {
             InputCrop::FullFrame
         } else {
             InputCrop::Mask
         };
-        let rows = evaluate_bag(bag, &config.model, &args.views, crop)?;
+        let rows = evaluate_bag(bag, &config.model, &args.views, crop, shape)?;
         if let (0, Some(path), Some(last)) = (b, &args.picture, rows.last()) {
             last.picture
                 .save(path)
@@ -75,4 +83,27 @@ pub fn run(args: EvalArgs) -> Result<()> {
         }
     );
     Ok(())
+}
+
+/// `--shape`: `bag`, `template`, `estimate` or `H,G`.
+fn parse_shape(spec: &str) -> Result<ShapeSource> {
+    match spec {
+        "bag" => Ok(ShapeSource::Bag),
+        "template" => Ok(ShapeSource::Template),
+        "estimate" => Ok(ShapeSource::Estimate),
+        _ => {
+            let values: Vec<f32> = spec
+                .split(',')
+                .map(|v| v.trim().parse::<f32>())
+                .collect::<Result<_, _>>()
+                .with_context(|| {
+                    format!("--shape `{spec}`: expected bag, template, estimate or H,G")
+                })?;
+            MakeHumanShape::from_params(&values)
+                .map(ShapeSource::Fixed)
+                .with_context(|| {
+                    format!("--shape `{spec}`: expected two scales in 0.5..=2 (height, girth)")
+                })
+        }
+    }
 }

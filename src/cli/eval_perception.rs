@@ -5,7 +5,8 @@
 use anyhow::{Context, Result};
 use clap::Args;
 use lhmpp::eval::perception::{
-    contact_sheet, evaluate_scene, read_scene, Summary, SyntheticView, ViewResult,
+    contact_sheet, evaluate_scene, read_scene, scene_shape, ShapeResult, Summary, SyntheticScene,
+    SyntheticView, ViewResult,
 };
 use lhmpp::perception::pose::SolverConfig;
 use lhmpp::perception::{LandmarkModel, PoseNetworks};
@@ -33,6 +34,11 @@ pub struct EvalPerceptionArgs {
     /// perceived mask and skeleton beside the true mask with the true skeleton.
     #[arg(long)]
     picture: Option<PathBuf>,
+    /// Also read the body shape from each bag's calibrated input views and print it against
+    /// the truth, with each segment's measured-over-true length and their means over the bags
+    /// (the biases `perception::shape` corrects).
+    #[arg(long)]
+    shape_segments: bool,
     /// Views on the contact sheet.
     #[arg(long, default_value_t = 6)]
     picture_views: usize,
@@ -95,6 +101,7 @@ pub fn run(args: EvalPerceptionArgs) -> Result<()> {
     let mut all: Vec<ViewResult> = Vec::new();
     let mut shown: Vec<(SyntheticView, ViewResult)> = Vec::new();
     let mut scenes = Vec::new();
+    let mut shapes = Vec::new();
     for bag in &args.bags {
         let scene = read_scene(bag).with_context(|| format!("reading {}", bag.display()))?;
         let results = evaluate_scene(&scene, &networks, solver)
@@ -115,6 +122,12 @@ pub fn run(args: EvalPerceptionArgs) -> Result<()> {
             println!("{}", view_row(v));
         }
         println!("{}", summary_row("bag", &Summary::of(&results)));
+        if args.shape_segments {
+            let shape = scene_shape(&scene, &results, args.min_visibility)
+                .with_context(|| format!("reading the shape of {}", bag.display()))?;
+            print_shape(&scene, &shape);
+            shapes.push(shape);
+        }
         all.extend(results.iter().cloned());
         scenes.push((scene, results));
     }
@@ -173,6 +186,9 @@ pub fn run(args: EvalPerceptionArgs) -> Result<()> {
         model.name(),
         args.min_visibility
     );
+    if !shapes.is_empty() {
+        print_segment_means(&shapes);
+    }
     if let Some(path) = &args.picture {
         let pairs: Vec<(&SyntheticView, &ViewResult)> = shown.iter().map(|(v, r)| (v, r)).collect();
         contact_sheet(&pairs)
@@ -181,4 +197,37 @@ pub fn run(args: EvalPerceptionArgs) -> Result<()> {
         println!("picture: {}", path.display());
     }
     Ok(())
+}
+
+/// One bag's shape estimate against the truth.
+fn print_shape(scene: &SyntheticScene, shape: &ShapeResult) {
+    let truth = scene.shape.map_or(1.0, |s| s.height_scale);
+    match &shape.estimate {
+        Some(e) => println!(
+            "\nbody shape from the calibrated input views: height × {:.3} (true {truth:.3}, \
+             error {:+.1} %), from {} segments, spread {:.3}",
+            e.shape.height_scale,
+            100.0 * (e.shape.height_scale / truth - 1.0),
+            e.segments,
+            e.misfit
+        ),
+        None => println!("\nbody shape: too few segments seen in two or more views"),
+    }
+}
+
+/// Each segment's mean and spread of measured-over-true length over the bags.
+fn print_segment_means(shapes: &[ShapeResult]) {
+    println!("\n| segment | bags | measured / true | spread |\n| --- | ---: | ---: | ---: |");
+    for (i, (a, b)) in lhmpp::perception::shape::SEGMENTS.iter().enumerate() {
+        let r: Vec<f32> = shapes.iter().filter_map(|s| s.ratios[i]).collect();
+        let n = r.len().max(1) as f32;
+        let mean = r.iter().sum::<f32>() / n;
+        let sd = (r.iter().map(|x| (x - mean).powi(2)).sum::<f32>() / n).sqrt();
+        println!(
+            "| {}–{} | {} | {mean:.4} | {sd:.4} |",
+            a.name(),
+            b.name(),
+            r.len()
+        );
+    }
 }

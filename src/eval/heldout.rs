@@ -93,6 +93,65 @@ pub enum InputCrop {
     FullFrame,
 }
 
+/// Which body shape the evaluation reconstructs on.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum ShapeSource {
+    /// The bag's `BodyShape` when it carries one (the node with a shape topic), else the
+    /// template's own shape.
+    #[default]
+    Bag,
+    /// The template's own shape, whatever the bag carries (the node without a shape topic).
+    Template,
+    /// This MakeHuman shape.
+    Fixed(crate::body::MakeHumanShape),
+    /// The shape camera-only perception reads from the calibrated input views
+    /// ([`crate::perception::shape`]; the template's own shape when it cannot).
+    Estimate,
+}
+
+/// The body shape perception reads from the bag's calibrated input views: each view's image
+/// landmarks (a fresh tracker per view, the `full` landmark model) triangulated with the
+/// views' cameras; `None` when too few segments were seen.
+pub fn estimate_bag_shape(
+    path: &Path,
+    template: &crate::body::BodyTemplate,
+) -> Result<Option<crate::perception::shape::ShapeEstimate>, EvalError> {
+    use crate::perception::shape::{estimate_shape, CalibratedView};
+    use crate::perception::{LandmarkModel, PersonTracker, PoseNetworks, TrackerConfig};
+    let failed = |message: String| EvalError::MissingGroundTruth {
+        path: path.display().to_string(),
+        message,
+    };
+    let scene = super::perception::read_scene(path).map_err(|e| failed(e.to_string()))?;
+    let networks = std::sync::Arc::new(
+        PoseNetworks::load(LandmarkModel::Full, None).map_err(|e| failed(e.to_string()))?,
+    );
+    let config = TrackerConfig {
+        smooth_masks: false,
+        ..TrackerConfig::default()
+    };
+    let mut views = Vec::new();
+    for view in scene.views.iter().filter(|v| !v.heldout) {
+        let mut tracker = PersonTracker::new(networks.clone(), config);
+        let Some(seen) = tracker
+            .perceive(&view.image)
+            .map_err(|e| failed(e.to_string()))?
+        else {
+            continue;
+        };
+        let k = &view.camera.intrinsics;
+        views.push(CalibratedView {
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+            world_from_camera: view.camera.world_from_camera,
+            landmarks: seen.landmarks.image,
+        });
+    }
+    estimate_shape(template, &views, 0.5).map_err(|e| failed(e.to_string()))
+}
+
 /// One input view of the bag: its name, image and person mask (when the bag has one).
 struct InputView {
     name: String,
@@ -275,12 +334,28 @@ pub fn evaluate_bag(
     model: &ModelConfig,
     view_counts: &[usize],
     crop: InputCrop,
+    shape: ShapeSource,
 ) -> Result<Vec<EvalRow>, EvalError> {
     let bag = BagReader::open(path)?;
     let gt = read_ground_truth(&bag)?;
     let mut recon = Reconstructor::new(model, gt.inputs.len())?;
     // Reconstruct on the person's body shape, as the node does when a shape topic is set.
-    if let Some(shape) = &gt.shape {
+    let makehuman = |s: crate::body::MakeHumanShape| BodyShape {
+        body_model: crate::body::MAKEHUMAN_MODEL_ID.into(),
+        shape_params: s.params().to_vec(),
+        ..BodyShape::default()
+    };
+    let given = match shape {
+        ShapeSource::Bag => gt.shape.clone(),
+        ShapeSource::Template => None,
+        ShapeSource::Fixed(s) => Some(makehuman(s)),
+        ShapeSource::Estimate => {
+            let estimate = estimate_bag_shape(path, recon.template())?;
+            tracing::info!(bag = %path.display(), ?estimate, "body shape read from the views");
+            estimate.map(|e| makehuman(e.shape))
+        }
+    };
+    if let Some(shape) = &given {
         let accepted = check_shape(SHAPE_TOPIC, shape, recon.body_model()).map_err(|e| {
             EvalError::MissingGroundTruth {
                 path: path.display().to_string(),

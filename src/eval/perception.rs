@@ -30,7 +30,8 @@ use crate::body::{BodyError, BodyTemplate, MakeHumanShape, Pose, MAKEHUMAN_MODEL
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, Image, TFMessage, Time};
 use crate::perception::overlay::draw_overlay;
 use crate::perception::pose::{
-    template_landmarks, PoseEstimator, PoseEstimatorConfig, PoseSolveError, SolverConfig,
+    template_landmarks, LandmarkRig, PoseEstimator, PoseEstimatorConfig, PoseSolveError,
+    SolverConfig,
 };
 use crate::perception::{
     Landmark, LandmarkId, PerceptionError, PersonTracker, PoseNetworks, TrackerConfig,
@@ -715,6 +716,54 @@ pub fn evaluate_scene(
         results.push(result);
     }
     Ok(results)
+}
+
+/// The body shape read from a scene's calibrated input views ([`crate::perception::shape`]),
+/// against the truth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShapeResult {
+    /// The estimate (`None`: too few segments seen).
+    pub estimate: Option<crate::perception::shape::ShapeEstimate>,
+    /// Per segment of [`crate::perception::shape::SEGMENTS`]: measured length over the true
+    /// person's (the shaped template's rest landmarks), where measured.
+    pub ratios: [Option<f32>; 12],
+}
+
+/// Triangulates the input views' perceived landmarks with their cameras and reads the body
+/// shape; `results` are [`evaluate_scene`]'s for `scene`.
+pub fn scene_shape(
+    scene: &SyntheticScene,
+    results: &[ViewResult],
+    min_visibility: f32,
+) -> Result<ShapeResult, PerceptionEvalError> {
+    use crate::perception::shape::{
+        estimate_shape, segment_lengths, template_segment_lengths, CalibratedView,
+    };
+    let views: Vec<CalibratedView> = scene
+        .views
+        .iter()
+        .zip(results)
+        .filter(|(v, _)| !v.heldout)
+        .filter_map(|(v, r)| {
+            let k = &v.camera.intrinsics;
+            Some(CalibratedView {
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+                world_from_camera: v.camera.world_from_camera,
+                landmarks: r.landmarks.as_ref()?.image,
+            })
+        })
+        .collect();
+    let base = BodyTemplate::load_default()?;
+    let truth = template_segment_lengths(&LandmarkRig::new(&scene.template)?.rest());
+    let measured = segment_lengths(&views, min_visibility);
+    let ratios = std::array::from_fn(|i| measured[i].map(|m| m / truth[i]));
+    Ok(ShapeResult {
+        estimate: estimate_shape(&base, &views, min_visibility)?,
+        ratios,
+    })
 }
 
 /// Side of a tile of [`contact_sheet`], pixels.

@@ -20,6 +20,7 @@ pub mod overlay;
 pub mod pose;
 pub mod roi;
 pub mod segmentation;
+pub mod shape;
 pub mod tracker;
 pub mod weights;
 
