@@ -19,12 +19,14 @@
 mod anchors;
 pub mod convert;
 mod error;
+pub mod garment;
 mod geometry;
 pub mod motion;
 mod nearest;
 pub mod official;
 mod ply;
 mod pose;
+pub mod raycast;
 mod shape;
 mod skeleton;
 mod skin;
@@ -33,6 +35,7 @@ mod template;
 
 pub use anchors::AnchorPoints;
 pub use error::BodyError;
+pub use garment::{Garment, GarmentKind, GarmentLibrary, GarmentRegion};
 pub use geometry::{generalized_winding_number, point_triangle_distance, vertex_normals};
 pub use nearest::PointGrid;
 pub use ply::{write_point_ply, PlyScalar};

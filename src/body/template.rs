@@ -319,7 +319,7 @@ impl BodyTemplate {
 /// Rewrites the safetensors JSON header with sorted keys: the crate writes its metadata map in
 /// hash order, and the converter must reproduce the committed asset bit for bit. The sorted
 /// header has the same length, so tensor offsets are unchanged.
-fn canonical_header(mut bytes: Vec<u8>) -> Vec<u8> {
+pub(super) fn canonical_header(mut bytes: Vec<u8>) -> Vec<u8> {
     let n = u64::from_le_bytes(bytes[..8].try_into().expect("8-byte length")) as usize;
     let header: std::collections::BTreeMap<String, serde_json::Value> =
         serde_json::from_slice(&bytes[8..8 + n]).expect("safetensors wrote valid JSON");

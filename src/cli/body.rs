@@ -5,6 +5,8 @@ use clap::{Args, Subcommand};
 use lhmpp::body::{convert, motion::PoseSpec, write_point_ply, BodyTemplate};
 use std::path::{Path, PathBuf};
 
+mod garments;
+
 /// Body template: summary (no options), posed PLY (`-o`), or `convert`.
 #[derive(Args, Debug)]
 pub struct BodyArgs {
@@ -49,10 +51,21 @@ enum BodyCommand {
         #[arg(short, long, default_value = "assets/body/makehuman.safetensors")]
         output: PathBuf,
     },
+    /// Rebuild the garment library (assets/body/garments.safetensors) from the CC0 MakeHuman
+    /// clothes and hair, fitted to the embedded template, and print its fit report.
+    Garments(garments::ConvertArgs),
+    /// Fit report of the garment library: distance to the skin, coverage, and how much of
+    /// each garment the node's anchors reach; optionally a picture of dressed people.
+    GarmentReport(garments::ReportArgs),
 }
 
 /// Runs `lhmpp body`.
 pub fn run(args: BodyArgs) -> anyhow::Result<()> {
+    match &args.command {
+        Some(BodyCommand::Garments(a)) => return garments::convert(a),
+        Some(BodyCommand::GarmentReport(a)) => return garments::report(a),
+        _ => {}
+    }
     if let Some(BodyCommand::Convert { from, output }) = &args.command {
         let assets = convert::convert_makehuman(from)
             .with_context(|| format!("converting {}", from.display()))?;

@@ -10,6 +10,7 @@
 //! the soles, centred between the feet; orient bones from head, tail and roll as Blender does;
 //! reduce weights to the top 4; label vertices by sampling the segmentation image at their UV.
 
+pub mod garments;
 mod obj;
 mod parts;
 mod rig;
