@@ -184,7 +184,7 @@ impl ConvNhwc {
     /// Points `taps[ky·kw + kx][r]` at the input row under output pixel `first + r`, `r < m`
     /// (at `zero` where the tap falls on padding).
     #[cfg(target_arch = "x86_64")]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
     fn fill_taps(
         &self,
         input: &[f32],

@@ -74,6 +74,7 @@ pub(crate) unsafe fn panel8(
 /// The CPU must have AVX2 and FMA, and every pointer in `taps[..][..m]` must point at `c`
 /// readable values.
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn indirect16(
     panel: &[f32],
     taps: &[[*const f32; 12]],
@@ -92,6 +93,7 @@ pub(crate) unsafe fn indirect16(
 /// # Safety
 /// As [`indirect16`].
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn indirect8(
     panel: &[f32],
     taps: &[[*const f32; 12]],

@@ -404,6 +404,7 @@ mod tests {
     }
 
     /// The product through the straightforward triple loop.
+    #[allow(clippy::too_many_arguments)]
     fn reference(
         a: &[f32],
         lda: usize,

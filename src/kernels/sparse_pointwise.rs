@@ -182,7 +182,7 @@ impl SparsePointwise {
         use super::gemm_avx2::transpose8;
         use std::arch::x86_64::*;
         let (k, n) = (self.k, self.n);
-        assert!(p >= 1 && p <= BLOCK && (r0 + p) * k <= a.len() && dst.len() == p * n);
+        assert!((1..=BLOCK).contains(&p) && (r0 + p) * k <= a.len() && dst.len() == p * n);
         assert!(xt.len() >= k * BLOCK && yt.len() >= n * BLOCK);
         assert!(epi.residual.is_none_or(|r| r.len() >= (r0 + p) * n));
         // rows past `p` repeat the last one (their results are not stored)
