@@ -3,17 +3,23 @@
 //! the photo, perception reads its landmarks, and the regions must find the shirt on the
 //! torso and the trousers on the thighs; the same image scores ΔE00 = 0; a known colour shift
 //! scores its CIEDE2000; and a planted failure (shirt and trouser colours swapped) scores
-//! large. The command runs end to end on a folder of renders and on a two-view manifest.
+//! large. The command runs end to end on a folder of renders and on a two-view manifest, and
+//! each person's avatar comes from their own photos only.
 
 use glam::Vec3;
 use lhmpp::body::Pose;
+use lhmpp::config::ModelConfig;
 use lhmpp::eval::photos::colour::{ciede2000, Srgb8};
 use lhmpp::eval::photos::regions::{seen_parts, Region, RegionConfig};
 use lhmpp::eval::photos::{
     photo_regions, region_colours, render_mask, score_view, RegionStatus, ViewPicture,
 };
 use lhmpp::perception::{Landmark, LandmarkModel, PoseNetworks, BODY_LANDMARKS};
-use lhmpp::reconstruct::photos::{perceive_person, PersonHint};
+use lhmpp::reconstruct::photos::{
+    perceive_person, preprocess_config, reconstruct_photos, MaskSource, PersonHint, PhotoView,
+};
+use lhmpp::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
+use lhmpp::reconstruct::Reconstructor;
 use lhmpp::splat::{Camera, Intrinsics};
 use lhmpp::synth::capture::render_views;
 use lhmpp::synth::outfit::Outfit;
@@ -275,4 +281,50 @@ fn eval_photos_scores_a_folder_and_a_two_view_manifest() {
     let stdout = run(&["--manifest".as_ref(), manifest.as_os_str()]);
     assert!(stdout.contains("### synthetic (2 photos)"), "{stdout}");
     assert!(stdout.contains("| side | torso |"), "{stdout}");
+}
+
+/// A photo view of `p` as `photo_view` makes it from a file with a given mask.
+fn photo_view_of(p: &Photo, prep: &PreprocessConfig) -> PhotoView {
+    PhotoView {
+        stem: "synthetic".into(),
+        image: p.image.clone(),
+        mask: p.mask.clone(),
+        mask_source: MaskSource::Given,
+        perceived: None,
+        pose: None,
+        view: preprocess(&p.image, Subject::Mask(&p.mask), prep).unwrap(),
+    }
+}
+
+#[test]
+fn each_person_is_reconstructed_from_their_own_photos() {
+    // Person after person through one Reconstructor, each numbering views from 0: the second
+    // avatar must be the one a fresh Reconstructor makes, not the first person's cached views.
+    let model = ModelConfig::default();
+    let mut shared = Reconstructor::new(&model, 2).unwrap();
+    let prep = preprocess_config(&shared);
+    let first = [photo_view_of(front(), &prep)];
+    let other = Photo {
+        person: front().person.clone(),
+        image: {
+            let mut image = front().image.clone();
+            for px in image.pixels_mut() {
+                px.0 = [px.0[2], px.0[0], px.0[1]];
+            }
+            image
+        },
+        mask: front().mask.clone(),
+    };
+    let second = [photo_view_of(&other, &prep)];
+    let a = reconstruct_photos(&mut shared, &first).unwrap();
+    let b = reconstruct_photos(&mut shared, &second).unwrap();
+    let fresh = reconstruct_photos(&mut Reconstructor::new(&model, 2).unwrap(), &second).unwrap();
+    assert!(
+        a.canonical.sh != b.canonical.sh,
+        "the second person got the first's views"
+    );
+    assert!(
+        b.canonical.sh == fresh.canonical.sh,
+        "the second avatar differs from a fresh Reconstructor's"
+    );
 }

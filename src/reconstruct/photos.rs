@@ -126,8 +126,11 @@ impl PersonHint {
 /// The person of `image` that `hint` names, or `None` when perception finds nobody there.
 ///
 /// With [`PersonHint::Best`] this is exactly a fresh [`PersonTracker`] (mask smoothing off) on
-/// the photo; the other hints pick another detection and read the landmarks in its crop the
-/// same way.
+/// the photo. The other hints pick another detection (or, for a box no detection is in, an
+/// upright square crop 1.25 times the box's longer side), read the landmarks in its crop, then
+/// read them once more in the crop those landmarks place (the tracker's crop for a video's
+/// next frame), which holds on to the person better when another one overlaps the first
+/// crop.
 pub fn perceive_person(
     networks: &Arc<PoseNetworks>,
     image: &RgbImage,
@@ -155,9 +158,16 @@ pub fn perceive_person(
         }
         (None, _) => return Ok(None),
     };
-    let (landmarks, mask) = networks.landmarks(image, &roi, &mut input)?;
+    let (mut landmarks, mut mask) = networks.landmarks(image, &roi, &mut input)?;
     if landmarks.presence < config.min_presence {
         return Ok(None);
+    }
+    // The detection's (or the box's) crop is rough; read again in the crop the landmarks
+    // place, as the tracker does on a video's next frame.
+    let (again, again_mask) = networks.landmarks(image, &landmarks.next_roi, &mut input)?;
+    if again.presence >= config.min_presence {
+        landmarks = again;
+        mask = again_mask;
     }
     Ok(Some(Perceived {
         landmarks,
@@ -273,7 +283,9 @@ pub fn preprocess_config(recon: &Reconstructor) -> PreprocessConfig {
     }
 }
 
-/// One avatar from all `views` (of one person) together.
+/// One avatar from all `views` (of one person) together. The views' image tokens are
+/// forgotten afterwards, so the next call (another person's photos, numbered from 0 again)
+/// encodes its own views instead of finding these in the token cache.
 pub fn reconstruct_photos(
     recon: &mut Reconstructor,
     views: &[PhotoView],
@@ -283,7 +295,11 @@ pub fn reconstruct_photos(
         .enumerate()
         .map(|(i, v)| (i as u64, &v.view))
         .collect();
-    recon.reconstruct(&refs)
+    let avatar = recon.reconstruct(&refs);
+    for (id, _) in &refs {
+        recon.forget(*id);
+    }
+    avatar
 }
 
 /// Cameras framing an avatar's canonical body: a ring around its bounds' centre at a distance
