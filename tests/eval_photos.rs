@@ -2,9 +2,10 @@
 //! people, whose clothing colours are known: a front render of a seeded person stands in for
 //! the photo, perception reads its landmarks, and the regions must find the shirt on the
 //! torso and the trousers on the thighs; the same image scores ΔE00 = 0; a known colour shift
-//! scores its CIEDE2000; and a planted failure (shirt and trouser colours swapped) scores
-//! large. The command runs end to end on a folder of renders and on a two-view manifest, and
-//! each person's avatar comes from their own photos only.
+//! scores its CIEDE2000; and planted failures score large: shirt and trouser colours
+//! swapped, and an avatar that renders nothing (scored against the white background). The
+//! command runs end to end on a folder of renders and on a two-view manifest, and each
+//! person's avatar comes from their own photos only.
 
 use glam::Vec3;
 use lhmpp::body::Pose;
@@ -327,4 +328,33 @@ fn each_person_is_reconstructed_from_their_own_photos() {
         b.canonical.sh == fresh.canonical.sh,
         "the second avatar differs from a fresh Reconstructor's"
     );
+}
+
+#[test]
+fn a_missing_avatar_scores_against_the_background() {
+    // Nothing rendered: every region the photo shows is uncovered and scored against the
+    // white background, so a model that renders nothing cannot escape the mean.
+    let p = front();
+    let config = RegionConfig::default();
+    let l = landmarks(&p.image);
+    let white = image::RgbImage::from_pixel(SIZE, SIZE, image::Rgb([255, 255, 255]));
+    let nothing = image::GrayImage::new(SIZE, SIZE);
+    let v = score_view(&p.image, &p.mask, Some(&l), &white, &nothing, &l, &config);
+    let mut uncovered = 0;
+    for r in &v.regions {
+        if r.status == RegionStatus::NotShown {
+            continue;
+        }
+        assert_eq!(r.status, RegionStatus::Uncovered, "{r:?}");
+        let photo = r.photo.unwrap().rgb;
+        assert_eq!(r.render.unwrap().rgb, [255, 255, 255]);
+        assert_eq!(r.delta_e, Some(ciede2000(photo, [255, 255, 255])));
+        uncovered += 1;
+    }
+    assert!(uncovered >= 5, "{:?}", v.regions);
+    assert!(delta_any(&v, Region::Thighs) > 25.0);
+}
+
+fn delta_any(v: &ViewPicture, region: Region) -> f64 {
+    v.regions[region.index()].delta_e.unwrap()
 }

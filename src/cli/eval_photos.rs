@@ -205,12 +205,15 @@ fn print_person(p: &PersonScore) {
             };
             let delta = match r.status {
                 RegionStatus::Scored => opt(r.delta_e),
+                RegionStatus::Uncovered => format!("{} (uncovered)", opt(r.delta_e)),
                 other => other.name().into(),
             };
             let (photo, render) = match r.status {
                 RegionStatus::NotShown => ("–".into(), "–".into()),
                 RegionStatus::NotRendered => (colour(r.photo), "–".into()),
-                RegionStatus::Scored => (colour(r.photo), colour(r.render)),
+                RegionStatus::Scored | RegionStatus::Uncovered => {
+                    (colour(r.photo), colour(r.render))
+                }
             };
             println!(
                 "| {label} | {} | {photo} | {render} | {delta} |",

@@ -18,10 +18,14 @@
 //!    with CIEDE2000 ([`colour`]).
 //!
 //! A region the photo does not show (its landmarks not seen, or fewer than
-//! [`RegionConfig::min_pixels`] mask pixels) is *not shown*; one the photo shows but the
-//! render has too few pixels of is *not rendered*. Neither counts in the means. A person's mean
-//! is over all their (photo, region) pairs scored; the overall mean is the mean of the
-//! persons' means (each person weighs the same, however many photos they have).
+//! [`RegionConfig::min_pixels`] mask pixels) is *not shown* and counts in no mean. One the
+//! photo shows but the avatar covers fewer than `min_pixels` of in the render is *uncovered*:
+//! its render colour is taken over the region's shapes without the render's mask, so what
+//! shows there (the white background where the avatar is missing) is scored, and a model that
+//! renders nothing scores badly instead of not at all. (Only a region whose shapes fall outside
+//! the render is *not rendered* and unscored.) A person's mean is over all their (photo,
+//! region) pairs scored; the overall mean is the mean of the persons' means (each person
+//! weighs the same, however many photos they have).
 
 pub mod colour;
 pub mod manifest;
@@ -90,7 +94,10 @@ pub enum RegionStatus {
     Scored,
     /// The photo does not show it (landmarks not seen, or too few pixels).
     NotShown,
-    /// The photo shows it, the render has too few pixels of it.
+    /// The photo shows it, the avatar covers too little of it in the render: the render's
+    /// colour over the region's shapes, background included, is scored.
+    Uncovered,
+    /// The photo shows it, the region's shapes fall outside the render: not scored.
     NotRendered,
 }
 
@@ -100,6 +107,7 @@ impl RegionStatus {
         match self {
             RegionStatus::Scored => "scored",
             RegionStatus::NotShown => "not shown",
+            RegionStatus::Uncovered => "uncovered",
             RegionStatus::NotRendered => "not rendered",
         }
     }
@@ -164,30 +172,38 @@ pub fn region_colours(image: &RgbImage, map: &RegionMap) -> [Option<RegionColour
 }
 
 /// Compares the regions of a photo and of a render (maps from [`region_map`]; the render's
-/// drawn with the photo's parts).
+/// drawn with the photo's parts, once on its mask and once, `render_shapes`, on a full mask
+/// for the regions the avatar leaves uncovered).
 pub fn compare_regions(
     photo: &RgbImage,
     photo_map: &RegionMap,
     render: &RgbImage,
     render_map: &RegionMap,
+    render_shapes: &RegionMap,
     config: &RegionConfig,
 ) -> Vec<RegionScore> {
     let seen = region_colours(photo, photo_map);
     let drawn = region_colours(render, render_map);
+    let shapes = region_colours(render, render_shapes);
     let enough = |c: &Option<RegionColour>| c.is_some_and(|c| c.pixels >= config.min_pixels);
     Region::ALL
         .iter()
         .map(|&region| {
-            let (p, r) = (seen[region.index()], drawn[region.index()]);
-            let status = if !enough(&p) {
-                RegionStatus::NotShown
-            } else if !enough(&r) {
-                RegionStatus::NotRendered
+            let i = region.index();
+            let p = seen[i];
+            let (status, r) = if !enough(&p) {
+                (RegionStatus::NotShown, drawn[i])
+            } else if enough(&drawn[i]) {
+                (RegionStatus::Scored, drawn[i])
+            } else if enough(&shapes[i]) {
+                (RegionStatus::Uncovered, shapes[i])
             } else {
-                RegionStatus::Scored
+                (RegionStatus::NotRendered, drawn[i])
             };
             let delta_e = match (status, p, r) {
-                (RegionStatus::Scored, Some(p), Some(r)) => Some(ciede2000(p.rgb, r.rgb)),
+                (RegionStatus::Scored | RegionStatus::Uncovered, Some(p), Some(r)) => {
+                    Some(ciede2000(p.rgb, r.rgb))
+                }
                 _ => None,
             };
             RegionScore {
@@ -378,7 +394,16 @@ pub fn score_view(
         None => region_map(render_landmarks, photo_mask, nothing, config),
     };
     let render_map = region_map(render_landmarks, render_mask, photo_map.sides, config);
-    let regions = compare_regions(photo, &photo_map, render, &render_map, config);
+    let everywhere = GrayImage::from_pixel(render.width(), render.height(), image::Luma([255]));
+    let render_shapes = region_map(render_landmarks, &everywhere, photo_map.sides, config);
+    let regions = compare_regions(
+        photo,
+        &photo_map,
+        render,
+        &render_map,
+        &render_shapes,
+        config,
+    );
     ViewPicture {
         photo: photo.clone(),
         photo_mask: photo_mask.clone(),

@@ -3,7 +3,8 @@
 //! [`Region::tint`](super::regions::Region::tint)), the render with its regions the same way, then one swatch row per
 //! region in table order (torso, upper arms, thighs, shins, feet, head): the region's tint,
 //! the photo's median colour, the render's; a grey swatch crossed out where the region was
-//! not shown (both) or not rendered (the render's).
+//! not shown (both) or not rendered (the render's). An uncovered region's render swatch has a
+//! crossed-out corner.
 
 use super::regions::RegionMap;
 use super::{RegionScore, RegionStatus, ViewPicture};
@@ -105,6 +106,11 @@ fn swatches(sheet: &mut RgbImage, x: u32, y: u32, regions: &[RegionScore]) {
                 fill(sheet, px, top, side, side, Rgb(p.rgb));
                 crossed(sheet, rx, top, side);
             }
+            (RegionStatus::Uncovered, Some(p), Some(q)) => {
+                fill(sheet, px, top, side, side, Rgb(p.rgb));
+                fill(sheet, rx, top, side, side, Rgb(q.rgb));
+                crossed(sheet, rx, top, side / 3);
+            }
             (_, Some(p), Some(q)) => {
                 fill(sheet, px, top, side, side, Rgb(p.rgb));
                 fill(sheet, rx, top, side, side, Rgb(q.rgb));
@@ -186,7 +192,7 @@ mod tests {
             .collect();
         assert_eq!(inside.to_vec(), want);
         assert_eq!(drawn.get_pixel(2, 2).0, [255, 255, 255]);
-        let scores = super::super::compare_regions(&image, &map, &image, &map, &config);
+        let scores = super::super::compare_regions(&image, &map, &image, &map, &map, &config);
         let sheet = contact_sheet(&[ViewPicture {
             photo: image.clone(),
             photo_mask: mask.clone(),
