@@ -94,6 +94,26 @@ pub struct NodeConfig {
 impl NodeConfig {
     /// Accepted `domain_id` values.
     pub const DOMAIN_ID: RangeInclusive<i32> = -1..=232;
+
+    /// Whether some camera's frames are masked by perception (`inputs.person_mask`:
+    /// `perception`, or `auto` with a camera that has no mask topic).
+    pub fn perception_masks(&self) -> bool {
+        let inputs = &self.inputs;
+        let cameras = inputs.image_topics.len() + inputs.compressed_image_topics.len();
+        match inputs.person_mask {
+            PersonMask::Perception => true,
+            PersonMask::Auto => {
+                inputs.mask_topic.trim().is_empty() && inputs.mask_topics.len() < cameras
+            }
+            PersonMask::Topic | PersonMask::Off => false,
+        }
+    }
+
+    /// Whether camera-only perception runs: for masks, or for the pose
+    /// (`inputs.pose_source: camera`).
+    pub fn runs_perception(&self) -> bool {
+        self.perception_masks() || self.inputs.pose_source == PoseSource::Camera
+    }
 }
 
 /// Input topics.
@@ -214,6 +234,9 @@ pub struct PerceptionConfig {
     pub min_visibility: f32,
     /// CPU threads of the perception networks, in [`PerceptionConfig::THREADS`].
     pub threads: usize,
+    /// Read the body height from calibrated views (CameraInfo and the cameras' TF frames in
+    /// `outputs.world_frame`, two or more cameras) when no shape topic gives the shape.
+    pub estimate_shape: bool,
 }
 
 impl PerceptionConfig {
@@ -382,6 +405,7 @@ impl Default for PerceptionConfig {
             mask_feather: 0.1,
             min_visibility: 0.5,
             threads: 1,
+            estimate_shape: true,
         }
     }
 }

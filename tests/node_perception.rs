@@ -124,3 +124,53 @@ fn frames_with_nobody_never_reach_the_frame_store() {
     assert_eq!(summary.stats.reconstructions, 0);
     assert_eq!(summary.revision, 0);
 }
+
+#[test]
+fn the_body_height_is_read_from_calibrated_views_without_a_shape_topic() {
+    use lhmpp::synth::{write_synthetic_bag, SynthOptions, SynthPose, SyntheticPerson};
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("ring.mcap");
+    let seed = 23;
+    let options = SynthOptions {
+        seed,
+        views: 6,
+        heldout: 1,
+        size: 256,
+        points: 20_000,
+        pose: SynthPose::Random,
+        ..SynthOptions::default()
+    };
+    write_synthetic_bag(&bag, &options).unwrap();
+    let truth = SyntheticPerson::new(seed, 500).unwrap().height_scale;
+    let list = |kind: &str| {
+        let topics: Vec<String> = (0..6).map(|i| format!("/cam{i}/{kind}")).collect();
+        format!("[{}]", topics.join(","))
+    };
+    let run = |extra: &[&str]| {
+        let mut set = vec![
+            format!("inputs.image_topics={}", list("image_raw")),
+            format!("inputs.camera_info_topics={}", list("camera_info")),
+            "inputs.mask_topics=[]".to_string(),
+            "inputs.shape_topic=\"\"".to_string(),
+            "outputs.virtual_cameras=1".to_string(),
+        ];
+        set.extend(extra.iter().map(|s| s.to_string()));
+        let set: Vec<&str> = set.iter().map(String::as_str).collect();
+        let config = demo_config(dir.path(), &bag, &set);
+        lhmpp::node::run::run(&config, BTreeMap::new()).unwrap()
+    };
+    let summary = run(&[]);
+    let [height, girth] = summary.shape_params[..] else {
+        panic!("no shape read: {:?}", summary.shape_params);
+    };
+    println!("height scale read {height:.4}, true {truth:.4}");
+    assert!((height / truth - 1.0).abs() < 0.03, "{height} vs {truth}");
+    assert_eq!(girth, 1.0);
+    // Off: the template's shape.
+    let summary = run(&["perception.estimate_shape=false"]);
+    assert!(
+        summary.shape_params.is_empty(),
+        "{:?}",
+        summary.shape_params
+    );
+}

@@ -255,6 +255,14 @@ pub fn parameters() -> Vec<Parameter> {
              per camera wins)",
         ),
         p(
+            "perception.estimate_shape",
+            boolean(),
+            "read the body height from calibrated views (perceived landmarks of two or more \
+             cameras with CameraInfo and TF frames in `outputs.world_frame`, from `/tf` and \
+             `/tf_static`) when no shape topic gives the shape; published in the avatar's \
+             `shape_params`",
+        ),
+        p(
             "outputs.dir",
             path(),
             "PLY avatars and PNG frames; empty disables",

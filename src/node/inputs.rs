@@ -5,7 +5,9 @@
 //! taken, so a frame dropped at a full queue costs no decoding and little memory.
 //! Synchronous: no ROS 2 endpoint and no runtime.
 
-use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Header, Image};
+use crate::msgs::{
+    BodyPose, BodyShape, CameraInfo, CompressedImage, Header, Image, TransformStamped,
+};
 use crate::reconstruct::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
 use image::{GrayImage, RgbImage};
 use std::sync::Arc;
@@ -67,6 +69,13 @@ pub enum InputEvent {
         arrival: Duration,
         /// The message.
         pose: Box<BodyPose>,
+    },
+    /// Transforms of the TF tree (`/tf` or `/tf_static`): where the cameras are.
+    Transforms {
+        /// Resolved topic.
+        topic: String,
+        /// The transforms.
+        transforms: Vec<TransformStamped>,
     },
     /// A body shape (checked by the pipeline, which knows the body model in use).
     BodyShape {

@@ -31,4 +31,5 @@ pub mod ros;
 pub mod run;
 pub mod scheduler;
 pub mod signal;
+pub mod tf_buffer;
 pub mod timings;

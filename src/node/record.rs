@@ -470,6 +470,7 @@ mod tests {
             mask: Some("/mask".into()),
             camera_masks: vec![("/cam0/mask".into(), "/cam0/image_raw".into())],
             pose: Some("/pose".into()),
+            tf_inputs: Vec::new(),
             person_masks: vec![("/cam0/image_raw".into(), "/cam0/person_mask".into())],
             shape: Some("/shape".into()),
             avatar: "/avatar".into(),

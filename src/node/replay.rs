@@ -3,7 +3,7 @@
 //! the pipeline consumes them (rate 0).
 
 use crate::bag::{BagError, BagMessage, BagReader, Salvage};
-use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image, RosMessage};
+use crate::msgs::{BodyPose, BodyShape, CameraInfo, CompressedImage, Image, RosMessage, TFMessage};
 use crate::node::inputs::{self, InputEvent};
 use crate::node::rejections::RejectReason;
 use crate::node::ros::ResolvedTopics;
@@ -121,6 +121,12 @@ impl BagReplay {
                 arrival,
                 pose: Box::new(pose),
             })
+        } else if t.tf_inputs.iter().any(|x| x == topic) {
+            self.decode::<TFMessage>(m)
+                .map(|msg| InputEvent::Transforms {
+                    topic: topic.to_owned(),
+                    transforms: msg.transforms,
+                })
         } else if t.shape.as_deref() == Some(topic) {
             self.decode::<BodyShape>(m)
                 .map(|shape| InputEvent::BodyShape {

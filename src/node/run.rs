@@ -60,6 +60,8 @@ pub struct RunSummary {
     pub bag: Option<Salvage>,
     /// Views held at the end.
     pub views_held: usize,
+    /// The body shape in use at the end (`GaussianAvatar.shape_params`; empty: the template's).
+    pub shape_params: Vec<f32>,
     /// Latest avatar revision.
     pub revision: u64,
     /// Views the network encoded.
@@ -85,6 +87,14 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
     let mut pipeline = Pipeline::new(config, None)?;
     let topics = ResolvedTopics::from_options(&options)?;
     pipeline.set_masked_cameras(topics.camera_masks.iter().map(|(_, camera)| camera.clone()));
+    pipeline.set_cameras(
+        topics
+            .images
+            .iter()
+            .chain(&topics.compressed_images)
+            .cloned()
+            .collect(),
+    );
     let live = config.replay.bag.is_empty();
     let mut replay = if live {
         None
@@ -162,6 +172,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         perception_dropped: pipeline.perception_dropped(),
         bag: replay.as_ref().map(|r| r.salvage().clone()),
         views_held: pipeline.views_held(),
+        shape_params: pipeline.shape_params(),
         revision: pipeline.revision(),
         encoded_views: pipeline.encoded_views(),
         animation_frames,

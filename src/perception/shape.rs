@@ -135,44 +135,64 @@ pub fn triangulate(views: &[CalibratedView], k: usize, min_visibility: f32) -> O
     p.is_finite().then_some(p)
 }
 
-/// The height scale that makes the template's segments as long as the triangulated ones
-/// (each measured length corrected by its [`SEGMENT_BIAS`], the ratios averaged with weights
-/// 1/spread²), or `None` when fewer than three usable segments were measured. The girth scale
-/// stays 1: widths between landmarks spread too much (12–13 %) to read it, and it matters
-/// little (`lhmpp eval --shape`: height alone recovers nearly all of the true shape's PSNR).
+/// Reads body shapes for one template: its segment lengths in the rest pose, computed once.
+#[derive(Debug, Clone)]
+pub struct ShapeReader {
+    rest: [f32; 12],
+}
+
+impl ShapeReader {
+    /// A reader for `template` (the unshaped template the shape scales).
+    pub fn new(template: &BodyTemplate) -> Result<Self, PoseSolveError> {
+        Ok(Self {
+            rest: template_segment_lengths(&LandmarkRig::new(template)?.rest()),
+        })
+    }
+
+    /// The height scale that makes the template's segments as long as the triangulated ones
+    /// (each measured length corrected by its [`SEGMENT_BIAS`], the ratios averaged with
+    /// weights 1/spread²), or `None` when fewer than three usable segments were measured.
+    /// The girth scale stays 1: widths between landmarks spread too much (13 %) to read it,
+    /// and it matters little (`lhmpp eval --shape`: height alone recovers nearly all of the
+    /// true shape's PSNR).
+    pub fn estimate(&self, views: &[CalibratedView], min_visibility: f32) -> Option<ShapeEstimate> {
+        let measured = segment_lengths(views, min_visibility);
+        let ratios: Vec<(f32, f32)> = (0..SEGMENTS.len())
+            .filter_map(|i| {
+                let (bias, spread) = SEGMENT_BIAS[i]?;
+                let length = measured[i]?;
+                Some((length / bias / self.rest[i], 1.0 / (spread * spread)))
+            })
+            .collect();
+        if ratios.len() < 3 {
+            return None;
+        }
+        let total: f32 = ratios.iter().map(|r| r.1).sum();
+        let h = ratios.iter().map(|(r, w)| r * w).sum::<f32>() / total;
+        let misfit = (ratios
+            .iter()
+            .map(|(r, w)| w * (r / h - 1.0).powi(2))
+            .sum::<f32>()
+            / total)
+            .sqrt();
+        Some(ShapeEstimate {
+            shape: MakeHumanShape {
+                height_scale: h,
+                girth_scale: 1.0,
+            },
+            segments: ratios.len(),
+            misfit,
+        })
+    }
+}
+
+/// [`ShapeReader::estimate`] for `template`.
 pub fn estimate_shape(
     template: &BodyTemplate,
     views: &[CalibratedView],
     min_visibility: f32,
 ) -> Result<Option<ShapeEstimate>, PoseSolveError> {
-    let rest = template_segment_lengths(&LandmarkRig::new(template)?.rest());
-    let measured = segment_lengths(views, min_visibility);
-    let ratios: Vec<(f32, f32)> = (0..SEGMENTS.len())
-        .filter_map(|i| {
-            let (bias, spread) = SEGMENT_BIAS[i]?;
-            let length = measured[i]?;
-            Some((length / bias / rest[i], 1.0 / (spread * spread)))
-        })
-        .collect();
-    if ratios.len() < 3 {
-        return Ok(None);
-    }
-    let total: f32 = ratios.iter().map(|r| r.1).sum();
-    let h = ratios.iter().map(|(r, w)| r * w).sum::<f32>() / total;
-    let misfit = (ratios
-        .iter()
-        .map(|(r, w)| w * (r / h - 1.0).powi(2))
-        .sum::<f32>()
-        / total)
-        .sqrt();
-    Ok(Some(ShapeEstimate {
-        shape: MakeHumanShape {
-            height_scale: h,
-            girth_scale: 1.0,
-        },
-        segments: ratios.len(),
-        misfit,
-    }))
+    Ok(ShapeReader::new(template)?.estimate(views, min_visibility))
 }
 
 #[cfg(test)]

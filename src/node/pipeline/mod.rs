@@ -4,6 +4,7 @@
 //! leave through one [`Fanout`] of [`crate::node::outputs`]: the files (when `outputs.dir` is
 //! usable) and the live publishers (ROS 2, shared memory).
 
+pub mod calibration;
 pub mod masks;
 pub mod neural_frames;
 pub mod perceive;
@@ -20,11 +21,14 @@ use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::node::timings::Timings;
 use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig};
+use crate::perception::shape::ShapeReader;
 use crate::perception::{
     Landmark, LandmarkModel, PerceptionError, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
 };
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
+use crate::reconstruct::shape::AcceptedShape;
 use crate::reconstruct::{shape, ReconstructError, Reconstructor};
+use calibration::Calibration;
 use image::GrayImage;
 use masks::{MaskPairing, Paired};
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
@@ -191,6 +195,10 @@ pub struct Pipeline {
     perception_due: Duration,
     publish_masks: bool,
     animation: Animation,
+    /// Camera calibration, and the body height read from calibrated views.
+    calibration: Calibration,
+    /// Whether the shape topic has given the body shape (it then wins over the views).
+    shape_from_topic: bool,
     next_frame_id: u64,
     shape_changes: u64,
     current: Option<Current>,
@@ -306,6 +314,22 @@ impl Pipeline {
                 config.inputs.pose_source,
                 PoseSource::Auto | PoseSource::Camera
             );
+        let reader = if perception.is_some()
+            && config.perception.estimate_shape
+            && recon.body_model() == crate::body::MAKEHUMAN_MODEL_ID
+        {
+            Some(ShapeReader::new(
+                &crate::body::BodyTemplate::load_default()
+                    .map_err(|e| PipelineError::Reconstruct(ReconstructError::Body(e)))?,
+            )?)
+        } else {
+            None
+        };
+        let calibration = Calibration::new(
+            &config.outputs.world_frame,
+            reader,
+            config.perception.min_visibility,
+        );
         let estimator = if camera_pose {
             let mut cfg = PoseEstimatorConfig::default();
             cfg.solver.min_visibility = config.perception.min_visibility;
@@ -350,6 +374,8 @@ impl Pipeline {
                     .camera_pose
                     .then(|| config.outputs.world_frame.clone()),
             },
+            calibration,
+            shape_from_topic: false,
             next_frame_id: 1,
             shape_changes: 0,
             current: None,
@@ -490,7 +516,10 @@ impl Pipeline {
                     self.admit(ready, now);
                 }
             }
-            InputEvent::CameraInfo { .. } => {}
+            InputEvent::CameraInfo {
+                camera_index, info, ..
+            } => self.calibration.camera_info(camera_index, &info),
+            InputEvent::Transforms { transforms, .. } => self.calibration.transforms(&transforms),
             InputEvent::BodyPose {
                 topic,
                 pose,
@@ -556,6 +585,7 @@ impl Pipeline {
         match self.recon.set_shape(accepted) {
             Ok(false) => {}
             Ok(true) => {
+                self.shape_from_topic = true;
                 self.stats.shapes_applied += 1;
                 self.shape_changes += 1;
                 tracing::info!(
@@ -610,7 +640,6 @@ impl Pipeline {
                 }
             }
         }
-        self.take_perceived(now);
     }
 
     /// Handles the frames perception has finished.
@@ -649,6 +678,9 @@ impl Pipeline {
         }
         if let Some(p) = &person {
             self.on_camera_landmarks(&frame, &p.world, now);
+            if let Some(height) = self.calibration.landmarks(&frame, &p.image) {
+                self.on_height_from_views(height, frame.arrival, now);
+            }
         }
         if self.route(&frame.topic) != MaskRoute::Perception {
             return;
@@ -709,6 +741,42 @@ impl Pipeline {
         });
     }
 
+    /// A body height read from calibrated views: applied (girth 1) unless the shape topic has
+    /// given the shape; a change reruns the reconstruction.
+    fn on_height_from_views(&mut self, height: f32, arrival: Duration, now: Duration) {
+        if self.shape_from_topic {
+            return;
+        }
+        let shape = crate::body::MakeHumanShape {
+            height_scale: height.clamp(0.5, 2.0),
+            girth_scale: 1.0,
+        };
+        match self.recon.set_shape(AcceptedShape::MakeHuman(shape)) {
+            Ok(true) => {
+                self.stats.shapes_applied += 1;
+                self.shape_changes += 1;
+                tracing::info!(
+                    person = %self.person,
+                    height_scale = format!("{height:.3}"),
+                    "body height read from the calibrated views"
+                );
+                if self.views_held() > 0 {
+                    let version = self.input_version();
+                    self.scheduler
+                        .view_set_changed(&self.person, version, arrival, now);
+                }
+            }
+            Ok(false) => {}
+            Err(e) => tracing::warn!("body height from the views not applied: {e}"),
+        }
+    }
+
+    /// Sets the camera topics (resolved: images, then compressed images) that CameraInfo
+    /// messages pair with by position.
+    pub fn set_cameras(&mut self, cameras: Vec<String>) {
+        self.calibration.set_cameras(cameras);
+    }
+
     /// Frames whose mask pairing is settled go on to preprocessing and the frame store.
     fn admit(&mut self, ready: Vec<Paired>, now: Duration) {
         for (frame, mask) in ready {
@@ -754,7 +822,6 @@ impl Pipeline {
 
     /// Runs whatever is due at `now`: reconstructions whose debounce expired, frame rendering.
     pub fn step(&mut self, now: Duration, clock: impl Fn() -> Duration) {
-        self.take_perceived(now);
         let unmasked = self.masks.expired(now);
         if !unmasked.is_empty() {
             tracing::debug!(
@@ -763,6 +830,9 @@ impl Pipeline {
             );
         }
         self.admit(unmasked, now);
+        // After the mask waits: perceiving on this thread (replay) takes time that must not
+        // count against a frame waiting for its mask.
+        self.take_perceived(now);
         for job in self.scheduler.poll(now) {
             self.run_job(job, &clock);
         }
@@ -1066,16 +1136,7 @@ impl Pipeline {
 /// the pose does not come from the cameras; live runs perceive on a worker thread, bag
 /// replays every frame in order.
 fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, PerceptionError> {
-    let inputs = &config.inputs;
-    let cameras = inputs.image_topics.len() + inputs.compressed_image_topics.len();
-    let some_camera_unmasked =
-        inputs.mask_topic.trim().is_empty() && inputs.mask_topics.len() < cameras;
-    let needed = match inputs.person_mask {
-        PersonMask::Perception => true,
-        PersonMask::Auto => some_camera_unmasked,
-        PersonMask::Topic | PersonMask::Off => false,
-    } || inputs.pose_source == PoseSource::Camera;
-    if !needed {
+    if !config.runs_perception() {
         return Ok(None);
     }
     let p = &config.perception;

@@ -32,6 +32,8 @@ pub struct PersonSeen {
     pub mask: Arc<GrayImage>,
     /// World landmarks (metres, hip-centred, the camera's axes).
     pub world: [Landmark; BODY_LANDMARKS],
+    /// Image landmarks (frame pixels).
+    pub image: [Landmark; BODY_LANDMARKS],
 }
 
 /// What perception made of one frame.
@@ -67,6 +69,7 @@ impl CameraTrackers {
             Ok(found) => found.map(|p| PersonSeen {
                 mask: Arc::new(p.mask.to_mask(self.masks.threshold, self.masks.feather)),
                 world: p.landmarks.world,
+                image: p.landmarks.image,
             }),
             Err(e) => {
                 tracing::error!(topic = %frame.topic, "perception failed: {e}");
@@ -165,10 +168,10 @@ impl Drop for Worker {
 
 /// Where the trackers run.
 enum Runner {
-    /// On the caller's thread, every frame in order.
+    /// On the caller's thread, every frame in order, when the results are taken.
     Inline {
         trackers: Box<CameraTrackers>,
-        done: VecDeque<PerceivedFrame>,
+        pending: VecDeque<CameraFrame>,
     },
     /// On a worker thread, the newest frame per camera.
     Worker(Worker),
@@ -207,7 +210,7 @@ impl Perception {
         } else {
             Runner::Inline {
                 trackers: Box::new(trackers),
-                done: VecDeque::new(),
+                pending: VecDeque::new(),
             }
         };
         Self { runner }
@@ -216,7 +219,7 @@ impl Perception {
     /// Hands a frame to perception (live: it replaces the camera's pending frame).
     pub fn submit(&mut self, frame: CameraFrame) {
         match &mut self.runner {
-            Runner::Inline { trackers, done } => done.push_back(trackers.perceive(frame)),
+            Runner::Inline { pending, .. } => pending.push_back(frame),
             Runner::Worker(worker) => {
                 {
                     let mut x = worker.exchange();
@@ -229,10 +232,12 @@ impl Perception {
         }
     }
 
-    /// The frames perceived since the last call, oldest first.
+    /// The frames perceived since the last call, oldest first (inline: perceived now).
     pub fn take_results(&mut self) -> Vec<PerceivedFrame> {
         match &mut self.runner {
-            Runner::Inline { done, .. } => done.drain(..).collect(),
+            Runner::Inline { trackers, pending } => {
+                pending.drain(..).map(|f| trackers.perceive(f)).collect()
+            }
             Runner::Worker(worker) => worker.exchange().results.drain(..).collect(),
         }
     }
@@ -240,7 +245,7 @@ impl Perception {
     /// Whether frames are pending or being perceived.
     pub fn busy(&self) -> bool {
         match &self.runner {
-            Runner::Inline { done, .. } => !done.is_empty(),
+            Runner::Inline { pending, .. } => !pending.is_empty(),
             Runner::Worker(worker) => {
                 let x = worker.exchange();
                 x.working || !x.pending.is_empty() || !x.results.is_empty()

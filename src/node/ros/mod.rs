@@ -26,7 +26,7 @@ pub use live_inputs::LiveInputs;
 pub use ports::{rgb8_image, OutputTopics, PublishOutcome};
 pub use sink::InputStats;
 
-use crate::config::{FrameQos, ImageQos, NodeConfig, PersonMask, PoseSource};
+use crate::config::{FrameQos, ImageQos, NodeConfig, PoseSource};
 use crate::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, PointCloud2,
     ReconstructionStatus, RosMessage, TFMessage,
@@ -95,6 +95,8 @@ pub struct RosNodeOptions {
     pub pose_topic: Option<String>,
     /// Optional BodyShape topic.
     pub shape_topic: Option<String>,
+    /// Subscribe to `/tf` and `/tf_static` (camera poses for reading the body shape).
+    pub tf_inputs: bool,
     /// QoS of image and mask subscriptions.
     pub image_qos: ImageQos,
     /// Largest accepted image side (pixels).
@@ -151,6 +153,9 @@ impl RosNodeOptions {
             mask_topics: cfg.inputs.mask_topics.clone(),
             pose_topic: non_empty(&cfg.inputs.pose_topic),
             shape_topic: non_empty(&cfg.inputs.shape_topic),
+            tf_inputs: cfg.perception.estimate_shape
+                && !cfg.inputs.camera_info_topics.is_empty()
+                && cfg.runs_perception(),
             image_qos: cfg.inputs.image_qos,
             max_image_side: cfg.inputs.max_image_side,
             max_rate_hz: cfg.inputs.max_rate_hz,
@@ -165,7 +170,7 @@ impl RosNodeOptions {
                     cfg.outputs.world_frame.clone(),
                 )
             }),
-            person_masks: cfg.outputs.masks && perception_masks(cfg),
+            person_masks: cfg.outputs.masks && cfg.runs_perception(),
             camera_pose: cfg.outputs.camera_pose && cfg.inputs.pose_source != PoseSource::Walk,
             rosout: true,
         })
@@ -198,6 +203,8 @@ pub struct ResolvedTopics {
     pub person_masks: Vec<(String, String)>,
     /// BodyShape topic.
     pub shape: Option<String>,
+    /// TF topics read for the cameras' poses (`/tf`, `/tf_static`; empty when not needed).
+    pub tf_inputs: Vec<String>,
     /// GaussianAvatar topic.
     pub avatar: String,
     /// ReconstructionStatus topic.
@@ -251,6 +258,11 @@ impl ResolvedTopics {
                 .as_deref()
                 .map(|t| names.resolve(t))
                 .transpose()?,
+            tf_inputs: if opts.tf_inputs {
+                vec![names.resolve("/tf")?, names.resolve("/tf_static")?]
+            } else {
+                Vec::new()
+            },
             person_masks: person_mask_topics(
                 &all(&opts.image_topics)?
                     .into_iter()
@@ -402,6 +414,22 @@ impl RosNode {
                 }
                 None => sink.spawn(topic.clone(), sub, convert),
             });
+        }
+        for topic in &topics.tf_inputs {
+            // `/tf_static` is latched: a transient-local reader gets the transforms sent before
+            // it started.
+            let qos = if topic.ends_with("_static") {
+                latched_output_qos()
+            } else {
+                reliable_input_qos()
+            };
+            let sub = subscribe::<TFMessage>(&mut node, topic, qos)?;
+            tasks.push(sink.spawn(topic.clone(), sub, |t, msg: TFMessage, _| {
+                Ok(Incoming::Event(InputEvent::Transforms {
+                    topic: t.to_owned(),
+                    transforms: msg.transforms,
+                }))
+            }));
         }
         if let Some(topic) = &topics.shape {
             let sub = subscribe::<BodyShape>(&mut node, topic, reliable_input_qos())?;
@@ -637,19 +665,6 @@ impl RosNode {
         }
         // Last: the participant, once nothing of the node needs its event loop.
         drop(context);
-    }
-}
-
-/// Whether perception can produce masks for some camera under `cfg` (the mask outputs exist
-/// only then).
-fn perception_masks(cfg: &NodeConfig) -> bool {
-    match cfg.inputs.person_mask {
-        PersonMask::Perception => true,
-        PersonMask::Auto => {
-            let cameras = cfg.inputs.image_topics.len() + cfg.inputs.compressed_image_topics.len();
-            cfg.inputs.mask_topic.trim().is_empty() && cfg.inputs.mask_topics.len() < cameras
-        }
-        PersonMask::Topic | PersonMask::Off => false,
     }
 }
 
