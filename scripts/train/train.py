@@ -95,6 +95,41 @@ def white_views(s):
     return out
 
 
+def colour_transform(rng):
+    """A random 3x3 colour transform: a hue rotation about the grey axis (any angle), a
+    saturation scale (0.6-1.4), per-channel gains (0.85-1.15) and a brightness (0.8-1.2)."""
+    theta = rng.uniform(-math.pi, math.pi)
+    axis = torch.ones(3) / math.sqrt(3.0)
+    k = torch.tensor([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    rotation = torch.eye(3) + math.sin(theta) * k + (1.0 - math.cos(theta)) * (k @ k)
+    grey = torch.full((3, 3), 1.0 / 3.0)
+    saturation = rng.uniform(0.6, 1.4)
+    mix = grey + saturation * (rotation - grey)
+    gains = torch.diag(torch.tensor([rng.uniform(0.85, 1.15) for _ in range(3)]))
+    return rng.uniform(0.8, 1.2) * gains @ mix
+
+
+def colour_augment(s, rng):
+    """The sample with one random colour transform (`colour_transform`) applied to the person's
+    colours on both sides: the input views' pixels (background white stays white), the anchors'
+    ground-truth colours and the person's pixels of the target renders (their white background
+    kept), so the network learns to carry the colours it sees instead of a palette of likely
+    ones."""
+    m = colour_transform(rng)
+    out = dict(s)
+    images = s["images"].float() / 255.0
+    white = (images >= 250.0 / 255.0).all(1, keepdim=True)
+    moved = torch.einsum("ij,vjhw->vihw", m, images).clamp(0.0, 1.0)
+    out["images"] = (torch.where(white, images, moved) * 255.0).round().to(torch.uint8)
+    out["colors"] = (s["colors"] @ m.T).clamp(0.0, 1.0)
+    rgb = s["target_rgb"].float() / 255.0
+    alpha = (s["target_alpha"].float() / 255.0).unsqueeze(1)
+    person = ((rgb - (1.0 - alpha)) / alpha.clamp_min(1e-3)).clamp(0.0, 1.0)
+    person = torch.einsum("ij,tjhw->tihw", m, person).clamp(0.0, 1.0)
+    out["target_rgb"] = ((alpha * person + (1.0 - alpha)) * 255.0).round().to(torch.uint8)
+    return out
+
+
 def open_gates(model):
     """Opens the gated branches of the fresh network: the PIT blocks' AdaLN-Zero gates start at
     1 instead of ~0 (bias of the gate chunks), the encoder's LayerScale at 1 and the frame
@@ -252,6 +287,9 @@ def parse_args():
                     help="weight of the attention supervision (needs shards with anchor_pixels)")
     ap.add_argument("--patch", type=float, default=0.0,
                     help="weight of the patch supervision (needs shards with anchor_pixels)")
+    ap.add_argument("--colour-aug", type=float, default=0.0,
+                    help="fraction of samples whose person colours (inputs and every colour "
+                         "target alike) go through a random colour transform")
     ap.add_argument("--open-gates", action="store_true",
                     help="open the PIT gates and frame-block LayerScale of the initial weights")
     ap.add_argument("--points-schedule", default="",
@@ -378,7 +416,7 @@ def worker(rank, args, port):
         "workers": world, "threads_per_worker": args.threads, "batch": world,
         "loss_weights": weights, "open_gates": args.open_gates,
         "white_first": args.white_first, "probe": args.probe, "attention": args.attention,
-        "patch": args.patch,
+        "patch": args.patch, "colour_aug": args.colour_aug,
         "init": os.path.abspath(args.init) if args.init else None,
         "points_schedule": args.points_schedule, "max_minutes": args.max_minutes, "optimizer": "AdamW(0.9, 0.99)",
         "torch": torch.__version__,
@@ -407,6 +445,8 @@ def worker(rank, args, port):
                 s = white_views(s)
                 if s is None:
                     continue
+            if args.colour_aug > 0 and random.random() < args.colour_aug:
+                s = colour_augment(s, random)
             if patch is not None and "anchor_pixels" in s:
                 s = dict(s)
                 s["patch_targets"] = patch_supervision.patch_targets(s, patch_size)
