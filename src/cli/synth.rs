@@ -1,7 +1,7 @@
 //! `lhmpp synth`: render a seeded synthetic person into a rosbag2-layout MCAP bag.
 
 use anyhow::{Context, Result};
-use lhmpp::synth::{write_synthetic_bag, CameraMode, SynthOptions, SynthPose};
+use lhmpp::synth::{write_bag, CameraMode, Realism, SynthOptions, SynthPose};
 use std::path::PathBuf;
 
 /// Arguments of `lhmpp synth`.
@@ -34,9 +34,32 @@ pub struct SynthArgs {
     /// [height_scale, girth_scale]) on /lhmpp/body_shape.
     #[arg(long)]
     publish_shape: bool,
+    /// `plain`: the template painted by body part, unlit (the fixtures); `dressed`: garments,
+    /// hair and shoes with procedural materials, input views lit with camera effects,
+    /// held-out views unlit (albedo).
+    #[arg(long, value_enum, default_value_t = RealismArg::Plain)]
+    realism: RealismArg,
     /// Output bag (`.mcap` file, or a rosbag2 directory for any other path).
     #[arg(short, long)]
     output: PathBuf,
+}
+
+/// `--realism` values (`lhmpp synth`, `lhmpp synth-dataset`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RealismArg {
+    /// The template painted by body part, unlit.
+    Plain,
+    /// Dressed, lit people.
+    Dressed,
+}
+
+impl From<RealismArg> for Realism {
+    fn from(r: RealismArg) -> Self {
+        match r {
+            RealismArg::Plain => Realism::Plain,
+            RealismArg::Dressed => Realism::Dressed,
+        }
+    }
 }
 
 /// `--camera` values.
@@ -79,7 +102,7 @@ pub fn run(args: SynthArgs) -> Result<()> {
         },
         publish_shape: args.publish_shape,
     };
-    let summary = write_synthetic_bag(&args.output, &options)
+    let summary = write_bag(&args.output, &options, args.realism.into())
         .with_context(|| format!("writing {}", args.output.display()))?;
     println!(
         "wrote {}: {} messages, {} bytes ({} input + {} held-out views, {}x{} px, seed {})",

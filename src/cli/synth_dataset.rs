@@ -1,6 +1,7 @@
 //! `lhmpp synth-dataset`: training samples for the default model, written as safetensors shards
 //! (see `lhmpp::synth::dataset` for the layout).
 
+use super::synth::RealismArg;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use lhmpp::synth::dataset::{make_sample, write_shard, DatasetOptions, TRAIN_SEED_START};
@@ -38,6 +39,15 @@ pub struct SynthDatasetArgs {
     /// Target view side in pixels.
     #[arg(long, default_value_t = 96)]
     target_size: u32,
+    /// `plain`: the template painted by body part (as the embedded default was trained);
+    /// `dressed`: dressed, lit people with camera effects and textured backgrounds, albedo
+    /// ground truth and unlit targets, plus `anchor_garment` and `anchor_surface` per sample.
+    #[arg(long, value_enum, default_value_t = RealismArg::Plain)]
+    realism: RealismArg,
+    /// With `--realism dressed`: the fraction of samples (chosen by seed) that are dressed;
+    /// the others are plain.
+    #[arg(long, default_value_t = 1.0)]
+    dressed_fraction: f64,
     /// Output folder (shard-00000.safetensors, ...); existing complete shards are kept.
     #[arg(short, long)]
     output: PathBuf,
@@ -56,6 +66,11 @@ pub fn run(args: SynthDatasetArgs) -> Result<()> {
         args.mask_fraction
     );
     anyhow::ensure!(args.shard_size >= 1, "--shard-size must be at least 1");
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.dressed_fraction),
+        "--dressed-fraction {} is not in 0..=1",
+        args.dressed_fraction
+    );
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
     let options = DatasetOptions {
@@ -65,6 +80,8 @@ pub fn run(args: SynthDatasetArgs) -> Result<()> {
         input_width: args.input_width,
         target_size: args.target_size,
         mask_fraction: args.mask_fraction,
+        realism: args.realism.into(),
+        dressed_fraction: args.dressed_fraction,
         ..DatasetOptions::default()
     };
     let bar = ProgressBar::new(args.samples);

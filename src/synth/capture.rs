@@ -3,6 +3,10 @@
 //! fixed cameras, `/tf` per frame for a moving one), the body pose, and held-out views with
 //! masks for scoring.
 
+use super::camera_fx::CameraEffects;
+use super::dataset::Realism;
+use super::dressed::DressedPerson;
+use super::lighting::Lighting;
 use super::person::{SynthError, SyntheticPerson};
 use super::random_pose::grounded_random_pose;
 use super::scene::{Rig, RigCamera};
@@ -13,6 +17,8 @@ use crate::msgs::{
 };
 use crate::splat::{render, RenderOptions, RenderOutput};
 use glam::Vec3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use std::path::Path;
 
 /// World frame of synthetic bags: the body's canonical frame (+Y up, person facing +Z).
@@ -153,6 +159,91 @@ pub fn render_views<'a>(
         .collect())
 }
 
+/// The person a bag shows.
+enum Subject {
+    Plain(Box<SyntheticPerson>),
+    Dressed(Box<DressedPerson>),
+}
+
+impl Subject {
+    fn template(&self) -> &crate::body::BodyTemplate {
+        match self {
+            Subject::Plain(p) => &p.template,
+            Subject::Dressed(p) => &p.template,
+        }
+    }
+
+    fn shape(&self) -> crate::body::MakeHumanShape {
+        match self {
+            Subject::Plain(p) => p.shape(),
+            Subject::Dressed(p) => p.shape(),
+        }
+    }
+
+    /// The views from `cameras`; a dressed person's input views lit (lighting and effects
+    /// seeded by `seed`), its held-out views unlit.
+    fn render<'a>(
+        &self,
+        pose: &Pose,
+        cameras: &'a [RigCamera],
+        input: bool,
+        seed: u64,
+    ) -> Result<Vec<RenderedView<'a>>, SynthError> {
+        match self {
+            Subject::Plain(p) => render_views(p, pose, cameras),
+            Subject::Dressed(p) => render_dressed_views(p, pose, cameras, input, seed),
+        }
+    }
+}
+
+/// Renders a dressed person posed by `pose` from `cameras` on white: `lit` views under the
+/// seeded lighting of `seed`, each through its seeded camera effects (the background stays
+/// white); unlit views show the albedo.
+pub fn render_dressed_views<'a>(
+    person: &DressedPerson,
+    pose: &Pose,
+    cameras: &'a [RigCamera],
+    lit: bool,
+    seed: u64,
+) -> Result<Vec<RenderedView<'a>>, SynthError> {
+    let matrices = person
+        .template
+        .skeleton
+        .try_skinning_matrices(pose)
+        .map_err(|e| SynthError::Pose(e.to_string()))?;
+    let posed = person.avatar.animate(&matrices);
+    let options = RenderOptions {
+        background: Vec3::ONE,
+        ..RenderOptions::default()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6c69_6768_7473);
+    let lighting = Lighting::random(&mut rng);
+    Ok(cameras
+        .iter()
+        .map(|rig| {
+            if !lit {
+                let output = render(&posed, &rig.camera, &options);
+                return RenderedView { rig, output };
+            }
+            let eye = Vec3::from(rig.camera.world_from_camera.translation);
+            let mut output = render(
+                &lighting.lit(person, &posed, eye, false),
+                &rig.camera,
+                &options,
+            );
+            let effects = CameraEffects::random(&mut rng);
+            let image = effects.apply(&output.rgb, output.width, output.height);
+            for (i, p) in image.pixels().enumerate() {
+                let white = output.alpha[i] < 1.0 / 255.0;
+                for c in 0..3 {
+                    output.rgb[3 * i + c] = if white { 1.0 } else { p.0[c] as f32 / 255.0 };
+                }
+            }
+            RenderedView { rig, output }
+        })
+        .collect())
+}
+
 fn header(ns: u64, frame: &str) -> Header {
     Header::new(Time::from_nanos(ns as i64), frame)
 }
@@ -227,14 +318,39 @@ pub fn write_synthetic_bag(
     path: &Path,
     options: &SynthOptions,
 ) -> Result<SynthSummary, SynthError> {
-    let person = SyntheticPerson::new(options.seed, options.points)?;
+    write_bag(path, options, Realism::Plain)
+}
+
+/// Like [`write_synthetic_bag`], with plain or dressed people ([`Realism`]). A dressed
+/// person's input views are lit by a seeded [`Lighting`] and pass through seeded
+/// [`CameraEffects`] (on white); its held-out views are unlit (albedo), what a reconstructed
+/// avatar should show.
+pub fn write_bag(
+    path: &Path,
+    options: &SynthOptions,
+    realism: Realism,
+) -> Result<SynthSummary, SynthError> {
+    let subject = match realism {
+        Realism::Plain => Subject::Plain(Box::new(SyntheticPerson::new(
+            options.seed,
+            options.points,
+        )?)),
+        Realism::Dressed => {
+            Subject::Dressed(Box::new(DressedPerson::new(options.seed, options.points)?))
+        }
+    };
+    let template = subject.template();
     let (seed, views, heldout, size) = (options.seed, options.views, options.heldout, options.size);
-    let height = person.template.height();
+    let height = template.height();
     let rig = match options.camera {
         CameraMode::Ring => Rig::ring(seed, views, heldout, size, height),
         CameraMode::Moving => Rig::moving(seed, views, heldout, size, height),
     };
-    let pose = synth_pose(options, &person);
+    let pose = match options.pose {
+        SynthPose::Rest => Pose::identity(),
+        SynthPose::Walk(frame) => motion::walk_pose(frame),
+        SynthPose::Random => grounded_random_pose(template, options.seed, 0),
+    };
     // No time-based flushing: the same seed must give the same bytes.
     let options_bag = BagWriterOptions {
         flush_interval: None,
@@ -266,15 +382,19 @@ pub fn write_synthetic_bag(
                 header: header(ns, WORLD_FRAME),
                 person_id: "person_0".into(),
                 body_model: crate::body::MAKEHUMAN_MODEL_ID.into(),
-                shape_params: person.shape().params().to_vec(),
+                shape_params: subject.shape().params().to_vec(),
             },
         )?;
     }
-    for (cameras, moving) in [
-        (&rig.inputs, options.camera == CameraMode::Moving),
-        (&rig.heldout, false),
+    for (cameras, moving, input) in [
+        (&rig.inputs, options.camera == CameraMode::Moving, true),
+        (&rig.heldout, false, false),
     ] {
-        for (i, view) in render_views(&person, &pose, cameras)?.iter().enumerate() {
+        for (i, view) in subject
+            .render(&pose, cameras, input, seed)?
+            .iter()
+            .enumerate()
+        {
             // Views arrive 50 ms apart, as from a camera ring triggered in sequence or one
             // camera at 20 fps.
             let t = ns + 50_000_000 * (i as u64 + 1);

@@ -45,14 +45,15 @@ pub enum SynthError {
     /// A training sample could not be made or written.
     #[error("dataset: {0}")]
     Dataset(String),
+    /// The garment library could not be loaded or prepared.
+    #[error("garments: {0}")]
+    Dressing(String),
 }
 
 impl SyntheticPerson {
     /// Makes the person for `seed` with `points` Gaussians on the body surface.
     pub fn new(seed: u64, points: usize) -> Result<Self, SynthError> {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7065_7273_6f6e);
-        let height_scale = rng.gen_range(0.92..1.08);
-        let girth_scale = rng.gen_range(0.9..1.12);
+        let (height_scale, girth_scale) = Self::shape_of(seed);
         let mut template = BodyTemplate::load_default()?;
         MakeHumanShape {
             height_scale,
@@ -106,6 +107,15 @@ impl SyntheticPerson {
 }
 
 impl SyntheticPerson {
+    /// The seeded body shape of person `seed`: height scale in 0.92..1.08 and girth scale in
+    /// 0.9..1.12.
+    pub fn shape_of(seed: u64) -> (f32, f32) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7065_7273_6f6e);
+        let height_scale = rng.gen_range(0.92..1.08);
+        let girth_scale = rng.gen_range(0.9..1.12);
+        (height_scale, girth_scale)
+    }
+
     /// The shape applied to the template, as a `BodyShape` message carries it.
     pub fn shape(&self) -> MakeHumanShape {
         MakeHumanShape {

@@ -36,6 +36,13 @@ pub struct ReportArgs {
     /// Surface samples per garment for the anchor reach.
     #[arg(long, default_value_t = 20_000)]
     samples: usize,
+    /// Also write a picture of dressed people (rows: seeds; columns: front, side, back
+    /// unlit, front lit).
+    #[arg(long)]
+    picture: Option<PathBuf>,
+    /// Seeds of the people in the picture.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3,4")]
+    people: Vec<u64>,
 }
 
 fn print_report(rows: &[GarmentFit], points: usize) {
@@ -93,5 +100,12 @@ pub fn report(args: &ReportArgs) -> anyhow::Result<()> {
         &fit_report(&library, &template, &anchors, args.samples),
         args.points,
     );
+    if let Some(path) = &args.picture {
+        let sheet = lhmpp::synth::lookbook::lookbook(&args.people, 320, 60_000)?;
+        sheet
+            .save(path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
     Ok(())
 }

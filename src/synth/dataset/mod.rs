@@ -6,12 +6,14 @@
 //! Seeds below [`TRAIN_SEED_START`] are reserved for evaluation and are refused here, so an
 //! evaluation person is never trained on.
 
+mod dressed;
+
 use super::outfit::Rgb;
 use super::person::{SynthError, SyntheticPerson};
 use super::random_pose::grounded_random_pose;
 use super::scene::{Rig, RigCamera};
 use crate::avatar::Avatar;
-use crate::body::{motion, Pose, MAKEHUMAN_MODEL_ID};
+use crate::body::{motion, BodyTemplate, Pose, MAKEHUMAN_MODEL_ID};
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::splat::{render, Camera, Gaussians, RenderOptions};
 use glam::{Affine3A, Quat, Vec3};
@@ -45,6 +47,12 @@ pub struct DatasetOptions {
     /// Fraction of input views cropped to the person by its mask (`Subject::Mask`, as the node
     /// does with `inputs.mask_topics`); the others are whole frames.
     pub mask_fraction: f64,
+    /// The people: plain (the template painted by body part, flat colours) or dressed and lit
+    /// ([`dressed`]).
+    pub realism: Realism,
+    /// With [`Realism::Dressed`], the fraction of samples (by seed) that are dressed; the others
+    /// are plain.
+    pub dressed_fraction: f64,
 }
 
 impl Default for DatasetOptions {
@@ -59,8 +67,31 @@ impl Default for DatasetOptions {
             heldout_targets: 2,
             person_points: 20_000,
             mask_fraction: 0.25,
+            realism: Realism::Plain,
+            dressed_fraction: 1.0,
         }
     }
+}
+
+/// Synthetic people of a dataset or bag.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Realism {
+    /// The naked template painted by body part with flat colours, rendered unlit.
+    #[default]
+    Plain,
+    /// Dressed people (garments, hair, shoes, procedural materials) whose input views are lit
+    /// and pass through camera effects over textured backgrounds; targets and ground truth
+    /// are the albedo (see [`dressed`]).
+    Dressed,
+}
+
+/// Whether sample `seed` of a dataset with `options` is dressed.
+pub fn is_dressed(seed: u64, options: &DatasetOptions) -> bool {
+    if options.realism != Realism::Dressed {
+        return false;
+    }
+    let draw = crate::synth::material::hash3(seed, [0x64, 0x72, 0x73]) as f64;
+    draw < options.dressed_fraction
 }
 
 /// One training sample (flat row-major arrays; shapes in the field docs).
@@ -99,6 +130,12 @@ pub struct TrainingSample {
     /// hidden (behind the body, outside the view): for trainer-only losses that need to know
     /// which image patch shows which anchor. The network never receives it.
     pub anchor_pixels: Vec<u16>,
+    /// Dressed samples: what each anchor's colour comes from, `[N]`: 0 the skin, `1 + i`
+    /// garment `i` of the garment library.
+    pub anchor_garment: Option<Vec<u8>>,
+    /// Dressed samples: where the outermost surface over each anchor is, `[N, 3]` (canonical
+    /// frame, shaped): the anchor plus the offset a Gaussian needs to sit on the garment.
+    pub anchor_surface: Option<Vec<f32>>,
 }
 
 /// [`TrainingSample::anchor_pixels`] of an anchor a view does not show.
@@ -189,10 +226,10 @@ impl Background {
 }
 
 /// A random body pose for a sample: walk cycle, random within joint limits, or rest.
-fn sample_pose(person: &SyntheticPerson, seed: u64, rng: &mut ChaCha8Rng) -> Pose {
+fn sample_pose(template: &BodyTemplate, seed: u64, rng: &mut ChaCha8Rng) -> Pose {
     match rng.gen_range(0..10) {
         0..=3 => motion::walk_pose(rng.gen_range(0.0..48.0)),
-        4..=7 => grounded_random_pose(&person.template, seed, 0),
+        4..=7 => grounded_random_pose(template, seed, 0),
         _ => Pose::identity(),
     }
 }
@@ -230,6 +267,9 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
             "seed {seed} is reserved for evaluation (training seeds start at {TRAIN_SEED_START})"
         )));
     }
+    if is_dressed(seed, options) {
+        return dressed::make_dressed_sample(seed, options);
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6461_7461);
     let person = SyntheticPerson::new(seed, options.person_points)?;
     let height = person.template.height();
@@ -240,7 +280,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
     } else {
         Rig::moving(seed, views, options.heldout_targets, size, height)
     };
-    let pose = sample_pose(&person, seed, &mut rng);
+    let pose = sample_pose(&person.template, seed, &mut rng);
     let matrices = person
         .template
         .skeleton
@@ -385,6 +425,8 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
         target_camera_from_world,
         shape: [person.height_scale, person.girth_scale],
         anchor_pixels,
+        anchor_garment: None,
+        anchor_surface: None,
     })
 }
 
@@ -393,7 +435,9 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
 /// `{k}.posed_rotations` (f32 `[N,4]`), `{k}.target_rgb` (u8 `[T,3,R,R]`), `{k}.target_alpha`
 /// (u8 `[T,R,R]`), `{k}.target_intrinsics` (f32 `[T,4]`), `{k}.target_camera_from_world`
 /// (f32 `[T,3,4]`), `{k}.shape` (f32 `[2]`), `{k}.anchor_pixels` (u16 `[V,N,2]`) for sample
-/// `k`, and the seeds in the metadata.
+/// `k`, and the seeds in the metadata. Dressed samples add `{k}.anchor_garment` (u8 `[N]`) and
+/// `{k}.anchor_surface` (f32 `[N,3]`); readers of the format that do not know them skip them,
+/// and the metadata's `dressed` lists the dressed samples' indices.
 pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthError> {
     use safetensors::tensor::{Dtype, TensorView};
     let le = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
@@ -438,6 +482,12 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
         for (name, dtype, shape, bytes) in entries {
             buffers.push((format!("{k}.{name}"), dtype, shape, bytes));
         }
+        if let Some(garment) = &s.anchor_garment {
+            buffers.push((format!("{k}.anchor_garment"), u8s, vec![n], garment.clone()));
+        }
+        if let Some(surface) = &s.anchor_surface {
+            buffers.push((format!("{k}.anchor_surface"), f32s, vec![n, 3], le(surface)));
+        }
     }
     let views = buffers
         .iter()
@@ -452,10 +502,18 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
         .map(|s| s.seed.to_string())
         .collect::<Vec<_>>()
         .join(",");
+    let dressed = samples
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.anchor_garment.is_some())
+        .map(|(k, _)| k.to_string())
+        .collect::<Vec<_>>()
+        .join(",");
     let metadata = std::collections::HashMap::from([
         ("format".to_string(), "lhmpp-training-shard-v1".to_string()),
         ("samples".to_string(), samples.len().to_string()),
         ("seeds".to_string(), seeds),
+        ("dressed".to_string(), dressed),
     ]);
     safetensors::tensor::serialize_to_file(views, Some(metadata), path)
         .map_err(|e| SynthError::Dataset(format!("{}: {e}", path.display())))

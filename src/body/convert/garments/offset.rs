@@ -274,11 +274,11 @@ pub fn offset_garments(template: &BodyTemplate) -> Result<Vec<Piece>, BodyError>
     };
     use BoneClass::{Arm, Leg, Torso};
     let coat_body = skin.offset(
-        &skin.region(&[Torso, Arm], 0.515, 1.0),
+        &skin.region(&[Torso, Arm, Leg], 0.515, 1.0),
         0.025,
         sleeve_or_top,
     );
-    let coat = join(coat_body, skin.hanging(0.54, 0.19, 0.025, 0.10));
+    let coat = join(coat_body, skin.hanging(0.54, 0.19, 0.025, 0.25));
     let dress_body = skin.offset(&skin.region(&[Torso], 0.57, 1.0), 0.012, |_| {
         GarmentRegion::Top
     });
@@ -292,7 +292,7 @@ pub fn offset_garments(template: &BodyTemplate) -> Result<Vec<Piece>, BodyError>
             coat,
             "long_coat",
             GarmentKind::Coat,
-            "torso and arms above the hips 2.5 cm out, tails to mid-calf",
+            "torso and arms above the hips 2.5 cm out, flared tails to mid-calf",
         ),
         named(
             dress,
