@@ -48,6 +48,11 @@ pub struct SynthDatasetArgs {
     /// the others are plain.
     #[arg(long, default_value_t = 1.0)]
     dressed_fraction: f64,
+    /// Fraction of samples (chosen by seed) whose anchors sit on the template of the person's
+    /// height with girth 1, where the node puts them when it reads only the height from
+    /// calibrated views; the targets stay the true person.
+    #[arg(long, default_value_t = 0.0)]
+    girth_one_fraction: f64,
     /// Output folder (shard-00000.safetensors, ...); existing complete shards are kept.
     #[arg(short, long)]
     output: PathBuf,
@@ -71,6 +76,11 @@ pub fn run(args: SynthDatasetArgs) -> Result<()> {
         "--dressed-fraction {} is not in 0..=1",
         args.dressed_fraction
     );
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.girth_one_fraction),
+        "--girth-one-fraction {} is not in 0..=1",
+        args.girth_one_fraction
+    );
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
     let options = DatasetOptions {
@@ -82,6 +92,7 @@ pub fn run(args: SynthDatasetArgs) -> Result<()> {
         mask_fraction: args.mask_fraction,
         realism: args.realism.into(),
         dressed_fraction: args.dressed_fraction,
+        girth_one_fraction: args.girth_one_fraction,
         ..DatasetOptions::default()
     };
     let bar = ProgressBar::new(args.samples);

@@ -176,6 +176,12 @@ pub(super) fn make_dressed_sample(
             target_camera_from_world.extend((0..4).map(|col| m.col(col)[row]));
         }
     }
+    // Where the node puts the anchors without knowing the girth (for some samples).
+    let (anchors, posed_frame) = if super::anchors_at_girth_one(seed, options) {
+        super::girth_one_anchors(&person.template, person.girth_scale, &anchors, &pose)?
+    } else {
+        (anchors, posed_frame)
+    };
     Ok(TrainingSample {
         seed,
         views,

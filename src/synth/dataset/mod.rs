@@ -53,6 +53,12 @@ pub struct DatasetOptions {
     /// With [`Realism::Dressed`], the fraction of samples (by seed) that are dressed; the others
     /// are plain.
     pub dressed_fraction: f64,
+    /// Fraction of samples (by seed) whose anchors sit where the node puts them without
+    /// knowing the person's girth: on the template of the person's height with girth 1
+    /// (calibrated views read the height only; [`crate::perception::shape`]), posed with that
+    /// template's skeleton. The targets stay the true person, so the network learns to reach
+    /// the true surface from there.
+    pub girth_one_fraction: f64,
 }
 
 impl Default for DatasetOptions {
@@ -69,6 +75,7 @@ impl Default for DatasetOptions {
             mask_fraction: 0.25,
             realism: Realism::Plain,
             dressed_fraction: 1.0,
+            girth_one_fraction: 0.0,
         }
     }
 }
@@ -92,6 +99,47 @@ pub fn is_dressed(seed: u64, options: &DatasetOptions) -> bool {
     }
     let draw = crate::synth::material::hash3(seed, [0x64, 0x72, 0x73]) as f64;
     draw < options.dressed_fraction
+}
+
+/// Whether `seed`'s anchors sit on the girth-1 template ([`DatasetOptions::girth_one_fraction`]).
+pub fn anchors_at_girth_one(seed: u64, options: &DatasetOptions) -> bool {
+    let draw = crate::synth::material::hash3(seed, [0x67, 0x69, 0x31]) as f64;
+    draw < options.girth_one_fraction
+}
+
+/// `anchors` (on `template`, the person's shaped template) moved to where they are on the
+/// template of the same height with girth 1 (x and z divided by the girth scale; normals
+/// transformed by the inverse transpose), and posed by `pose` with that template's skeleton.
+/// Returns the moved anchors and their posed frame.
+pub(crate) fn girth_one_anchors(
+    template: &crate::body::BodyTemplate,
+    girth: f32,
+    anchors: &crate::body::AnchorPoints,
+    pose: &Pose,
+) -> Result<(crate::body::AnchorPoints, Gaussians), SynthError> {
+    let scale = Vec3::new(1.0 / girth, 1.0, 1.0 / girth);
+    let mut moved = anchors.clone();
+    for (p, n) in moved.positions.iter_mut().zip(&mut moved.normals) {
+        *p *= scale;
+        *n = (*n / scale).normalize_or_zero();
+    }
+    let mut skeleton = template.skeleton.clone();
+    for j in &mut skeleton.joints {
+        *j *= scale;
+    }
+    let matrices = skeleton
+        .try_skinning_matrices(pose)
+        .map_err(|e| SynthError::Pose(e.to_string()))?;
+    let n = moved.positions.len();
+    let frame = Gaussians::from_rgb(
+        moved.positions.clone(),
+        vec![Vec3::splat(0.01); n],
+        vec![Quat::IDENTITY; n],
+        vec![1.0; n],
+        &vec![Vec3::ZERO; n],
+    )?;
+    let posed = Avatar::new(frame, moved.skin.clone(), MAKEHUMAN_MODEL_ID)?.animate(&matrices);
+    Ok((moved, posed))
 }
 
 /// One training sample (flat row-major arrays; shapes in the field docs).
@@ -405,6 +453,12 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
             target_camera_from_world.extend((0..4).map(|col| m.col(col)[row]));
         }
     }
+    // Where the node puts the anchors without knowing the girth (for some samples).
+    let (anchors, posed_frame) = if anchors_at_girth_one(seed, options) {
+        girth_one_anchors(&person.template, person.girth_scale, &anchors, &pose)?
+    } else {
+        (anchors, posed_frame)
+    };
     Ok(TrainingSample {
         seed,
         views,
@@ -437,7 +491,7 @@ pub fn make_sample(seed: u64, options: &DatasetOptions) -> Result<TrainingSample
 /// (f32 `[T,3,4]`), `{k}.shape` (f32 `[2]`), `{k}.anchor_pixels` (u16 `[V,N,2]`) for sample
 /// `k`, and the seeds in the metadata. Dressed samples add `{k}.anchor_garment` (u8 `[N]`) and
 /// `{k}.anchor_surface` (f32 `[N,3]`); readers of the format that do not know them skip them,
-/// and the metadata's `dressed` lists the dressed samples' indices.
+/// and the metadata's `dressed` (only in shards that hold some) lists their indices.
 pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthError> {
     use safetensors::tensor::{Dtype, TensorView};
     let le = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
@@ -509,12 +563,14 @@ pub fn write_shard(path: &Path, samples: &[TrainingSample]) -> Result<(), SynthE
         .map(|(k, _)| k.to_string())
         .collect::<Vec<_>>()
         .join(",");
-    let metadata = std::collections::HashMap::from([
+    let mut metadata = std::collections::HashMap::from([
         ("format".to_string(), "lhmpp-training-shard-v1".to_string()),
         ("samples".to_string(), samples.len().to_string()),
         ("seeds".to_string(), seeds),
-        ("dressed".to_string(), dressed),
     ]);
+    if !dressed.is_empty() {
+        metadata.insert("dressed".to_string(), dressed);
+    }
     safetensors::tensor::serialize_to_file(views, Some(metadata), path)
         .map_err(|e| SynthError::Dataset(format!("{}: {e}", path.display())))
 }
@@ -551,6 +607,48 @@ mod tests {
         let covered = a.target_alpha.iter().filter(|v| **v > 128).count();
         assert!(covered > t * 400 && covered < t * 96 * 96 / 2, "{covered}");
         assert_eq!(a.anchor_pixels.len(), a.views * 512 * 2);
+    }
+
+    #[test]
+    fn girth_one_anchors_keep_the_height_and_undo_the_girth() {
+        let base = DatasetOptions {
+            points: 256,
+            person_points: 2000,
+            max_views: 2,
+            ..DatasetOptions::default()
+        };
+        let moved = DatasetOptions {
+            girth_one_fraction: 1.0,
+            ..base.clone()
+        };
+        let seed = TRAIN_SEED_START + 11;
+        let (a, b) = (
+            make_sample(seed, &base).unwrap(),
+            make_sample(seed, &moved).unwrap(),
+        );
+        let girth = a.shape[1];
+        assert!(
+            (girth - 1.0).abs() > 0.01,
+            "seed with a girth other than 1: {girth}"
+        );
+        for (p, q) in a.anchors.chunks(3).zip(b.anchors.chunks(3)) {
+            assert!((q[0] - p[0] / girth).abs() < 1e-5 && (q[1] - p[1]).abs() < 1e-6);
+            assert!((q[2] - p[2] / girth).abs() < 1e-5);
+        }
+        // The targets, colours and views are the true person's, unchanged.
+        assert_eq!(a.images, b.images);
+        assert_eq!(a.target_rgb, b.target_rgb);
+        assert_eq!(a.colors, b.colors);
+        assert_ne!(a.posed_anchors, b.posed_anchors);
+        // The fraction picks samples by seed.
+        let half = DatasetOptions {
+            girth_one_fraction: 0.5,
+            ..base
+        };
+        let picked = (0..200)
+            .filter(|k| anchors_at_girth_one(TRAIN_SEED_START + k, &half))
+            .count();
+        assert!((70..130).contains(&picked), "{picked}");
     }
 
     #[test]
