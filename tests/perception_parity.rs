@@ -72,8 +72,11 @@ fn read_fixture(path: &Path) -> Fixture {
     Fixture { input, outputs }
 }
 
+/// `(output, max |a − b|, relative)` per output.
+type Comparison = Vec<(String, f32, f32)>;
+
 /// `(output, max |a − b|, relative)` for every output of `net` on the fixture's input.
-fn compare(net: &Network, fx: &Fixture) -> Vec<(String, f32, f32)> {
+fn compare(net: &Network, fx: &Fixture) -> Comparison {
     let ours = net.run(&fx.input).expect("network runs");
     fx.outputs
         .iter()
@@ -94,7 +97,7 @@ fn compare(net: &Network, fx: &Fixture) -> Vec<(String, f32, f32)> {
         .collect()
 }
 
-fn print_table(rows: &[(&str, Vec<(String, f32, f32)>)]) {
+fn print_table(rows: &[(&str, Comparison)]) {
     println!(
         "{:<10} {:<11} {:>13} {:>11}",
         "network", "output", "max abs diff", "relative"
@@ -221,9 +224,15 @@ fn heavy_matches_litert_when_its_fixture_is_given() {
     let outs = compare(&net, &read_fixture(Path::new(&fixture)));
     print_table(&[("heavy", outs.clone())]);
     for (name, _, rel) in outs {
+        // Identity_2 is the segmentation logits, 1×256×256×1
+        let tolerance = if name == "Identity_2" {
+            HEAVY_SEGMENTATION_TOLERANCE
+        } else {
+            TOLERANCE
+        };
         assert!(
-            rel <= TOLERANCE,
-            "heavy {name}: relative difference {rel:.3e}"
+            rel <= tolerance,
+            "heavy {name}: relative difference {rel:.3e} (allowed {tolerance:.0e})"
         );
     }
 }

@@ -6,9 +6,8 @@
 
 use std::cell::RefCell;
 
-use rayon::prelude::*;
-
 use super::nhwc::{Epilogue, Padding, Shape};
+use super::parallel;
 use super::pointwise::{rows_per_task, PackedGemm};
 
 /// Floats of gathered rows per block (128 KiB).
@@ -118,18 +117,16 @@ impl ConvNhwc {
         let rows = rows_per_task(m, m * n * self.gemm.k());
         #[cfg(target_arch = "x86_64")]
         if super::gemm_avx2::available() {
-            out.par_chunks_mut(rows * n)
-                .enumerate()
-                .for_each(|(t, chunk)| {
-                    let first = t * rows;
-                    if self.rows.is_some() && self.c_in % 8 == 0 {
-                        self.run_dots8(input, shape, pad, os, first, epi, chunk);
-                    } else if self.rows.is_some() {
-                        self.run_dots(input, shape, pad, os, first, epi, chunk);
-                    } else {
-                        self.run_indirect(input, shape, pad, os, first, epi, chunk);
-                    }
-                });
+            parallel::for_each_chunk(out, rows * n, |t, chunk| {
+                let first = t * rows;
+                if self.rows.is_some() && self.c_in % 8 == 0 {
+                    self.run_dots8(input, shape, pad, os, first, epi, chunk);
+                } else if self.rows.is_some() {
+                    self.run_dots(input, shape, pad, os, first, epi, chunk);
+                } else {
+                    self.run_indirect(input, shape, pad, os, first, epi, chunk);
+                }
+            });
             return;
         }
         self.run_gathered(input, shape, pad, os, rows, epi, out);
@@ -357,33 +354,31 @@ impl ConvNhwc {
         let k = self.gemm.k();
         let n = self.gemm.n();
         let block = (GATHER_FLOATS / k).clamp(12, 480) / 12 * 12;
-        out.par_chunks_mut(rows * n)
-            .enumerate()
-            .for_each(|(t, chunk)| {
-                GATHER.with(|buf| {
-                    let mut buf = buf.borrow_mut();
-                    if buf.len() < block * k {
-                        buf.resize(block * k, 0.0);
-                    }
-                    let first = t * rows;
-                    let count = chunk.len() / n;
-                    let mut r = 0;
-                    while r < count {
-                        let rm = block.min(count - r);
-                        let rows_buf = &mut buf[..rm * k];
-                        self.gather(input, shape, pad, os, first + r, rows_buf);
-                        let e = Epilogue {
-                            residual: epi
-                                .residual
-                                .map(|x| &x[(first + r) * n..(first + r + rm) * n]),
-                            ..epi
-                        };
-                        self.gemm
-                            .run_serial(rows_buf, k, rm, e, &mut chunk[r * n..(r + rm) * n]);
-                        r += rm;
-                    }
-                });
+        parallel::for_each_chunk(out, rows * n, |t, chunk| {
+            GATHER.with(|buf| {
+                let mut buf = buf.borrow_mut();
+                if buf.len() < block * k {
+                    buf.resize(block * k, 0.0);
+                }
+                let first = t * rows;
+                let count = chunk.len() / n;
+                let mut r = 0;
+                while r < count {
+                    let rm = block.min(count - r);
+                    let rows_buf = &mut buf[..rm * k];
+                    self.gather(input, shape, pad, os, first + r, rows_buf);
+                    let e = Epilogue {
+                        residual: epi
+                            .residual
+                            .map(|x| &x[(first + r) * n..(first + r + rm) * n]),
+                        ..epi
+                    };
+                    self.gemm
+                        .run_serial(rows_buf, k, rm, e, &mut chunk[r * n..(r + rm) * n]);
+                    r += rm;
+                }
             });
+        });
     }
 
     /// The gathered rows of output pixels `first..first + rows.len() / k`.

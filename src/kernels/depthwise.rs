@@ -8,9 +8,8 @@
 //! whose window lies inside the image take a path without bounds checks, those at the border a
 //! checked one. Output rows run in parallel on rayon.
 
-use rayon::prelude::*;
-
 use super::nhwc::{Epilogue, Padding, Shape};
+use super::parallel;
 use crate::simd::simd_dispatch;
 
 /// Multiply-adds below which a layer runs as one rayon task.
@@ -102,33 +101,25 @@ impl Depthwise {
         }
         let row = os.width * os.channels;
         let macs = os.len() * self.kernel.0 * self.kernel.1;
-        let threads = rayon::current_num_threads();
-        let rows = if threads == 1 || macs < 2 * MIN_TASK_MACS {
-            os.height
-        } else {
-            os.height
-                .div_ceil((macs / MIN_TASK_MACS).clamp(1, 4 * threads))
-        };
-        out.par_chunks_mut(rows * row)
-            .enumerate()
-            .for_each(|(t, chunk)| {
-                let first = t * rows;
-                let job = Rows {
-                    dw: self,
-                    input,
-                    shape,
-                    pad,
-                    out_shape: os,
-                    first,
-                };
-                let epi = Epilogue {
-                    residual: epi
-                        .residual
-                        .map(|r| &r[first * row..first * row + chunk.len()]),
-                    ..epi
-                };
-                run_rows_fast(&job, epi, chunk);
-            });
+        let rows = parallel::items_per_task(os.height, macs, MIN_TASK_MACS, 1);
+        parallel::for_each_chunk(out, rows * row, |t, chunk| {
+            let first = t * rows;
+            let job = Rows {
+                dw: self,
+                input,
+                shape,
+                pad,
+                out_shape: os,
+                first,
+            };
+            let epi = Epilogue {
+                residual: epi
+                    .residual
+                    .map(|r| &r[first * row..first * row + chunk.len()]),
+                ..epi
+            };
+            run_rows_fast(&job, epi, chunk);
+        });
     }
 }
 

@@ -27,6 +27,7 @@ pub mod layer_norm;
 pub mod linear;
 mod matmul;
 pub mod nhwc;
+pub mod parallel;
 pub mod pointwise;
 pub mod softmax;
 pub mod sparse_pointwise;

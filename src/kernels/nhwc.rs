@@ -6,8 +6,7 @@
 //! Every function takes its input and output as slices plus their shapes and panics when a
 //! slice has the wrong length (the callers check shapes when a graph is loaded).
 
-use rayon::prelude::*;
-
+use super::parallel;
 use crate::simd::simd_dispatch;
 
 /// Elements per rayon task of the elementwise passes.
@@ -166,12 +165,11 @@ pub fn add(a: &[f32], b: &[f32], out: &mut [f32], act: Activation) {
         "add: lengths differ"
     );
     let (lo, hi) = act.bounds();
-    out.par_chunks_mut(ELEMENTS_PER_TASK)
-        .enumerate()
-        .for_each(|(i, o)| {
-            let at = i * ELEMENTS_PER_TASK;
-            add_chunk(&a[at..at + o.len()], &b[at..at + o.len()], o, lo, hi);
-        });
+    let per = parallel::items_per_task(out.len(), out.len(), ELEMENTS_PER_TASK, 16);
+    parallel::for_each_chunk(out, per, |i, o| {
+        let at = i * per;
+        add_chunk(&a[at..at + o.len()], &b[at..at + o.len()], o, lo, hi);
+    });
 }
 
 /// `out` = `input` with `pad` zero rows/columns around it and `extra` zero channels after each
@@ -193,25 +191,23 @@ pub fn pad(
     let oh = h + pad.top + pad.bottom;
     assert_eq!(input.len(), input_shape.len(), "pad: input length");
     assert_eq!(out.len(), oh * ow * oc, "pad: output length");
-    out.par_chunks_mut(ow * oc)
-        .enumerate()
-        .for_each(|(y, row)| {
-            if y < pad.top || y >= pad.top + h {
-                row.fill(0.0);
-                return;
-            }
-            let src = &input[(y - pad.top) * w * c..(y - pad.top + 1) * w * c];
-            row[..pad.left * oc].fill(0.0);
-            row[(pad.left + w) * oc..].fill(0.0);
-            for (dst, px) in row[pad.left * oc..(pad.left + w) * oc]
-                .chunks_exact_mut(oc)
-                .zip(src.chunks_exact(c))
-            {
-                dst[..extra_channels.0].fill(0.0);
-                dst[extra_channels.0..extra_channels.0 + c].copy_from_slice(px);
-                dst[extra_channels.0 + c..].fill(0.0);
-            }
-        });
+    parallel::for_each_row(out, ow * oc, ow * oc, |y, row| {
+        if y < pad.top || y >= pad.top + h {
+            row.fill(0.0);
+            return;
+        }
+        let src = &input[(y - pad.top) * w * c..(y - pad.top + 1) * w * c];
+        row[..pad.left * oc].fill(0.0);
+        row[(pad.left + w) * oc..].fill(0.0);
+        for (dst, px) in row[pad.left * oc..(pad.left + w) * oc]
+            .chunks_exact_mut(oc)
+            .zip(src.chunks_exact(c))
+        {
+            dst[..extra_channels.0].fill(0.0);
+            dst[extra_channels.0..extra_channels.0 + c].copy_from_slice(px);
+            dst[extra_channels.0 + c..].fill(0.0);
+        }
+    });
 }
 
 /// Max pooling with a `window` (rows, columns) moved by `stride`, zero-sized `pad` ignored (the
@@ -233,34 +229,32 @@ pub fn max_pool(
     if out.is_empty() {
         return;
     }
-    out.par_chunks_mut(ow * c)
-        .enumerate()
-        .for_each(|(oy, row)| {
-            for (ox, px) in row.chunks_exact_mut(c).enumerate() {
-                px.fill(f32::NEG_INFINITY);
-                for ky in 0..window.0 {
-                    let Some(iy) = (oy * stride.0 + ky).checked_sub(pad.top) else {
+    parallel::for_each_row(out, ow * c, ow * c * window.0 * window.1, |oy, row| {
+        for (ox, px) in row.chunks_exact_mut(c).enumerate() {
+            px.fill(f32::NEG_INFINITY);
+            for ky in 0..window.0 {
+                let Some(iy) = (oy * stride.0 + ky).checked_sub(pad.top) else {
+                    continue;
+                };
+                if iy >= shape.height {
+                    continue;
+                }
+                for kx in 0..window.1 {
+                    let Some(ix) = (ox * stride.1 + kx).checked_sub(pad.left) else {
                         continue;
                     };
-                    if iy >= shape.height {
+                    if ix >= shape.width {
                         continue;
                     }
-                    for kx in 0..window.1 {
-                        let Some(ix) = (ox * stride.1 + kx).checked_sub(pad.left) else {
-                            continue;
-                        };
-                        if ix >= shape.width {
-                            continue;
-                        }
-                        let src = &input[(iy * shape.width + ix) * c..][..c];
-                        for (o, &v) in px.iter_mut().zip(src) {
-                            *o = o.max(v);
-                        }
+                    let src = &input[(iy * shape.width + ix) * c..][..c];
+                    for (o, &v) in px.iter_mut().zip(src) {
+                        *o = o.max(v);
                     }
                 }
-                px.iter_mut().for_each(|v| *v = act.apply(*v));
             }
-        });
+            px.iter_mut().for_each(|v| *v = act.apply(*v));
+        }
+    });
 }
 
 /// TFLite's DEPTH_TO_SPACE: each input pixel's `block²·C` channels become a `block×block`
@@ -274,16 +268,14 @@ pub fn depth_to_space(input: &[f32], shape: Shape, block: usize, out: &mut [f32]
     assert_eq!(out.len(), input.len(), "depth_to_space: output length");
     let c = shape.channels / (block * block);
     let ow = shape.width * block;
-    out.par_chunks_mut(ow * c)
-        .enumerate()
-        .for_each(|(oy, row)| {
-            let (y, dy) = (oy / block, oy % block);
-            for (ox, px) in row.chunks_exact_mut(c).enumerate() {
-                let (x, dx) = (ox / block, ox % block);
-                let src = (y * shape.width + x) * shape.channels + (dy * block + dx) * c;
-                px.copy_from_slice(&input[src..src + c]);
-            }
-        });
+    parallel::for_each_row(out, ow * c, ow * c, |oy, row| {
+        let (y, dy) = (oy / block, oy % block);
+        for (ox, px) in row.chunks_exact_mut(c).enumerate() {
+            let (x, dx) = (ox / block, ox % block);
+            let src = (y * shape.width + x) * shape.channels + (dy * block + dx) * c;
+            px.copy_from_slice(&input[src..src + c]);
+        }
+    });
 }
 
 /// One output coordinate's two source indices and the weight of the second, as TFLite's
@@ -321,14 +313,12 @@ pub fn resize_bilinear_half_pixel(
     let cols: Vec<(usize, usize, f32)> = (0..ow)
         .map(|ox| half_pixel_source(ox, sx, shape.width))
         .collect();
-    out.par_chunks_mut(ow * c)
-        .enumerate()
-        .for_each(|(oy, row)| {
-            let (y0, y1, fy) = half_pixel_source(oy, sy, shape.height);
-            let line = |y: usize| &input[y * shape.width * c..(y + 1) * shape.width * c];
-            let res = residual.map(|r| &r[oy * ow * c..(oy + 1) * ow * c]);
-            resize_row(line(y0), line(y1), fy, &cols, c, res, row);
-        });
+    parallel::for_each_row(out, ow * c, 4 * ow * c, |oy, row| {
+        let (y0, y1, fy) = half_pixel_source(oy, sy, shape.height);
+        let line = |y: usize| &input[y * shape.width * c..(y + 1) * shape.width * c];
+        let res = residual.map(|r| &r[oy * ow * c..(oy + 1) * ow * c]);
+        resize_row(line(y0), line(y1), fy, &cols, c, res, row);
+    });
 }
 
 #[inline(always)]

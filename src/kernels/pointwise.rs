@@ -11,9 +11,8 @@
 //! the second, as the block is stored. Rows are cut into blocks that stay in the L2 cache while
 //! every panel passes over them, and into rayon tasks.
 
-use rayon::prelude::*;
-
 use super::nhwc::Epilogue;
+use super::parallel;
 
 /// Floats of input rows per cache block (128 KiB).
 const BLOCK_FLOATS: usize = 1 << 15;
@@ -111,17 +110,15 @@ impl PackedGemm {
             return;
         }
         let rows = rows_per_task(m, m * n * self.k);
-        out.par_chunks_mut(rows * n)
-            .enumerate()
-            .for_each(|(t, chunk)| {
-                let r0 = t * rows;
-                let rm = chunk.len() / n;
-                let epi = Epilogue {
-                    residual: epi.residual.map(|r| &r[r0 * n..(r0 + rm) * n]),
-                    ..epi
-                };
-                self.run_serial(&a[r0 * lda..], lda, rm, epi, chunk);
-            });
+        parallel::for_each_chunk(out, rows * n, |t, chunk| {
+            let r0 = t * rows;
+            let rm = chunk.len() / n;
+            let epi = Epilogue {
+                residual: epi.residual.map(|r| &r[r0 * n..(r0 + rm) * n]),
+                ..epi
+            };
+            self.run_serial(&a[r0 * lda..], lda, rm, epi, chunk);
+        });
     }
 
     /// [`Self::run`] on the calling thread.
@@ -195,15 +192,10 @@ impl PackedGemm {
     }
 }
 
-/// Rows per rayon task: one task below [`MIN_TASK_MACS`] or on one thread, else about four
-/// tasks per thread, in multiples of 12 rows.
+/// Rows per task ([`parallel::items_per_task`], rayon tasks of at least [`MIN_TASK_MACS`]), in
+/// multiples of 12 rows.
 pub(crate) fn rows_per_task(m: usize, macs: usize) -> usize {
-    let threads = rayon::current_num_threads();
-    if threads == 1 || macs < 2 * MIN_TASK_MACS {
-        return m;
-    }
-    let tasks = (macs / MIN_TASK_MACS).min(4 * threads).max(1);
-    m.div_ceil(tasks).div_ceil(12).max(1) * 12
+    parallel::items_per_task(m, macs, MIN_TASK_MACS, 12)
 }
 
 /// All panels over rows `0..m` (one cache block): the AVX2/FMA micro-kernels where the CPU

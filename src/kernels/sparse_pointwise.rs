@@ -9,9 +9,8 @@
 
 use std::cell::RefCell;
 
-use rayon::prelude::*;
-
 use super::nhwc::Epilogue;
+use super::parallel;
 use super::pointwise::rows_per_task;
 
 /// Pixels per block.
@@ -91,48 +90,46 @@ impl SparsePointwise {
             return;
         }
         let rows = rows_per_task(m, m * self.values.len()).div_ceil(BLOCK) * BLOCK;
-        out.par_chunks_mut(rows * n)
-            .enumerate()
-            .for_each(|(t, chunk)| {
-                SCRATCH.with(|s| {
-                    let (xt, yt) = &mut *s.borrow_mut();
-                    xt.resize(k * BLOCK, 0.0);
-                    yt.resize(n * BLOCK, 0.0);
-                    let first = t * rows;
-                    let count = chunk.len() / n;
-                    for b in (0..count).step_by(BLOCK) {
-                        let p = BLOCK.min(count - b);
-                        let r0 = first + b;
-                        #[cfg(target_arch = "x86_64")]
-                        if k % 8 == 0 && n % 8 == 0 && super::gemm_avx2::available() {
-                            let dst = &mut chunk[b * n..(b + p) * n];
-                            // SAFETY: the CPU has AVX2 and FMA (checked above).
-                            unsafe { self.block_avx2_nhwc(a, r0, p, epi, xt, yt, dst) };
-                            continue;
-                        }
-                        // transpose the block's input rows: xt[i][j] = a[r0 + j][i]
-                        for j in 0..BLOCK {
-                            let row = r0 + j.min(p - 1);
-                            for (i, &v) in a[row * k..(row + 1) * k].iter().enumerate() {
-                                xt[i * BLOCK + j] = v;
-                            }
-                        }
-                        self.block(xt, yt);
-                        let (lo1, hi1) = epi.pre.bounds();
-                        let (lo2, hi2) = epi.post.bounds();
-                        for j in 0..p {
-                            let dst = &mut chunk[(b + j) * n..(b + j + 1) * n];
-                            for (o, d) in dst.iter_mut().enumerate() {
-                                let mut v = (yt[o * BLOCK + j] + self.bias[o]).max(lo1).min(hi1);
-                                if let Some(res) = epi.residual {
-                                    v = (v + res[(r0 + j) * n + o]).max(lo2).min(hi2);
-                                }
-                                *d = v;
-                            }
+        parallel::for_each_chunk(out, rows * n, |t, chunk| {
+            SCRATCH.with(|s| {
+                let (xt, yt) = &mut *s.borrow_mut();
+                xt.resize(k * BLOCK, 0.0);
+                yt.resize(n * BLOCK, 0.0);
+                let first = t * rows;
+                let count = chunk.len() / n;
+                for b in (0..count).step_by(BLOCK) {
+                    let p = BLOCK.min(count - b);
+                    let r0 = first + b;
+                    #[cfg(target_arch = "x86_64")]
+                    if k % 8 == 0 && n % 8 == 0 && super::gemm_avx2::available() {
+                        let dst = &mut chunk[b * n..(b + p) * n];
+                        // SAFETY: the CPU has AVX2 and FMA (checked above).
+                        unsafe { self.block_avx2_nhwc(a, r0, p, epi, xt, yt, dst) };
+                        continue;
+                    }
+                    // transpose the block's input rows: xt[i][j] = a[r0 + j][i]
+                    for j in 0..BLOCK {
+                        let row = r0 + j.min(p - 1);
+                        for (i, &v) in a[row * k..(row + 1) * k].iter().enumerate() {
+                            xt[i * BLOCK + j] = v;
                         }
                     }
-                });
+                    self.block(xt, yt);
+                    let (lo1, hi1) = epi.pre.bounds();
+                    let (lo2, hi2) = epi.post.bounds();
+                    for j in 0..p {
+                        let dst = &mut chunk[(b + j) * n..(b + j + 1) * n];
+                        for (o, d) in dst.iter_mut().enumerate() {
+                            let mut v = (yt[o * BLOCK + j] + self.bias[o]).max(lo1).min(hi1);
+                            if let Some(res) = epi.residual {
+                                v = (v + res[(r0 + j) * n + o]).max(lo2).min(hi2);
+                            }
+                            *d = v;
+                        }
+                    }
+                }
             });
+        });
     }
 
     /// `yt[o][j] = Σ value · xt[input][j]` over output channel `o`'s entries.

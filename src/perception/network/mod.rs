@@ -241,3 +241,31 @@ impl Network {
         self.plan.steps.len()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::perception::weights::{self, LandmarkModel};
+
+    /// The networks give the same values on one thread and as a team of three: every split of
+    /// a layer computes each output value with the same operations in the same order.
+    #[test]
+    fn team_runs_equal_single_thread_runs() {
+        for net in [
+            weights::pose_detector().unwrap(),
+            LandmarkModel::Lite.load(None).unwrap(),
+        ] {
+            let n: usize = net.input_shape().iter().product();
+            let input: Vec<f32> = (0..n).map(|i| ((i * 7919) % 255) as f32 / 255.0).collect();
+            let run = |threads: usize| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap()
+                    .install(|| net.run(&input).unwrap())
+            };
+            let one = run(1);
+            assert_eq!(one, run(3), "{}", net.origin());
+            assert_eq!(one, run(2), "{}", net.origin());
+        }
+    }
+}

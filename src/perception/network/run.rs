@@ -4,13 +4,19 @@
 use std::time::{Duration, Instant};
 
 use crate::kernels::nhwc::{self, Epilogue};
+use crate::kernels::parallel;
 
 use super::plan::{Plan, Step, StepKind};
 
 impl Plan {
     /// Runs every step on `arena` (at least [`Plan::arena_len`] floats, the input already in
-    /// place); with `times`, adds each step's wall time to its entry.
-    pub(crate) fn execute(&self, arena: &mut [f32], mut times: Option<&mut [Duration]>) {
+    /// place); with `times`, adds each step's wall time to its entry. The steps share the
+    /// current rayon pool's threads as one team for the whole run ([`parallel::with_team`]).
+    pub(crate) fn execute(&self, arena: &mut [f32], times: Option<&mut [Duration]>) {
+        parallel::with_team(|| self.execute_steps(arena, times));
+    }
+
+    fn execute_steps(&self, arena: &mut [f32], mut times: Option<&mut [Duration]>) {
         assert!(arena.len() >= self.arena_len, "arena too small");
         let base = arena.as_mut_ptr();
         for (i, step) in self.steps.iter().enumerate() {
