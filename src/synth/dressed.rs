@@ -97,7 +97,7 @@ fn nearest_corner(t: [u32; 3], bary: Vec3) -> usize {
 
 impl DressedPerson {
     /// The dressed person of `seed` (body shape as [`SyntheticPerson::new`] draws it for the
-    /// same seed) with about `points` Gaussians (fewer where garment surfaces turn out hidden).
+    /// same seed) with `points` Gaussians on the surfaces that show.
     pub fn new(seed: u64, points: usize) -> Result<Self, SynthError> {
         let room = DressingRoom::shared()?;
         let (height_scale, girth_scale) = SyntheticPerson::shape_of(seed);
@@ -109,7 +109,9 @@ impl DressedPerson {
         Self::dress(room, seed, shape, wardrobe, points)
     }
 
-    /// `wardrobe` on the template of `shape` in `room`, `points` Gaussians drawn with `seed`.
+    /// `wardrobe` on the template of `shape` in `room`, `points` Gaussians drawn with `seed`
+    /// (area-uniform over the bare skin and the garments; draws on hidden garment surfaces are
+    /// dropped and drawn again, up to four draws per Gaussian).
     pub fn dress(
         room: &DressingRoom,
         seed: u64,
@@ -165,10 +167,12 @@ impl DressedPerson {
         }
         let ranks = room.ranks(&worn);
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0064_7265_7373_6564);
-        let radius = 0.9 * (total as f32 / points.max(1) as f32).sqrt();
         let height = rest.height();
         let mut out = Builder::default();
-        for _ in 0..points {
+        // Draw until `points` are kept (hidden garment surfaces are drawn and dropped).
+        let mut draws = 0usize;
+        while out.positions.len() < points && draws < 4 * points {
+            draws += 1;
             let target = rng.gen::<f64>() * total;
             let at = cdf.partition_point(|c| c.0 <= target).min(cdf.len() - 1);
             let (_, si, ti) = cdf[at];
@@ -215,6 +219,9 @@ impl DressedPerson {
             }
         }
         let n = out.positions.len();
+        // Disc-like splats whose footprints close the surface: every draw stands for an equal
+        // share of the whole (visible and hidden) area.
+        let radius = 0.9 * (total as f32 / draws.max(1) as f32).sqrt();
         let normals: Vec<Vec3> = out
             .normals
             .iter()
@@ -372,7 +379,7 @@ mod tests {
         assert_eq!(a.avatar, b.avatar);
         assert_eq!(a.garment_ids, b.garment_ids);
         let n = a.avatar.canonical.len();
-        assert!(n > 4000 && n <= 6000, "{n}");
+        assert_eq!(n, 6000);
         assert_eq!(a.normals.len(), n);
         assert_eq!(a.occlusion.len(), n);
         // Most Gaussians lie on garments; the skin shows where nothing covers it.

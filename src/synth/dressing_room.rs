@@ -115,12 +115,18 @@ impl DressingRoom {
             .map_err(|e| SynthError::Dressing(e.clone()))
     }
 
-    /// Whether the ray from `p` along `n` could meet garment `g` within [`COVER_RANGE`]
-    /// (`p` within that distance of its box).
-    fn near(&self, g: usize, p: Vec3) -> bool {
+    /// Whether the segment from `p − COVER_DEPTH · n` to `p + COVER_RANGE · n` (every ray the
+    /// cover tests cast from `p`) crosses garment `g`'s box.
+    fn near(&self, g: usize, p: Vec3, n: Vec3) -> bool {
         let (lo, hi) = self.garment_bounds[g];
-        let gap = (lo - p).max(p - hi).max(Vec3::ZERO);
-        gap.length() <= COVER_RANGE
+        let (lo, hi) = (lo - Vec3::splat(1e-3), hi + Vec3::splat(1e-3));
+        let inv = n.recip();
+        let t0 = (lo - p) * inv;
+        let t1 = (hi - p) * inv;
+        // NaN (n parallel to a slab, p on its plane) counts as a crossing.
+        let near = t0.min(t1).max_element().max(-COVER_DEPTH);
+        let far = t0.max(t1).min_element().min(COVER_RANGE);
+        near.is_nan() || far.is_nan() || near <= far
     }
 
     /// Whether the ray from `p` (rest) along `n` leaves through garment `h`'s outside (any
@@ -152,7 +158,7 @@ impl DressingRoom {
                 .step_by(step)
                 .filter(|&i| {
                     let (p, n) = (garment.vertices[i], self.garment_normals[g][i]);
-                    self.near(h, p) && self.covered_going_out(h, p, n)
+                    self.near(h, p, n) && self.covered_going_out(h, p, n)
                 })
                 .count();
             covered as f32 / total as f32
@@ -185,7 +191,7 @@ impl DressingRoom {
         n: Vec3,
     ) -> bool {
         (0..worn.len())
-            .filter(|&j| j != k && ranks[j] >= ranks[k] && self.near(worn[j], p))
+            .filter(|&j| j != k && ranks[j] >= ranks[k] && self.near(worn[j], p, n))
             .any(|j| {
                 let h = worn[j];
                 if ranks[j] > ranks[k] {
@@ -216,7 +222,7 @@ impl DressingRoom {
             .map_or(f32::INFINITY, |h| h.t);
         let mut hits: Vec<(RayHit, usize)> = Vec::new();
         let mut buffer = Vec::new();
-        for &g in worn.iter().filter(|&&g| self.near(g, p)) {
+        for &g in worn.iter().filter(|&&g| self.near(g, p, n)) {
             buffer.clear();
             self.garment_bvhs[g].hits(origin, n, COVER_RANGE.min(body), &mut buffer);
             hits.extend(buffer.iter().map(|h| (*h, g)));
