@@ -247,7 +247,11 @@ fn lighting_changes_the_shading_not_the_albedo() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     for _ in 0..3 {
         let lighting = Lighting::random(&mut rng);
-        let lit = render(&lighting.lit(&person, &posed, eye, true), &camera, &white);
+        let lit = render(
+            &lighting.lit(&person, &posed, eye, None, true),
+            &camera,
+            &white,
+        );
         // The albedo carried through the lit render is the unlit render.
         let worst = lit
             .features
@@ -283,7 +287,7 @@ fn lighting_changes_the_shading_not_the_albedo() {
     }
     // Flat lighting is the albedo.
     let flat = render(
-        &Lighting::flat().lit(&person, &posed, eye, false),
+        &Lighting::flat().lit(&person, &posed, eye, None, false),
         &camera,
         &white,
     );
@@ -334,7 +338,14 @@ fn a_dressed_bag_has_lit_inputs_and_unlit_heldout_views() {
     for (k, view) in unlit_in.iter().enumerate() {
         let lit = image(&format!("/cam{k}/image_raw"));
         let unlit = view.output.to_rgb8().into_raw();
-        let differ = lit.iter().zip(&unlit).filter(|(a, b)| a.abs_diff(**b) > 8).count();
-        assert!(differ > 300, "input view {k}: only {differ} bytes lit differently");
+        let differ = lit
+            .iter()
+            .zip(&unlit)
+            .filter(|(a, b)| a.abs_diff(**b) > 8)
+            .count();
+        assert!(
+            differ > 300,
+            "input view {k}: only {differ} bytes lit differently"
+        );
     }
 }

@@ -218,6 +218,10 @@ pub fn render_dressed_views<'a>(
     };
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6c69_6768_7473);
     let lighting = Lighting::random(&mut rng);
+    let shadow = match lighting.lights.first() {
+        Some(key) if lit => Some(person.light_visibility(&matrices, &posed, key.direction)?),
+        _ => None,
+    };
     Ok(cameras
         .iter()
         .map(|rig| {
@@ -227,7 +231,7 @@ pub fn render_dressed_views<'a>(
             }
             let eye = Vec3::from(rig.camera.world_from_camera.translation);
             let mut output = render(
-                &lighting.lit(person, &posed, eye, false),
+                &lighting.lit(person, &posed, eye, shadow.as_deref(), false),
                 &rig.camera,
                 &options,
             );

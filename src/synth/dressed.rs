@@ -10,16 +10,25 @@ use super::person::{SynthError, SyntheticPerson};
 use super::wardrobe::Wardrobe;
 use crate::avatar::Avatar;
 use crate::body::convert::top_k;
+use crate::body::raycast::TriangleBvh;
 use crate::body::{
     AnchorPoints, BodyTemplate, GarmentRegion, MakeHumanShape, SkinWeights, MAKEHUMAN_MODEL_ID,
 };
 use crate::splat::Gaussians;
-use glam::{Quat, Vec3};
+use glam::{Mat4, Quat, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
 /// Gloss of bare skin.
 const SKIN_GLOSS: f32 = 0.15;
+
+/// How far shadow rays start off their Gaussian, along its normal and towards the light
+/// (metres): clear of the surface the Gaussian lies on.
+const SHADOW_BIAS: f32 = 0.005;
+
+/// Longest shadow ray (metres): the whole person.
+const SHADOW_RANGE: f32 = 2.5;
 
 /// A dressed person and its ground-truth avatar.
 #[derive(Debug, Clone)]
@@ -260,6 +269,48 @@ impl DressedPerson {
         }
     }
 
+    /// How much of a directional light from `direction` reaches each Gaussian of `posed` (this
+    /// person posed by `matrices`): 0 where the posed body or garments cast a shadow on it, 1
+    /// elsewhere, by a ray from each Gaussian towards the light against the posed meshes.
+    pub fn light_visibility(
+        &self,
+        matrices: &[Mat4],
+        posed: &Gaussians,
+        direction: Vec3,
+    ) -> Result<Vec<f32>, SynthError> {
+        let room = DressingRoom::shared()?;
+        let s = self.shape().axis_scale();
+        let mut vertices = self
+            .template
+            .skin
+            .skin_points(&self.template.vertices, matrices);
+        let mut triangles = self.template.triangles.clone();
+        for g in &self.wardrobe.garments {
+            let garment = &room.library.garments[g.index];
+            let shaped: Vec<Vec3> = garment.vertices.iter().map(|v| *v * s).collect();
+            let base = vertices.len() as u32;
+            vertices.extend(garment.skin.skin_points(&shaped, matrices));
+            triangles.extend(garment.triangles.iter().map(|t| t.map(|i| i + base)));
+        }
+        let bvh = TriangleBvh::new(&vertices, &triangles);
+        let l = direction.normalize_or(Vec3::Y);
+        Ok(posed
+            .positions
+            .par_iter()
+            .zip(&posed.rotations)
+            .map(|(p, r)| {
+                let n = *r * Vec3::Z;
+                let side = if n.dot(l) >= 0.0 { n } else { -n };
+                let origin = *p + (side + l) * SHADOW_BIAS;
+                if bvh.any_hit(origin, l, SHADOW_RANGE) {
+                    0.0
+                } else {
+                    1.0
+                }
+            })
+            .collect())
+    }
+
     /// The albedo of every Gaussian.
     pub fn albedo(&self) -> Vec<Vec3> {
         let g = &self.avatar.canonical;
@@ -393,5 +444,29 @@ mod tests {
         }
         let (height, girth) = SyntheticPerson::shape_of(1_000_003);
         assert_eq!((a.height_scale, a.girth_scale), (height, girth));
+    }
+
+    #[test]
+    fn a_light_from_above_lights_the_head_and_leaves_the_feet_in_shadow() {
+        let person = DressedPerson::new(1_000_005, 8000).unwrap();
+        let m = person
+            .template
+            .skeleton
+            .try_skinning_matrices(&crate::body::Pose::identity())
+            .unwrap();
+        let posed = person.avatar.animate(&m);
+        let seen = person.light_visibility(&m, &posed, Vec3::Y).unwrap();
+        let h = person.template.height();
+        let share = |lo: f32, hi: f32| {
+            let band: Vec<f32> = (0..seen.len())
+                .filter(|&i| (lo..hi).contains(&(posed.positions[i].y / h)))
+                .map(|i| seen[i])
+                .collect();
+            band.iter().sum::<f32>() / band.len().max(1) as f32
+        };
+        assert!(share(0.97, 1.1) > 0.9, "crown lit {}", share(0.97, 1.1));
+        assert!(share(0.0, 0.04) < 0.3, "soles lit {}", share(0.0, 0.04));
+        let all = seen.iter().sum::<f32>() / seen.len() as f32;
+        assert!(all > 0.2 && all < 0.8, "{all}");
     }
 }

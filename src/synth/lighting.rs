@@ -96,63 +96,92 @@ impl Lighting {
         }
     }
 
-    /// The shaded colour of a surface point: `albedo`, unit `normal` (posed), ambient
-    /// `occlusion`, `gloss`, unit `view` direction from the point to the camera.
-    pub fn shade(
-        &self,
-        albedo: Vec3,
-        normal: Vec3,
-        occlusion: f32,
-        gloss: f32,
-        view: Vec3,
-    ) -> Vec3 {
+    /// The shaded colour of `surface` seen along unit `view` (from the point to the camera).
+    pub fn shade(&self, surface: &Surface, view: Vec3) -> Vec3 {
         if self.is_flat() {
-            return albedo;
+            return surface.albedo;
         }
-        let n = if normal.dot(view) < 0.0 {
-            -normal
+        let n = if surface.normal.dot(view) < 0.0 {
+            -surface.normal
         } else {
-            normal
+            surface.normal
         };
-        let direct_scale = 1.0 - DIRECT_OCCLUSION * (1.0 - occlusion);
-        let mut diffuse = self.ambient * occlusion;
+        let direct_scale = 1.0 - DIRECT_OCCLUSION * (1.0 - surface.occlusion);
+        let mut diffuse = self.ambient * surface.occlusion;
         let mut specular = Vec3::ZERO;
-        let shininess = 8.0 + 56.0 * gloss;
-        for light in &self.lights {
+        let shininess = 8.0 + 56.0 * surface.gloss;
+        for (k, light) in self.lights.iter().enumerate() {
             let cos = n.dot(light.direction);
             if cos <= 0.0 {
                 continue;
             }
-            diffuse += light.color * cos * direct_scale;
+            let reach = direct_scale * if k == 0 { surface.key_visibility } else { 1.0 };
+            diffuse += light.color * cos * reach;
             let half = (light.direction + view).normalize_or(n);
-            specular += light.color * (0.5 * gloss * n.dot(half).max(0.0).powf(shininess));
+            specular +=
+                light.color * (0.5 * surface.gloss * n.dot(half).max(0.0).powf(shininess) * reach);
         }
-        albedo * diffuse + specular * direct_scale
+        surface.albedo * diffuse + specular
     }
 
     /// `posed` (the person's avatar posed) with its colours replaced by the shaded colours
-    /// seen from a camera at `eye`; the albedo goes into 3 feature channels when
-    /// `albedo_features` is set.
+    /// seen from a camera at `eye`, the key light reaching each Gaussian by `key_visibility`
+    /// (all of it without); the albedo goes into 3 feature channels when `albedo_features`
+    /// is set.
     pub fn lit(
         &self,
         person: &DressedPerson,
         posed: &Gaussians,
         eye: Vec3,
+        key_visibility: Option<&[f32]>,
         albedo_features: bool,
     ) -> Gaussians {
         let albedo = person.albedo();
         let mut out = posed.clone();
         for (i, (sh, a)) in out.sh.iter_mut().zip(&albedo).enumerate() {
-            let normal = posed.rotations[i] * Vec3::Z;
+            let surface = Surface {
+                albedo: *a,
+                normal: posed.rotations[i] * Vec3::Z,
+                occlusion: person.occlusion[i],
+                gloss: person.gloss[i],
+                key_visibility: key_visibility.map_or(1.0, |v| v[i]),
+            };
             let view = (eye - posed.positions[i]).normalize_or(Vec3::Z);
-            let c = self.shade(*a, normal, person.occlusion[i], person.gloss[i], view);
-            *sh = rgb_to_sh_dc(c);
+            *sh = rgb_to_sh_dc(self.shade(&surface, view));
         }
         if albedo_features {
             out.feature_channels = 3;
             out.features = albedo.iter().flat_map(|a| a.to_array()).collect();
         }
         out
+    }
+}
+
+/// What shading needs of one surface point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    /// Unlit colour.
+    pub albedo: Vec3,
+    /// Unit normal (posed).
+    pub normal: Vec3,
+    /// Ambient occlusion (1 open).
+    pub occlusion: f32,
+    /// Gloss (0 matte).
+    pub gloss: f32,
+    /// How much of the key light (the first light) reaches the point: 0 in a cast shadow.
+    pub key_visibility: f32,
+}
+
+impl Surface {
+    /// A fully open, matte point lit by every light.
+    pub fn new(albedo: Vec3, normal: Vec3) -> Self {
+        Self {
+            albedo,
+            normal,
+            occlusion: 1.0,
+            gloss: 0.0,
+            key_visibility: 1.0,
+        }
     }
 }
 
@@ -164,10 +193,8 @@ mod tests {
     #[test]
     fn flat_lighting_keeps_the_albedo_and_lambert_follows_the_normal() {
         let albedo = Vec3::new(0.2, 0.5, 0.8);
-        assert_eq!(
-            Lighting::flat().shade(albedo, Vec3::X, 0.3, 0.5, Vec3::Z),
-            albedo
-        );
+        let at = |normal: Vec3| Surface::new(albedo, normal);
+        assert_eq!(Lighting::flat().shade(&at(Vec3::X), Vec3::Z), albedo);
         let key = Lighting {
             ambient: Vec3::splat(0.2),
             lights: vec![Light {
@@ -175,21 +202,25 @@ mod tests {
                 color: Vec3::ONE,
             }],
         };
-        let up = key.shade(albedo, Vec3::Y, 1.0, 0.0, Vec3::Z);
-        let side = key.shade(albedo, Vec3::X, 1.0, 0.0, Vec3::Z);
-        let tilted = key.shade(
-            albedo,
-            Vec3::new(1.0, 1.0, 0.0).normalize(),
-            1.0,
-            0.0,
-            Vec3::Z,
-        );
+        let up = key.shade(&at(Vec3::Y), Vec3::Z);
+        let side = key.shade(&at(Vec3::X), Vec3::Z);
+        let tilted = key.shade(&at(Vec3::new(1.0, 1.0, 0.0).normalize()), Vec3::Z);
         assert!((up - albedo * 1.2).length() < 1e-5);
         assert!((side - albedo * 0.2).length() < 1e-5);
         assert!((tilted - albedo * (0.2 + 0.5f32.sqrt())).length() < 1e-5);
-        // Occlusion darkens; a back face seen from behind is lit as its front.
-        assert!(key.shade(albedo, Vec3::Y, 0.2, 0.0, Vec3::Z).x < up.x);
-        assert_eq!(key.shade(albedo, -Vec3::Y, 1.0, 0.0, Vec3::Y), up);
+        // Occlusion darkens; a cast shadow leaves the ambient light; a back face seen from
+        // behind is lit as its front.
+        let enclosed = Surface {
+            occlusion: 0.2,
+            ..at(Vec3::Y)
+        };
+        assert!(key.shade(&enclosed, Vec3::Z).x < up.x);
+        let shadowed = Surface {
+            key_visibility: 0.0,
+            ..at(Vec3::Y)
+        };
+        assert!((key.shade(&shadowed, Vec3::Z) - albedo * 0.2).length() < 1e-5);
+        assert_eq!(key.shade(&at(-Vec3::Y), Vec3::Y), up);
     }
 
     #[test]

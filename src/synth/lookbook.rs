@@ -42,6 +42,10 @@ pub fn lookbook(seeds: &[u64], size: u32, points: usize) -> Result<RgbImage, Syn
         let height = person.template.height();
         let target = Vec3::new(0.0, 0.5 * height, 0.0);
         let lighting = Lighting::random(&mut ChaCha8Rng::seed_from_u64(seed));
+        let shadow = match lighting.lights.first() {
+            Some(key) => Some(person.light_visibility(&matrices, &posed, key.direction)?),
+            None => None,
+        };
         for (col, (azimuth, lit)) in VIEWS.iter().enumerate() {
             let eye = target + Vec3::new(azimuth.sin(), 0.1, azimuth.cos()) * 3.2 * height / 1.7;
             let camera = Camera::look_at(
@@ -51,7 +55,7 @@ pub fn lookbook(seeds: &[u64], size: u32, points: usize) -> Result<RgbImage, Syn
                 Intrinsics::from_fov_y(size, size, 0.6),
             );
             let gaussians = if *lit {
-                lighting.lit(&person, &posed, eye, false)
+                lighting.lit(&person, &posed, eye, shadow.as_deref(), false)
             } else {
                 posed.clone()
             };

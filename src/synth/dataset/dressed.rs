@@ -50,6 +50,10 @@ pub(super) fn make_dressed_sample(
         .map_err(|e| SynthError::Pose(e.to_string()))?;
     let posed_person = person.avatar.animate(&matrices);
     let lighting = Lighting::random(&mut rng);
+    let shadow = match lighting.lights.first() {
+        Some(key) => Some(person.light_visibility(&matrices, &posed_person, key.direction)?),
+        None => None,
+    };
 
     let pre = PreprocessConfig {
         out_height: options.input_height,
@@ -63,7 +67,7 @@ pub(super) fn make_dressed_sample(
     for rig_camera in &rig.inputs {
         let camera = rolled(&rig_camera.camera, rng.gen_range(-0.12..0.12));
         let eye = Vec3::from(camera.world_from_camera.translation);
-        let lit = lighting.lit(&person, &posed_person, eye, false);
+        let lit = lighting.lit(&person, &posed_person, eye, shadow.as_deref(), false);
         let out = render(&lit, &camera, &black);
         let backdrop = Backdrop::random(&mut rng);
         let effects = CameraEffects::random(&mut rng);
