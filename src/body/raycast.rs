@@ -1,5 +1,5 @@
 //! Ray casting against triangle meshes: a bounding-volume hierarchy (binary, median split on
-//! the longest axis of the centroids, leaves of at most [`LEAF_SIZE`] triangles), every hit or
+//! the longest axis of the centroids, leaves of at most 4 triangles), every hit or
 //! any hit along a ray segment, and ambient occlusion by cosine-weighted hemisphere sampling.
 
 use glam::Vec3;

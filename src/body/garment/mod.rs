@@ -8,7 +8,7 @@
 //! ([`GarmentBinding`]), so refitting on the scaled base equals scaling the rest vertices.
 //!
 //! The library is built by `lhmpp body garments` ([`crate::body::convert::garments`]) into
-//! `assets/body/garments.safetensors` (layout in [`io`]); the runtime never reads the source
+//! `assets/body/garments.safetensors` (layout in `io.rs`); the runtime never reads the source
 //! folders.
 
 mod io;

@@ -48,7 +48,7 @@ pub struct DatasetOptions {
     /// does with `inputs.mask_topics`); the others are whole frames.
     pub mask_fraction: f64,
     /// The people: plain (the template painted by body part, flat colours) or dressed and lit
-    /// ([`dressed`]).
+    /// ([`Realism::Dressed`]).
     pub realism: Realism,
     /// With [`Realism::Dressed`], the fraction of samples (by seed) that are dressed; the others
     /// are plain.
@@ -88,7 +88,7 @@ pub enum Realism {
     Plain,
     /// Dressed people (garments, hair, shoes, procedural materials) whose input views are lit
     /// and pass through camera effects over textured backgrounds; targets and ground truth
-    /// are the albedo (see [`dressed`]).
+    /// are the albedo (see `dataset/dressed.rs`).
     Dressed,
 }
 

@@ -10,8 +10,8 @@
 //! reference vertices (`weights.default.json` weights every base vertex, helpers included);
 //! drop vertices no face uses; turn meshes whose faces mostly point into the body; split
 //! outfits into top and bottom pieces by connected components; label regions; add the four
-//! garments made by offsetting body regions ([`offset`]); compute which skin vertices each
-//! garment covers and every vertex's ambient occlusion ([`coverage`]).
+//! garments made by offsetting body regions (`offset`); compute which skin vertices each
+//! garment covers and every vertex's ambient occlusion (`coverage`).
 
 mod coverage;
 mod mhclo;
