@@ -59,12 +59,14 @@ def load_shards(folder, names=None):
                     "target_rgb", "target_alpha", "target_intrinsics", "target_camera_from_world")}
                 if f"{k}.anchor_pixels" in f.keys():
                     s["anchor_pixels"] = f.get_tensor(f"{k}.anchor_pixels").to(torch.int32)
+                if f"{k}.anchor_surface" in f.keys():
+                    s["anchor_surface"] = f.get_tensor(f"{k}.anchor_surface")
                 s["seed"] = seed
                 samples.append(s)
     return samples
 
 
-PER_ANCHOR = ("anchors", "normals", "colors", "posed_anchors", "posed_rotations")
+PER_ANCHOR = ("anchors", "normals", "colors", "posed_anchors", "posed_rotations", "anchor_surface")
 
 
 def subsample(s, n):
@@ -74,7 +76,8 @@ def subsample(s, n):
         return s
     out = dict(s)
     for k in PER_ANCHOR:
-        out[k] = s[k][:n]
+        if k in s:
+            out[k] = s[k][:n]
     if "anchor_pixels" in s:
         out["anchor_pixels"] = s["anchor_pixels"][:, :n]
     return out
@@ -166,7 +169,19 @@ def band_colors(s):
     return torch.cat(out)
 
 
-def losses(model, s, weights, probe=None, attention=None, patch=None, encoder=None):
+def offset_allowance(anchors, reach):
+    """How far each anchor's Gaussian may sit from it before ACAP penalises the offset: `reach`
+    = (torso, legs, head) in metres; legs below 55% of the body height (skirts, coat hems),
+    head above 85% (hair)."""
+    y = anchors[:, 1]
+    h = (y - y.min()) / (y.max() - y.min()).clamp_min(1e-6)
+    torso, legs, head = reach
+    allow = torch.full_like(y, torso)
+    allow = torch.where(h < 0.55, torch.full_like(y, legs), allow)
+    return torch.where(h > 0.85, torch.full_like(y, head), allow)
+
+
+def losses(model, s, weights, probe=None, attention=None, patch=None, encoder=None, reach=(0.02, 0.02, 0.02)):
     """The training losses of one sample: a dict of scalar tensors (and `total`).
 
     With `probe` (a trainer-only linear map, not part of the shipped network), the conditioning
@@ -197,8 +212,12 @@ def losses(model, s, weights, probe=None, attention=None, patch=None, encoder=No
     color = (out["colors"] - s["colors"]).abs().mean()
     sc = out["scales"]
     asap = ((sc - sc.mean(-1, keepdim=True)) ** 2).sum(-1).mean()
-    acap = F.relu(out["offsets"].norm(dim=-1) - 0.02).mean()
+    acap = F.relu(out["offsets"].norm(dim=-1) - offset_allowance(s["anchors"], reach)).mean()
     parts = {"rgb": rgb_l, "mask": mask_l, "color": color, "asap": asap, "acap": acap}
+    if weights.get("surface", 0.0) > 0 and "anchor_surface" in s:
+        # Dressed samples: each Gaussian on the outermost surface over its anchor (the garment).
+        position = s["anchors"] + out["offsets"]
+        parts["surface"] = (position - s["anchor_surface"]).abs().sum(-1).mean()
     if attention is not None and "anchor_pixels" in s:
         attn = attention.loss(s, model.cfg["encoder"]["patch_size"])
         if attn is not None:
@@ -258,7 +277,7 @@ def fmt_time(seconds):
 
 
 # Scalars reduced across workers every step, in this order (missing ones count as 0).
-LOSS_KEYS = ("total", "rgb", "mask", "color", "asap", "acap", "probe", "attn", "patch")
+LOSS_KEYS = ("total", "rgb", "mask", "color", "asap", "acap", "probe", "attn", "patch", "surface")
 
 
 def parse_args():
@@ -287,6 +306,12 @@ def parse_args():
                     help="weight of the attention supervision (needs shards with anchor_pixels)")
     ap.add_argument("--patch", type=float, default=0.0,
                     help="weight of the patch supervision (needs shards with anchor_pixels)")
+    ap.add_argument("--surface", type=float, default=0.0,
+                    help="weight of the L1 between each Gaussian's canonical position and the "
+                         "outermost surface over its anchor (dressed samples' anchor_surface)")
+    ap.add_argument("--reach", default="0.02,0.02,0.02",
+                    help="offsets ACAP leaves unpenalised, metres: torso,legs,head (legs below "
+                         "55%% of the height: skirts and coat hems; head above 85%%: hair)")
     ap.add_argument("--colour-aug", type=float, default=0.0,
                     help="fraction of samples whose person colours (inputs and every colour "
                          "target alike) go through a random colour transform")
@@ -344,7 +369,8 @@ def worker(rank, args, port):
     torch.set_num_threads(args.threads)
     os.makedirs(args.out, exist_ok=True)
     weights = {"rgb": 1.0, "mask": 0.5, "color": 1.0, "asap": 20.0, "acap": 5.0, "probe": 1.0,
-               "attn": args.attention, "patch": args.patch}
+               "attn": args.attention, "patch": args.patch, "surface": args.surface}
+    reach = tuple(float(v) for v in args.reach.split(","))
     state_path = os.path.join(args.out, "state.pt")
     log = open(os.path.join(args.out, "log.txt"), "a") if lead else None
 
@@ -416,7 +442,8 @@ def worker(rank, args, port):
         "workers": world, "threads_per_worker": args.threads, "batch": world,
         "loss_weights": weights, "open_gates": args.open_gates,
         "white_first": args.white_first, "probe": args.probe, "attention": args.attention,
-        "patch": args.patch, "colour_aug": args.colour_aug,
+        "patch": args.patch, "colour_aug": args.colour_aug, "surface": args.surface,
+        "reach": args.reach,
         "init": os.path.abspath(args.init) if args.init else None,
         "points_schedule": args.points_schedule, "max_minutes": args.max_minutes, "optimizer": "AdamW(0.9, 0.99)",
         "torch": torch.__version__,
@@ -476,7 +503,7 @@ def worker(rank, args, port):
         s = draw(progress, points)
         for g in opt.param_groups:
             g["lr"] = lr_at(progress, args.lr, args.warmup / args.steps)
-        parts = losses(model, s, weights, probe, attention, patch, encoder)
+        parts = losses(model, s, weights, probe, attention, patch, encoder, reach)
         opt.zero_grad(set_to_none=True)
         if aux_opt is not None:
             aux_opt.zero_grad(set_to_none=True)
@@ -514,6 +541,8 @@ def worker(rank, args, port):
                 probe_text += f" attn {mean['attn']:.3f}"
             if "patch" in mean:
                 probe_text += f" patch {mean['patch']:.4f}"
+            if "surface" in mean:
+                probe_text += f" surface {mean['surface']:.4f}"
             say(f"step {step}/{args.steps}  {s['anchors'].shape[0]} pts  lr {opt.param_groups[0]['lr']:.2e}  loss {mean['total']:.4f} (rgb {mean['rgb']:.4f} "
                 f"mask {mean['mask']:.4f} color {mean['color']:.4f} asap {mean['asap']:.2e} "
                 f"acap {mean['acap']:.2e}{probe_text})  {rate:.2f} steps/s ({rate * world:.2f} samples/s)  ETA {fmt_time(eta)}")

@@ -180,8 +180,10 @@ pub(super) fn make_dressed_sample(
             target_camera_from_world.extend((0..4).map(|col| m.col(col)[row]));
         }
     }
-    // Where the node puts the anchors without knowing the girth (for some samples).
-    let (anchors, posed_frame) = if super::anchors_at_girth_one(seed, options) {
+    // Where the node puts the anchors without knowing the girth (for some samples). Their
+    // outermost surface is the true person's, not in that frame: it is left out.
+    let girth_one = super::anchors_at_girth_one(seed, options);
+    let (anchors, posed_frame) = if girth_one {
         super::girth_one_anchors(&person.template, person.girth_scale, &anchors, &pose)?
     } else {
         (anchors, posed_frame)
@@ -207,6 +209,6 @@ pub(super) fn make_dressed_sample(
         shape: [person.height_scale, person.girth_scale],
         anchor_pixels,
         anchor_garment: Some(truth.garment),
-        anchor_surface: Some(flat(&truth.surface)),
+        anchor_surface: (!girth_one).then(|| flat(&truth.surface)),
     })
 }
