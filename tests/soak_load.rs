@@ -10,6 +10,7 @@ mod load_support;
 use load_support::{interrupt, lhmpp, number_after, KillOnDrop};
 use std::path::Path;
 use std::process::Stdio;
+use std::time::Duration;
 
 #[test]
 fn a_minute_of_four_1080p_streams_keeps_the_node_reconstructing_and_the_counters_true() {
