@@ -3,8 +3,9 @@
 // (`input`, U8 [1, H, W, 3]) and, as F32 by graph node name, the final output (`Identity`,
 // [1, 6, 56]) and the six head maps the decoding reads.
 //
-//   node scripts/perception/reference_movenet.mjs MODEL.json INPUT.ppm OUT.safetensors [KEY=VALUE…]
+//   node scripts/perception/reference_movenet.mjs [--centre-only] MODEL.json INPUT.ppm OUT.safetensors [KEY=VALUE…]
 //
+// --centre-only keeps just the centre heatmap of the six head maps (a smaller fixture).
 // INPUT.ppm is a binary PPM (P6, maxval 255) whose sides are multiples of 32; the KEY=VALUE pairs
 // go into the fixture's metadata. Needs scripts/perception/setup-movenet (TF.js in
 // target/movenet/node).
@@ -57,7 +58,9 @@ function writeSafetensors(path, tensors, metadata) {
 }
 
 async function main() {
-  const [modelPath, inputPath, outPath, ...pairs] = process.argv.slice(2);
+  const args = process.argv.slice(2);
+  const centreOnly = args[0] === '--centre-only';
+  const [modelPath, inputPath, outPath, ...pairs] = centreOnly ? args.slice(1) : args;
   if (!outPath) throw new Error('usage: reference_movenet.mjs MODEL.json INPUT.ppm OUT.safetensors [KEY=VALUE…]');
   await tf.setBackend('cpu');
   await tf.ready();
@@ -75,12 +78,13 @@ async function main() {
   const { w, h, pixels } = readPpm(inputPath);
   if (w % 32 || h % 32) throw new Error(`${inputPath}: ${w}×${h}, sides must be multiples of 32`);
   const input = tf.tensor4d(Int32Array.from(pixels), [1, h, w, 3], 'int32');
-  const names = ['Identity', ...HEADS.map((n) => 'StatefulPartitionedCall/' + n)];
+  const heads = centreOnly ? HEADS.slice(0, 1) : HEADS;
+  const names = ['Identity', ...heads.map((n) => 'StatefulPartitionedCall/' + n)];
   const outs = model.execute(input, names);
   const tensors = [['input', 'U8', [1, h, w, 3], Buffer.from(pixels)]];
   for (let i = 0; i < names.length; i++) {
     const data = Float32Array.from(outs[i].dataSync());
-    tensors.push([HEADS[i - 1] ?? 'Identity', 'F32', outs[i].shape, Buffer.from(data.buffer)]);
+    tensors.push([heads[i - 1] ?? 'Identity', 'F32', outs[i].shape, Buffer.from(data.buffer)]);
   }
   const sha = (p) => createHash('sha256').update(readFileSync(p)).digest('hex');
   const metadata = {

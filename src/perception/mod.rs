@@ -7,6 +7,9 @@
 //! rotated square crop around the person and gives image landmarks, world landmarks (metres,
 //! hip-centred) and a segmentation mask, which are mapped back into the frame.
 //!
+//! Several people at once: [`multipose`] runs MoveNet MultiPose Lightning (Apache-2.0), which
+//! splits a frame into up to six person instances with 17 keypoints each.
+//!
 //! Perception imports the CPU kernels and the body template, never the avatar network
 //! (`tests/module_layers.rs`).
 
@@ -15,6 +18,7 @@ pub mod detection;
 mod error;
 pub mod landmark;
 pub mod landmarks;
+pub mod multipose;
 pub mod network;
 pub mod overlay;
 pub mod pose;
@@ -26,6 +30,7 @@ pub mod weights;
 
 pub use error::PerceptionError;
 pub use landmark::{Landmark, LandmarkId, BODY_LANDMARKS};
+pub use multipose::{MultiPoseDetector, PersonInstance};
 pub use network::{Network, NetworkOutputs};
 pub use tracker::{Perceived, PersonTracker, PoseNetworks, TrackerConfig};
 pub use weights::LandmarkModel;

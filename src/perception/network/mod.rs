@@ -99,6 +99,21 @@ impl Network {
         Self::from_bytes(&bytes, &path.display().to_string())
     }
 
+    /// [`Network::from_bytes`] for an `height × width` input instead of the size the file was
+    /// written for ([`GraphDef::resize_input`]): for fully convolutional networks such as
+    /// MoveNet, which take any input whose sides are multiples of their total stride.
+    pub fn from_bytes_resized(
+        bytes: &[u8],
+        origin: &str,
+        height: usize,
+        width: usize,
+    ) -> Result<Self, PerceptionError> {
+        Self::from_bytes_try_edit(bytes, origin, |g| {
+            g.resize_input(height, width)
+                .map_err(|e| format!("for a {height}×{width} input: {e}"))
+        })
+    }
+
     /// [`Network::from_bytes`] with `edit` applied to the graph before it is checked: for
     /// tests that plant a wiring mistake and show that parity then fails.
     #[doc(hidden)]
@@ -107,8 +122,19 @@ impl Network {
         origin: &str,
         edit: impl FnOnce(&mut GraphDef),
     ) -> Result<Self, PerceptionError> {
+        Self::from_bytes_try_edit(bytes, origin, |g| {
+            edit(g);
+            Ok(())
+        })
+    }
+
+    fn from_bytes_try_edit(
+        bytes: &[u8],
+        origin: &str,
+        edit: impl FnOnce(&mut GraphDef) -> Result<(), String>,
+    ) -> Result<Self, PerceptionError> {
         let mut file = file::read(bytes, origin)?;
-        edit(&mut file.graph);
+        edit(&mut file.graph).map_err(|e| PerceptionError::format(origin, e))?;
         let graph = graph::check(&file.graph, origin)?;
         let input_shape: [usize; 4] = graph.shapes[graph.input]
             .clone()
