@@ -1,0 +1,166 @@
+//! Parity of MoveNet MultiPose Lightning on our CPU kernels and our decoding with TF.js's
+//! pure-JS CPU backend (`@tensorflow/tfjs` 4.22.0 in node,
+//! `scripts/perception/reference_movenet.mjs`): `tests/fixtures/perception/movenet_*.safetensors`
+//! hold a letterboxed real photo (Pose2Sim and Sports2D demo frames, BSD-3-Clause, see the
+//! NOTICE there) and what TF.js computed for it: the final `[1, 6, 56]` output (`Identity`) and
+//! the head maps. Every output must agree within 1e-4 relative
+//! (`max |ours − TF.js| / max |TF.js|`); planted mistakes, in the network and in the decoding's
+//! inputs, must break it.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use lhmpp::perception::multipose::{self, decode, heads, MultiPoseDetector, PERSON_VALUES};
+use lhmpp::perception::network::Network;
+use lhmpp::perception::weights;
+use safetensors::{Dtype, SafeTensors};
+
+/// The largest relative difference parity allows.
+const TOLERANCE: f32 = 1e-4;
+
+/// A fixture: input pixels, side, and TF.js's outputs by name.
+struct Fixture {
+    pixels: Vec<u8>,
+    side: usize,
+    outputs: HashMap<String, (Vec<usize>, Vec<f32>)>,
+}
+
+fn fixture_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/perception")
+        .join(name)
+}
+
+fn read_fixture(name: &str) -> Fixture {
+    let path = fixture_path(name);
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let st = SafeTensors::deserialize(&bytes).unwrap();
+    let input = st.tensor("input").unwrap();
+    assert_eq!(input.dtype(), Dtype::U8);
+    let shape = input.shape().to_vec();
+    assert!(shape.len() == 4 && shape[1] == shape[2] && shape[3] == 3, "{shape:?}");
+    let mut outputs = HashMap::new();
+    for (name, view) in st.tensors() {
+        if name == "input" {
+            continue;
+        }
+        assert_eq!(view.dtype(), Dtype::F32, "{name}");
+        let data: Vec<f32> = view
+            .data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        outputs.insert(name, (view.shape().to_vec(), data));
+    }
+    Fixture {
+        pixels: input.data().to_vec(),
+        side: shape[1],
+        outputs,
+    }
+}
+
+/// `max |a − b| / max |b|`.
+fn relative(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(f32::MIN_POSITIVE);
+    a.iter()
+        .zip(b)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()))
+        / scale
+}
+
+/// Per output of the fixture: its name and our relative difference (heads the fixture holds,
+/// then `Identity`).
+fn differences(det: &MultiPoseDetector, fx: &Fixture) -> Vec<(String, f32)> {
+    let heads_out = det.heads(&fx.pixels).unwrap();
+    let mut diffs = Vec::new();
+    for name in heads::ALL {
+        if let Some((shape, want)) = fx.outputs.get(name) {
+            let got = heads_out.tensor(name).unwrap();
+            assert_eq!(&got.shape, shape, "{name}");
+            diffs.push((name.to_string(), relative(&got.data, want)));
+        }
+    }
+    let (shape, want) = &fx.outputs["Identity"];
+    assert_eq!(shape, &[1, multipose::MAX_PEOPLE, PERSON_VALUES]);
+    let got = decode(&heads_out, fx.side, fx.side).unwrap();
+    diffs.push(("Identity".into(), relative(&got, want)));
+    // the same through the public entry point
+    assert_eq!(det.run(&fx.pixels).unwrap(), got);
+    diffs
+}
+
+fn check(name: &str) {
+    let fx = read_fixture(name);
+    let det = MultiPoseDetector::embedded(fx.side).unwrap();
+    for (output, diff) in differences(&det, &fx) {
+        println!("{name}: {output}: max relative difference {diff:.3e}");
+        assert!(
+            diff <= TOLERANCE,
+            "{name}: {output} differs from TF.js by {diff:.3e} relative (allowed {TOLERANCE:e})"
+        );
+    }
+}
+
+/// The native 256×256 input: every head map and the final output.
+#[test]
+fn multipose_256_matches_tfjs() {
+    check("movenet_multipose_256.safetensors");
+}
+
+/// A 384×384 input (the graph re-derived for another size): the centre heatmap and the final
+/// output.
+#[test]
+fn multipose_384_matches_tfjs() {
+    check("movenet_multipose_384.safetensors");
+}
+
+/// Planted mistakes must break parity: a ReLU dropped in the FPN's last layer (network), and
+/// the box-offset head zeroed before decoding (decoding inputs).
+#[test]
+fn planted_mistakes_break_parity() {
+    let fx = read_fixture("movenet_multipose_256.safetensors");
+    let net = Network::from_bytes_edited(weights::MOVENET_MULTIPOSE, "planted", |g| {
+        let op = g
+            .ops
+            .iter_mut()
+            .find(|o| o.outputs[0].ends_with("re_lu_2/Relu"))
+            .expect("the FPN's last layer");
+        assert_eq!(op.options["activation"], "RELU");
+        op.options["activation"] = "NONE".into();
+    })
+    .unwrap();
+    let det = MultiPoseDetector::from_network(net).unwrap();
+    let diffs = differences(&det, &fx);
+    println!("planted activation: {diffs:?}");
+    for (output, diff) in &diffs {
+        assert!(*diff > TOLERANCE, "{output} still matches: {diff:e}");
+    }
+
+    let det = MultiPoseDetector::embedded(fx.side).unwrap();
+    let mut out = det.heads(&fx.pixels).unwrap();
+    let t = out
+        .tensors
+        .iter_mut()
+        .find(|t| t.name == heads::BOX_OFFSET)
+        .unwrap();
+    t.data.iter_mut().for_each(|v| *v = 0.0);
+    let got = decode(&out, fx.side, fx.side).unwrap();
+    let diff = relative(&got, &fx.outputs["Identity"].1);
+    println!("planted zero box offsets: Identity {diff:.3e}");
+    assert!(diff > TOLERANCE, "Identity still matches: {diff:e}");
+}
+
+/// Wrong input sides and wrong pixel counts are refused, naming the model.
+#[test]
+fn bad_sizes_are_refused() {
+    let err = MultiPoseDetector::embedded(250).unwrap_err().to_string();
+    assert!(err.contains("multiple of 32") && err.contains("movenet"), "{err}");
+    let det = MultiPoseDetector::embedded(256).unwrap();
+    let err = det.run(&[0; 10]).unwrap_err().to_string();
+    assert!(err.contains("196608"), "{err}");
+    let err = MultiPoseDetector::load(Path::new("/nonexistent/movenet.safetensors"), 256)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("/nonexistent/movenet.safetensors"), "{err}");
+}
