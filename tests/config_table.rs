@@ -1,14 +1,18 @@
-//! The README's parameter table is the one `lhmpp config --markdown` prints (generated from
+//! docs/configuration.md's parameter table is the one `lhmpp config --markdown` prints (generated from
 //! the config's defaults, ranges and parameter rows): a change to either fails here.
 
 use std::path::Path;
 
 #[test]
-fn readme_parameter_table_is_the_generated_one() {
-    let readme = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md"))
-        .expect("README.md");
+fn documented_parameter_table_is_the_generated_one() {
+    let readme = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/configuration.md"),
+    )
+    .expect("docs/configuration.md");
     let header = "| parameter | type (default) | meaning |\n";
-    let start = readme.find(header).expect("README has the parameter table");
+    let start = readme
+        .find(header)
+        .expect("docs/configuration.md has the parameter table");
     let table: String = readme[start..]
         .lines()
         .take_while(|l| l.starts_with('|'))
@@ -17,8 +21,8 @@ fn readme_parameter_table_is_the_generated_one() {
     let generated = lhmpp::config::markdown_table();
     assert!(
         table == generated,
-        "README.md's parameter table differs from `lhmpp config --markdown`; regenerate it.\n\
-         README:\n{table}\ngenerated:\n{generated}"
+        "docs/configuration.md's parameter table differs from `lhmpp config --markdown`; regenerate it.\n\
+         documented:\n{table}\ngenerated:\n{generated}"
     );
 }
 

@@ -40,6 +40,8 @@ def row(tiles, gap=8):
 
 def column(rows, gap=12, title=None):
     width = max(r.width for r in rows)
+    if title:
+        width = max(width, int(ImageDraw.Draw(rows[0]).textlength(title, font=font(22))) + 12)
     top = 40 if title else 0
     height = sum(r.height for r in rows) + gap * (len(rows) - 1) + top
     canvas = Image.new("RGB", (width, height), "white")
@@ -59,6 +61,17 @@ def crop_to_mask(image, mask, margin=0.15):
     x0, y0, x1, y1 = box
     m = int(margin * max(x1 - x0, y1 - y0))
     return image.crop((max(0, x0 - m), max(0, y0 - m), min(image.width, x1 + m), min(image.height, y1 + m)))
+
+
+def crop_to_content(render, margin=0.08):
+    """A render cropped to what is not white background."""
+    rgb = render.convert("RGB")
+    ink = rgb.point(lambda v: 255 if v < 245 else 0).convert("L").getbbox()
+    if ink is None:
+        return rgb
+    x0, y0, x1, y1 = ink
+    m = int(margin * max(x1 - x0, y1 - y0))
+    return rgb.crop((max(0, x0 - m), max(0, y0 - m), min(rgb.width, x1 + m), min(rgb.height, y1 + m)))
 
 
 def perception(out, target):
@@ -112,6 +125,27 @@ def live_pose(out, target):
     ).save(target)
 
 
+def overview(out, target):
+    """The README's first picture: one camera frame in, perception's mask and skeleton, the
+    avatar from three sides, and frames rendered in new poses."""
+    out = Path(out)
+    mask = Image.open(out / "s2d_camera/masks/demo_f120_mask.png")
+    photo = Image.open("target/devset/sports2d/demo_f120.png")
+    overlay = Image.open(out / "s2d_camera/masks/demo_f120_overlay.png")
+    tiles = [
+        tile(crop_to_mask(photo, mask), "1. input: one camera frame"),
+        tile(crop_to_mask(overlay, mask), "2. perception: mask + pose"),
+        tile(crop_to_content(Image.open(out / "s2d_camera/turntable/000.png")), "3. avatar: front"),
+        tile(crop_to_content(Image.open(out / "s2d_camera/turntable/001.png")), "side"),
+        tile(crop_to_content(Image.open(out / "s2d_camera/turntable/002.png")), "back"),
+        tile(crop_to_content(Image.open(out / "s2d_camera/walk/000.png")), "4. rendered, new pose"),
+    ]
+    column(
+        [row(tiles)],
+        title="A camera frame in, a Gaussian avatar out (real photo: Sports2D demo, BSD-3)",
+    ).save(target)
+
+
 if __name__ == "__main__":
     kind, out, target = sys.argv[1:4]
-    {"perception": perception, "live-pose": live_pose}[kind](out, target)
+    {"perception": perception, "live-pose": live_pose, "overview": overview}[kind](out, target)

@@ -59,6 +59,19 @@ impl BagStream {
         })
     }
 
+    /// The topics and message types the bag's summary lists (empty for a bag cut before its
+    /// summary), sorted by topic.
+    pub fn summary_topics(&self) -> Vec<(String, String)> {
+        let mut topics: Vec<(String, String)> = self
+            .channels
+            .values()
+            .map(|(topic, type_name)| (topic.to_string(), type_name.to_string()))
+            .collect();
+        topics.sort();
+        topics.dedup();
+        topics
+    }
+
     /// Where reading stopped in an incomplete bag; known once the iterator has ended.
     pub fn truncation(&self) -> Option<&Truncation> {
         self.scanner.salvage.truncation.as_ref()

@@ -1,5 +1,5 @@
 //! `lhmpp config`: load a launch config with overrides, validate it, print the result; or,
-//! with `--markdown`, print the parameter reference table of the README.
+//! with `--markdown`, print the parameter reference table of docs/configuration.md.
 
 use super::config_source::ConfigSource;
 use anyhow::Result;
@@ -9,7 +9,7 @@ use anyhow::Result;
 pub struct ConfigArgs {
     #[command(flatten)]
     pub source: ConfigSource,
-    /// Print the parameter reference (the README's table: types, ranges, defaults, meanings)
+    /// Print the parameter reference (docs/configuration.md's table: types, ranges, defaults, meanings)
     /// as Markdown instead of a config.
     #[arg(long, conflicts_with_all = ["config", "overrides"])]
     pub markdown: bool,

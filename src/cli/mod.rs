@@ -28,7 +28,7 @@ mod udp_buffers;
 
 /// LHM++ human-avatar reconstruction node for ROS 2.
 ///
-/// See the README's status table for what each subcommand does today.
+/// See docs/status.md for what each subcommand does today and docs/commands.md for examples.
 #[derive(Parser, Debug)]
 #[command(name = "lhmpp", version, about, long_about)]
 struct Cli {

@@ -1,6 +1,6 @@
 //! The parameter reference: one row per parameter with its type, accepted values and meaning;
 //! defaults come from [`NodeConfig::default`] and ranges from the constants the validation
-//! uses. `lhmpp config --markdown` prints it as the README's table (a test keeps them equal).
+//! uses. `lhmpp config --markdown` prints it as docs/configuration.md's table (a test keeps them equal).
 
 use super::{
     Choice, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, InputConfig,
@@ -71,7 +71,7 @@ fn p(key: &'static str, kind: String, meaning: &'static str) -> Parameter {
     Parameter { key, kind, meaning }
 }
 
-/// Every parameter, in the order of the README's table.
+/// Every parameter, in the order of docs/configuration.md's table.
 pub fn parameters() -> Vec<Parameter> {
     vec![
         p("namespace", string(), "ROS 2 namespace"),
@@ -400,7 +400,7 @@ fn defaults() -> serde_yaml_ng::Value {
     file[super::NODE_NAME]["ros__parameters"].clone()
 }
 
-/// The README's parameter table (Markdown, one line per parameter, ending in a newline).
+/// docs/configuration.md's parameter table (Markdown, one line per parameter, ending in a newline).
 pub fn markdown_table() -> String {
     let defaults = defaults();
     let mut out = String::from("| parameter | type (default) | meaning |\n| --- | --- | --- |\n");

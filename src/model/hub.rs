@@ -57,7 +57,9 @@ pub enum HubError {
     /// The checkpoint path does not exist.
     #[error(
         "checkpoint {0} does not exist (expected a safetensors file, or a hub folder with \
-             config.json and model.safetensors: see the README section \"Official LHM++ weights\")"
+             config.json and model.safetensors); the released weights: \
+             `huggingface-cli download 3DAIGC/LHMPP-700M --local-dir {0}` \
+             (docs/model.md, \"Official LHM++ weights\")"
     )]
     NotFound(PathBuf),
     /// Reading a file failed.

@@ -62,14 +62,37 @@ impl PriorPaths {
     pub fn check(&self) -> Result<(), BodyError> {
         for p in [&self.points, &self.volume, &self.smplx] {
             if !p.is_file() {
-                return Err(BodyError::format(
-                    p.display(),
-                    "file not found (part of the LHMPP-Prior / SMPL-X download; see the README \
-                     section \"Official LHM++ weights\")",
-                ));
+                return Err(BodyError::format(p.display(), missing_file_hint(p)));
             }
         }
         Ok(())
+    }
+}
+
+/// What to do about a missing prior file: the download that brings it, into the folder the
+/// node looks in (or, for a SMPL-X file outside the official layout, the setting that names it).
+fn missing_file_hint(path: &Path) -> String {
+    let dir = [POINTS_FILE, VOLUME_FILE, SMPLX_FILE]
+        .iter()
+        .find_map(|rel| {
+            let rel = Path::new(rel);
+            path.ends_with(rel).then(|| {
+                path.ancestors()
+                    .nth(rel.components().count())
+                    .unwrap_or(Path::new("."))
+                    .to_path_buf()
+            })
+        });
+    match dir {
+        Some(dir) => format!(
+            "file not found: it is part of the LHMPP-Prior download (SMPL-X licence): \
+             `huggingface-cli download 3DAIGC/LHMPP-Prior --local-dir {}` \
+             (docs/model.md, \"Official LHM++ weights\")",
+            dir.display()
+        ),
+        None => "file not found: point model.smplx_model at your SMPL-X .npz \
+                 (docs/model.md, \"Official LHM++ weights\")"
+            .to_owned(),
     }
 }
 

@@ -16,6 +16,7 @@ mod context;
 mod latched;
 mod live_inputs;
 pub(crate) mod ports;
+mod silent_cameras;
 mod sink;
 
 pub use context::{
@@ -24,6 +25,7 @@ pub use context::{
 };
 pub use live_inputs::LiveInputs;
 pub use ports::{rgb8_image, OutputTopics, PublishOutcome};
+pub use silent_cameras::{silence_warning, SILENT_CAMERA_WARNING};
 pub use sink::InputStats;
 
 use crate::config::{FrameQos, ImageQos, NodeConfig, PoseSource};
@@ -345,18 +347,24 @@ impl RosNode {
         let mut tasks = Vec::new();
         let max_side = opts.max_image_side;
         let image_qos = image_input_qos(opts.image_qos);
+        let mut cameras = silent_cameras::CameraWatch::default();
         for topic in &topics.images {
             let sub = subscribe::<Image>(&mut node, topic, image_qos.clone())?;
+            let seen = cameras.watch(topic, "sensor_msgs/msg/Image");
             tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
+                seen.store(true, std::sync::atomic::Ordering::Relaxed);
                 Ok(encoded(t, a, max_side, ImageMessage::Raw(m)))
             }));
         }
         for topic in &topics.compressed_images {
             let sub = subscribe::<CompressedImage>(&mut node, topic, image_qos.clone())?;
+            let seen = cameras.watch(topic, "sensor_msgs/msg/CompressedImage");
             tasks.push(sink.spawn(topic.clone(), sub, move |t, m, a| {
+                seen.store(true, std::sync::atomic::Ordering::Relaxed);
                 Ok(encoded(t, a, max_side, ImageMessage::Compressed(m)))
             }));
         }
+        tasks.push(cameras.spawn(SILENT_CAMERA_WARNING, opts.image_qos));
         for (camera_index, topic) in topics.camera_infos.iter().enumerate() {
             let sub = subscribe::<CameraInfo>(&mut node, topic, reliable_input_qos())?;
             tasks.push(sink.spawn(topic.clone(), sub, move |t, info, arrival| {
