@@ -21,6 +21,7 @@ pub mod model;
 pub mod msgs;
 pub mod node;
 pub mod perception;
+pub mod picture;
 pub mod reconstruct;
 mod simd;
 pub mod splat;

@@ -425,7 +425,7 @@ pub fn evaluate_bag(
             .into_iter()
             .map(|i| &gt.inputs[i].rgb)
             .collect();
-        let picture = comparison_strip(&shown, &gt.heldout[0], first_render.as_ref());
+        let picture = comparison_strip(&shown, &gt.heldout[0], first_render.as_ref(), k);
         rows.push(EvalRow {
             views: k,
             per_view,
@@ -435,11 +435,13 @@ pub fn evaluate_bag(
     Ok(rows)
 }
 
-/// Input views | held-out ground truth | render, side by side at the held-out height.
+/// Input views | held-out ground truth | render, side by side at the held-out height, each
+/// captioned ("input 1", ..., "truth, held out", "ours, K views").
 fn comparison_strip(
     inputs: &[&image::RgbImage],
     heldout: &HeldoutView,
     render: Option<&image::RgbImage>,
+    views: usize,
 ) -> image::RgbImage {
     use image::imageops::{resize, FilterType};
     let (w, h) = (
@@ -451,24 +453,23 @@ fn comparison_strip(
         let c = |k: usize| (heldout.rgb[i + k].clamp(0.0, 1.0) * 255.0).round() as u8;
         image::Rgb([c(0), c(1), c(2)])
     });
-    let mut tiles: Vec<image::RgbImage> = inputs
+    let mut tiles: Vec<(image::RgbImage, String)> = inputs
         .iter()
-        .map(|im| {
+        .enumerate()
+        .map(|(i, im)| {
             let tw = (im.width() as u64 * h as u64 / im.height().max(1) as u64).max(1) as u32;
-            resize(*im, tw, h, FilterType::Triangle)
+            (
+                resize(*im, tw, h, FilterType::Triangle),
+                format!("input {}", i + 1),
+            )
         })
         .collect();
-    tiles.push(truth);
+    tiles.push((truth, "truth, held out".into()));
     if let Some(r) = render {
-        tiles.push(r.clone());
+        let plural = if views == 1 { "" } else { "s" };
+        tiles.push((r.clone(), format!("ours, {views} view{plural}")));
     }
-    let gap = 4;
-    let width = tiles.iter().map(|t| t.width() + gap).sum::<u32>() - gap;
-    let mut strip = image::RgbImage::from_pixel(width, h, image::Rgb([128, 128, 128]));
-    let mut x = 0;
-    for t in &tiles {
-        image::imageops::replace(&mut strip, t, i64::from(x), 0);
-        x += t.width() + gap;
-    }
-    strip
+    let refs: Vec<(&image::RgbImage, &str)> = tiles.iter().map(|(t, c)| (t, c.as_str())).collect();
+    let scale = if h >= 160 { 2 } else { 1 };
+    crate::picture::captioned_row(&refs, scale, 12, image::Rgb([255, 255, 255]))
 }
