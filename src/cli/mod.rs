@@ -19,6 +19,7 @@ mod perceive;
 mod record;
 mod render;
 mod replay;
+mod ros_args;
 mod run;
 mod shm_echo;
 mod synth;
@@ -127,7 +128,8 @@ pub fn exit_code(error: &anyhow::Error) -> u8 {
 
 /// Parses the command line, sets up logging and runs the subcommand.
 pub fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
+    // `ros2 run lhmpp lhmpp --ros-args ...` (and `ros2 launch`): ROS 2 arguments become `run`'s.
+    let cli = Cli::parse_from(ros_args::translate(std::env::args_os().collect())?);
     init_logging(cli.log.as_deref().unwrap_or(DEFAULT_LOG_FILTER));
     match cli.command {
         Command::Run(args) => run::run(args),
