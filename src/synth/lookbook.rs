@@ -11,6 +11,12 @@ use image::RgbImage;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+/// The captions of the sheet's columns.
+const CAPTIONS: [&str; 4] = ["front (albedo)", "side (albedo)", "back (albedo)", "front, lit"];
+
+/// Height of the caption band above the first row, pixels.
+const BAND: u32 = 28;
+
 /// The views of one person: (azimuth from the front in radians, lit).
 const VIEWS: [(f32, bool); 4] = [
     (0.0, false),
@@ -20,13 +26,17 @@ const VIEWS: [(f32, bool); 4] = [
 ];
 
 /// A sheet with one row per seed: front, side, back (albedo) and front lit, `size` pixels
-/// square each, on white, with `points` Gaussians per person.
+/// square each, on white, with `points` Gaussians per person, under a band of captions.
 pub fn lookbook(seeds: &[u64], size: u32, points: usize) -> Result<RgbImage, SynthError> {
     let mut sheet = RgbImage::from_pixel(
         size * VIEWS.len() as u32,
-        size * seeds.len() as u32,
+        size * seeds.len() as u32 + BAND,
         image::Rgb([255; 3]),
     );
+    for (col, caption) in CAPTIONS.iter().enumerate() {
+        let x = col as u32 * size + 8;
+        crate::picture::draw_text(&mut sheet, x, 6, caption, 2, crate::picture::INK);
+    }
     let white = RenderOptions {
         background: Vec3::ONE,
         ..RenderOptions::default()
@@ -64,7 +74,7 @@ pub fn lookbook(seeds: &[u64], size: u32, points: usize) -> Result<RgbImage, Syn
                 &mut sheet,
                 &image,
                 (col as u32 * size) as i64,
-                (row as u32 * size) as i64,
+                (row as u32 * size + BAND) as i64,
             );
         }
     }
