@@ -38,7 +38,10 @@ fn read_fixture(name: &str) -> Fixture {
     let input = st.tensor("input").unwrap();
     assert_eq!(input.dtype(), Dtype::U8);
     let shape = input.shape().to_vec();
-    assert!(shape.len() == 4 && shape[1] == shape[2] && shape[3] == 3, "{shape:?}");
+    assert!(
+        shape.len() == 4 && shape[1] == shape[2] && shape[3] == 3,
+        "{shape:?}"
+    );
     let mut outputs = HashMap::new();
     for (name, view) in st.tensors() {
         if name == "input" {
@@ -62,11 +65,11 @@ fn read_fixture(name: &str) -> Fixture {
 /// `max |a − b| / max |b|`.
 fn relative(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(f32::MIN_POSITIVE);
-    a.iter()
-        .zip(b)
-        .fold(0f32, |m, (x, y)| m.max((x - y).abs()))
-        / scale
+    let scale = b
+        .iter()
+        .fold(0f32, |m, v| m.max(v.abs()))
+        .max(f32::MIN_POSITIVE);
+    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs())) / scale
 }
 
 /// Per output of the fixture: its name and our relative difference (heads the fixture holds,
@@ -155,7 +158,18 @@ fn planted_mistakes_break_parity() {
 #[test]
 fn bad_sizes_are_refused() {
     let err = MultiPoseDetector::embedded(250).unwrap_err().to_string();
-    assert!(err.contains("multiple of 32") && err.contains("movenet"), "{err}");
+    assert!(
+        err.contains("multiple of 32") && err.contains("movenet"),
+        "{err}"
+    );
+    // the graph itself refuses a side its FPN cannot add up (250 → 125 → 63 → 32 → 16 → 8,
+    // upsampled 8 → 16 → 32 → 64 ≠ 63)
+    let err = Network::from_bytes_resized(weights::MOVENET_MULTIPOSE, "movenet", 250, 250)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("250×250") && err.contains("ADD"), "{err}");
+    let net = Network::from_bytes_resized(weights::MOVENET_MULTIPOSE, "movenet", 320, 224).unwrap();
+    assert_eq!(net.input_shape(), [1, 320, 224, 3]);
     let det = MultiPoseDetector::embedded(256).unwrap();
     let err = det.run(&[0; 10]).unwrap_err().to_string();
     assert!(err.contains("196608"), "{err}");
@@ -163,4 +177,44 @@ fn bad_sizes_are_refused() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("/nonexistent/movenet.safetensors"), "{err}");
+}
+
+/// `detect` letterboxes the frame and maps people back into frame pixels: a 512×512 frame made
+/// of the 256 fixture's pixels doubled gives the network exactly the fixture's input (the
+/// letterbox samples every second pixel), so its people are TF.js's, scaled by 512.
+#[test]
+fn detect_maps_people_into_the_frame() {
+    let fx = read_fixture("movenet_multipose_256.safetensors");
+    let frame = image::RgbImage::from_fn(512, 512, |x, y| {
+        let at = ((y / 2) as usize * 256 + (x / 2) as usize) * 3;
+        image::Rgb([fx.pixels[at], fx.pixels[at + 1], fx.pixels[at + 2]])
+    });
+    let det = MultiPoseDetector::embedded(256).unwrap();
+    let people = det.detect(&frame, 0.1).unwrap();
+    let want = &fx.outputs["Identity"].1;
+    let mut rows: Vec<&[f32]> = want
+        .chunks_exact(PERSON_VALUES)
+        .filter(|p| p[PERSON_VALUES - 1] >= 0.1)
+        .collect();
+    rows.sort_by(|a, b| b[PERSON_VALUES - 1].total_cmp(&a[PERSON_VALUES - 1]));
+    assert!(rows.len() >= 2, "the fixture shows two people");
+    assert_eq!(people.len(), rows.len());
+    let close = |a: f32, b: f32| (a - b).abs() < 0.05;
+    for (p, r) in people.iter().zip(rows) {
+        assert!(close(p.score, r[PERSON_VALUES - 1]), "{p:?}");
+        let b = &r[3 * multipose::KEYPOINTS..];
+        assert!(
+            close(p.min.y, b[0] * 512.0) && close(p.min.x, b[1] * 512.0),
+            "{p:?}"
+        );
+        assert!(
+            close(p.max.y, b[2] * 512.0) && close(p.max.x, b[3] * 512.0),
+            "{p:?}"
+        );
+        for (k, kp) in p.keypoints.iter().enumerate() {
+            assert!(close(kp.position.y, r[3 * k] * 512.0), "{k}: {kp:?}");
+            assert!(close(kp.position.x, r[3 * k + 1] * 512.0), "{k}: {kp:?}");
+            assert!((kp.score - r[3 * k + 2]).abs() < 1e-4, "{k}: {kp:?}");
+        }
+    }
 }

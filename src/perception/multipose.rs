@@ -57,17 +57,19 @@ pub const KEYPOINT_NAMES: [&str; KEYPOINTS] = [
 ];
 
 /// Pixel scale of the input normalisation, `pixel × this − 1` (the model's float16 constant
-/// for 1/127.5; `convert_movenet.py` checks it).
-pub const PIXEL_SCALE: f32 = 0.007_843_017_578_125;
-/// A centre-heatmap cell is a peak when it differs from its 5×5 max-pool by less than this.
-const PEAK_EPSILON: f32 = 1.013_278_961_181_640_6e-6;
+/// for 1/127.5, exactly 0.007843017578125; `convert_movenet.py` checks it).
+pub const PIXEL_SCALE: f32 = 0.007_843_018;
+/// A centre-heatmap cell is a peak when it differs from its 5×5 max-pool by less than this
+/// (exactly 1.0132789611816406e-6 as a float32).
+const PEAK_EPSILON: f32 = 1.013_279e-6;
 /// The max-pool window of the peak search.
 const PEAK_WINDOW: usize = 5;
 /// Keypoint weight `exp(−d² / (this × min(grid height, grid width)))` around the regressed
-/// position (d in cells).
-const DISTANCE_SCALE: f32 = 0.300_048_828_125;
-/// Keypoints scoring above this count towards their person's score.
-pub const KEYPOINT_THRESHOLD: f32 = 0.126_953_125;
+/// position (d in cells); exactly 0.300048828125 (float16).
+const DISTANCE_SCALE: f32 = 0.300_048_83;
+/// Keypoints scoring above this count towards their person's score (exactly 0.126953125,
+/// float16).
+pub const KEYPOINT_THRESHOLD: f32 = 0.126_953_13;
 
 /// The head maps the network outputs (graph names, TF's without `StatefulPartitionedCall/`).
 pub mod heads {
@@ -205,7 +207,8 @@ impl MultiPoseDetector {
     /// `[1, 6, 56]` tensor TF.js computes, row-major (see the module doc).
     pub fn run(&self, pixels: &[u8]) -> Result<Vec<f32>, PerceptionError> {
         let out = self.heads(pixels)?;
-        decode(&out, self.side, self.side).map_err(|e| PerceptionError::format(self.net.origin(), e))
+        decode(&out, self.side, self.side)
+            .map_err(|e| PerceptionError::format(self.net.origin(), e))
     }
 
     /// The people in `image` scoring at least `min_score`, best first: the frame is letterboxed
@@ -230,7 +233,10 @@ impl MultiPoseDetector {
             &mut input,
         );
         // the model reads integer pixels
-        let pixels: Vec<u8> = input.iter().map(|&v| v.round().clamp(0.0, 255.0) as u8).collect();
+        let pixels: Vec<u8> = input
+            .iter()
+            .map(|&v| v.round().clamp(0.0, 255.0) as u8)
+            .collect();
         let out = self.run(&pixels)?;
         Ok(people(&out, &letterbox, min_score))
     }
@@ -319,14 +325,20 @@ pub fn decode(out: &NetworkOutputs, height: usize, width: usize) -> Result<Vec<f
                 }
             }
             let s = centre[i];
-            let peak = if (s - m).abs() < PEAK_EPSILON { 1.0 } else { 0.0 };
+            let peak = if (s - m).abs() < PEAK_EPSILON {
+                1.0
+            } else {
+                0.0
+            };
             (s * peak, i)
         })
         .collect();
     peaks.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     peaks.truncate(MAX_PEOPLE);
     if peaks.len() < MAX_PEOPLE {
-        return Err(format!("{cells} heatmap cells, fewer than {MAX_PEOPLE} people"));
+        return Err(format!(
+            "{cells} heatmap cells, fewer than {MAX_PEOPLE} people"
+        ));
     }
 
     // 2. boxes (grid units, clipped) and regressed keypoints
@@ -345,9 +357,9 @@ pub fn decode(out: &NetworkOutputs, height: usize, width: usize) -> Result<Vec<f
             clip(cy + sh * 0.5, fh),
             clip(cx + sw * 0.5, fw),
         ];
-        for k in 0..KEYPOINTS {
+        for (k, r) in regressed[p].iter_mut().enumerate() {
             let at = i * 2 * KEYPOINTS + 2 * k;
-            regressed[p][k] = (y + regress[at], x + regress[at + 1]);
+            *r = (y + regress[at], x + regress[at + 1]);
         }
     }
 
@@ -404,4 +416,18 @@ pub fn decode(out: &NetworkOutputs, height: usize, width: usize) -> Result<Vec<f
         row[PERSON_VALUES - 1] = (1.0 / count.max(1.0)) * sum as f32;
     }
     Ok(result)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shortened literals are the exact float16 values the model uses.
+    #[test]
+    fn constants_are_the_models_float16_values() {
+        assert_eq!(f64::from(PIXEL_SCALE), 0.007843017578125);
+        assert_eq!(f64::from(PEAK_EPSILON), 1.0132789611816406e-6);
+        assert_eq!(f64::from(DISTANCE_SCALE), 0.300048828125);
+        assert_eq!(f64::from(KEYPOINT_THRESHOLD), 0.126953125);
+    }
 }

@@ -32,11 +32,15 @@ impl GraphDef {
     /// Re-derives the graph for an `height × width` input: the input's shape, every activation
     /// shape and every RESIZE_BILINEAR size (each keeps its ratio of output to input side) are
     /// recomputed op by op. For fully convolutional graphs (MoveNet's) that take any input
-    /// whose sides are multiples of their total stride; fails on an op whose output would not
-    /// be whole.
+    /// whose sides are multiples of their total stride; fails when a resize's ratio gives no
+    /// whole side or an op's inputs no longer fit together (an ADD of two branches whose sides
+    /// came out different).
     pub fn resize_input(&mut self, height: usize, width: usize) -> Result<(), String> {
         let [input] = self.inputs.as_mut_slice() else {
-            return Err(format!("{} graph inputs, expected one image", self.inputs.len()));
+            return Err(format!(
+                "{} graph inputs, expected one image",
+                self.inputs.len()
+            ));
         };
         let old = self.tensors.clone();
         let shape = match input.shape.as_slice() {
@@ -65,8 +69,12 @@ impl GraphDef {
                         .then_some(n * o / w)
                         .ok_or_else(|| at(format!("resize {w}→{o} does not scale to side {n}")))
                 };
-                *size = (scale(size.0, was[1], now[1])?, scale(size.1, was[2], now[2])?);
-                op.options.insert("size".into(), serde_json::json!([size.0, size.1]));
+                *size = (
+                    scale(size.0, was[1], now[1])?,
+                    scale(size.1, was[2], now[2])?,
+                );
+                op.options
+                    .insert("size".into(), serde_json::json!([size.0, size.1]));
             }
             let ws = op.inputs[n_act.min(op.inputs.len())..]
                 .iter()
