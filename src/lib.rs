@@ -28,4 +28,5 @@ pub mod splat;
 pub mod synth;
 #[doc(hidden)]
 pub mod testing;
+pub mod tracking;
 pub mod transport;

@@ -72,6 +72,16 @@ fn leaf_modules_import_only_their_helpers() {
         set(&[]),
         "transport is a leaf"
     );
+    assert_eq!(
+        imported_by(&table, "tracking"),
+        set(&[]),
+        "tracking (person ids from boxes and looks) is a leaf"
+    );
+    assert_eq!(
+        imported_by(&table, "picture"),
+        set(&[]),
+        "picture (captions) is a leaf"
+    );
     assert!(
         imported_by(&table, "kernels").is_subset(&set(&["simd", "testing"])),
         "the CPU kernels import only the SIMD and test helpers: {:?}",

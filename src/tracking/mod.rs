@@ -1,0 +1,286 @@
+//! Persons across frames and cameras: stable person ids for the person instances a detector
+//! finds in each frame (issue "several people at once").
+//!
+//! Within a camera, a detection continues the track whose predicted box (constant velocity
+//! from its last two sightings) it overlaps most (greedy by IoU, best pair first). A detection
+//! no live track of its camera claims is compared by appearance ([`Appearance`]: a colour
+//! histogram of the person's pixels) with every person not seen in that camera in this frame:
+//! the same person seen by another camera, or coming back after leaving. Only when none is
+//! similar enough does it start a new person. Persons unseen for
+//! [`TrackingConfig::forget_after`] are forgotten; past [`TrackingConfig::max_persons`] the
+//! least recently seen one is dropped (counted).
+//!
+//! Tracking is deterministic: the same detections in the same order give the same ids, so
+//! nodes that see the same images agree on ids without talking to each other.
+
+mod appearance;
+mod boxes;
+
+pub use appearance::Appearance;
+pub use boxes::BoxPx;
+
+use std::collections::BTreeMap;
+
+/// Tracking parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackingConfig {
+    /// Seconds a person is kept without a sighting.
+    pub forget_after: f64,
+    /// Persons held at once; past it the least recently seen is dropped.
+    pub max_persons: usize,
+    /// IoU between a predicted box and a detection below which they are not the same person.
+    pub min_iou: f32,
+    /// Appearance similarity (Bhattacharyya coefficient, 0..1) from which a detection is the
+    /// same person as one tracked elsewhere or earlier.
+    pub min_similarity: f32,
+}
+
+impl Default for TrackingConfig {
+    fn default() -> Self {
+        Self {
+            forget_after: 10.0,
+            max_persons: 8,
+            min_iou: 0.3,
+            min_similarity: 0.8,
+        }
+    }
+}
+
+/// One person instance found in a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    /// Its box in the frame, pixels.
+    pub bbox: BoxPx,
+    /// Its appearance, when the caller could measure one.
+    pub appearance: Option<Appearance>,
+}
+
+/// How a detection was given its id.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Matched {
+    /// It continues a track of the same camera (box overlap).
+    Track,
+    /// It looks like a person tracked in another camera or before (appearance).
+    Appearance,
+    /// A new person.
+    New,
+}
+
+/// The id given to one detection.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Assignment {
+    /// The person id (`person_<n>`, numbered from 0 in order of first sighting).
+    pub person_id: String,
+    /// How it was matched.
+    pub matched: Matched,
+}
+
+/// A person's state in one camera.
+#[derive(Debug, Clone)]
+struct CameraTrack {
+    bbox: BoxPx,
+    /// Box centre velocity, pixels per second.
+    velocity: [f32; 2],
+    stamp: f64,
+}
+
+/// A tracked person.
+#[derive(Debug, Clone)]
+struct Person {
+    id: String,
+    cameras: BTreeMap<String, CameraTrack>,
+    appearance: Option<Appearance>,
+    last_seen: f64,
+}
+
+/// Counters of a tracker's life.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct TrackingStats {
+    /// Persons started.
+    pub persons_started: u64,
+    /// Persons forgotten after `forget_after` without a sighting.
+    pub persons_forgotten: u64,
+    /// Persons dropped because `max_persons` were held.
+    pub persons_dropped: u64,
+}
+
+/// Gives the detections of each frame stable person ids.
+#[derive(Debug, Clone)]
+pub struct PersonTracks {
+    config: TrackingConfig,
+    persons: Vec<Person>,
+    next_id: u64,
+    stats: TrackingStats,
+}
+
+impl PersonTracks {
+    /// A tracker holding nobody yet.
+    pub fn new(config: TrackingConfig) -> Self {
+        Self {
+            config,
+            persons: Vec::new(),
+            next_id: 0,
+            stats: TrackingStats::default(),
+        }
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> TrackingStats {
+        self.stats
+    }
+
+    /// Ids of the persons held, in order of first sighting.
+    pub fn persons(&self) -> Vec<&str> {
+        self.persons.iter().map(|p| p.id.as_str()).collect()
+    }
+
+    /// Assigns ids to the detections of one frame of `camera` taken at `stamp` seconds (frames
+    /// of a camera must come in time order); returns one assignment per detection, in order.
+    pub fn update(
+        &mut self,
+        camera: &str,
+        stamp: f64,
+        detections: &[Detection],
+    ) -> Vec<Assignment> {
+        self.forget(stamp);
+        let mut out: Vec<Option<Assignment>> = vec![None; detections.len()];
+        let mut taken = vec![false; self.persons.len()];
+
+        // 1. Box overlap with each person's predicted box in this camera, best pair first.
+        let mut pairs = Vec::new();
+        for (p, person) in self.persons.iter().enumerate() {
+            let Some(track) = person.cameras.get(camera) else {
+                continue;
+            };
+            let predicted = track
+                .bbox
+                .moved(track.velocity, (stamp - track.stamp) as f32);
+            for (d, det) in detections.iter().enumerate() {
+                let iou = predicted.iou(&det.bbox);
+                if iou >= self.config.min_iou {
+                    pairs.push((iou, p, d));
+                }
+            }
+        }
+        pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+        for (_, p, d) in pairs {
+            if taken[p] || out[d].is_some() {
+                continue;
+            }
+            taken[p] = true;
+            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], Matched::Track));
+        }
+
+        // 2. Appearance against persons not matched in this frame, most similar first.
+        let mut pairs = Vec::new();
+        for (d, det) in detections.iter().enumerate() {
+            let (None, Some(look)) = (&out[d], &det.appearance) else {
+                continue;
+            };
+            for (p, person) in self.persons.iter().enumerate() {
+                if taken[p] {
+                    continue;
+                }
+                if let Some(known) = &person.appearance {
+                    let similarity = look.similarity(known);
+                    if similarity >= self.config.min_similarity {
+                        pairs.push((similarity, p, d));
+                    }
+                }
+            }
+        }
+        pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+        for (_, p, d) in pairs {
+            if taken[p] || out[d].is_some() {
+                continue;
+            }
+            taken[p] = true;
+            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], Matched::Appearance));
+        }
+
+        // 3. New persons, in detection order.
+        for (d, det) in detections.iter().enumerate() {
+            if out[d].is_none() {
+                let p = self.start(stamp);
+                out[d] = Some(self.sighted(p, camera, stamp, det, Matched::New));
+            }
+        }
+        out.into_iter()
+            .map(|a| a.expect("every detection assigned"))
+            .collect()
+    }
+
+    /// Records a sighting of person `p`.
+    fn sighted(
+        &mut self,
+        p: usize,
+        camera: &str,
+        stamp: f64,
+        det: &Detection,
+        matched: Matched,
+    ) -> Assignment {
+        let person = &mut self.persons[p];
+        let velocity = match (matched, person.cameras.get(camera)) {
+            (Matched::Track, Some(track)) if stamp > track.stamp => {
+                let dt = (stamp - track.stamp) as f32;
+                let (a, b) = (track.bbox.center(), det.bbox.center());
+                [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt]
+            }
+            _ => [0.0, 0.0],
+        };
+        person.cameras.insert(
+            camera.to_owned(),
+            CameraTrack {
+                bbox: det.bbox,
+                velocity,
+                stamp,
+            },
+        );
+        if let Some(look) = &det.appearance {
+            person.appearance = Some(match &person.appearance {
+                Some(known) => known.blend(look, 0.2),
+                None => look.clone(),
+            });
+        }
+        person.last_seen = person.last_seen.max(stamp);
+        Assignment {
+            person_id: person.id.clone(),
+            matched,
+        }
+    }
+
+    /// Starts a person, dropping the least recently seen one when full; returns its index.
+    fn start(&mut self, stamp: f64) -> usize {
+        if self.persons.len() >= self.config.max_persons.max(1) {
+            let oldest = self
+                .persons
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.last_seen.total_cmp(&b.1.last_seen))
+                .map(|(i, _)| i)
+                .expect("a person is held");
+            self.persons.remove(oldest);
+            self.stats.persons_dropped += 1;
+        }
+        self.persons.push(Person {
+            id: format!("person_{}", self.next_id),
+            cameras: BTreeMap::new(),
+            appearance: None,
+            last_seen: stamp,
+        });
+        self.next_id += 1;
+        self.stats.persons_started += 1;
+        self.persons.len() - 1
+    }
+
+    /// Forgets persons unseen for `forget_after` before `stamp`.
+    fn forget(&mut self, stamp: f64) {
+        let horizon = stamp - self.config.forget_after;
+        let before = self.persons.len();
+        self.persons.retain(|p| p.last_seen >= horizon);
+        self.stats.persons_forgotten += (before - self.persons.len()) as u64;
+    }
+}
+
+#[cfg(test)]
+mod tests;

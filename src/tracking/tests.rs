@@ -1,0 +1,145 @@
+use super::*;
+use image::{GrayImage, Luma, Rgb, RgbImage};
+
+fn look(colour: [u8; 3]) -> Appearance {
+    let image = RgbImage::from_pixel(8, 8, Rgb(colour));
+    let mask = GrayImage::from_pixel(8, 8, Luma([255]));
+    Appearance::from_masked(&image, &mask, None).unwrap()
+}
+
+fn person_box(cx: f32) -> BoxPx {
+    BoxPx::new([cx - 30.0, 100.0], [cx + 30.0, 260.0])
+}
+
+fn det(cx: f32, colour: [u8; 3]) -> Detection {
+    Detection {
+        bbox: person_box(cx),
+        appearance: Some(look(colour)),
+    }
+}
+
+#[test]
+fn two_people_crossing_keep_their_ids() {
+    // A walks right, B walks left at 150 px/s; they pass each other at t = 1.5 s. Same
+    // clothes, so only the motion tells them apart while they overlap.
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let grey = [128, 128, 128];
+    let first = tracks.update("cam0", 0.0, &[det(100.0, grey), det(550.0, grey)]);
+    let (a, b) = (first[0].person_id.clone(), first[1].person_id.clone());
+    assert_ne!(a, b);
+    for k in 1..=30 {
+        let t = k as f64 * 0.1;
+        let xa = 100.0 + 150.0 * t as f32;
+        let xb = 550.0 - 150.0 * t as f32;
+        // Detector order flips every frame, as a detector's output order may.
+        let (d, flip) = if k % 2 == 0 {
+            (vec![det(xa, grey), det(xb, grey)], false)
+        } else {
+            (vec![det(xb, grey), det(xa, grey)], true)
+        };
+        let got = tracks.update("cam0", t, &d);
+        let (ga, gb) = if flip {
+            (&got[1], &got[0])
+        } else {
+            (&got[0], &got[1])
+        };
+        if (xa - xb).abs() > 1.0 {
+            assert_eq!(
+                (&ga.person_id, &gb.person_id),
+                (&a, &b),
+                "frame {k} (t {t:.1} s)"
+            );
+        }
+    }
+    assert_eq!(tracks.stats().persons_started, 2);
+}
+
+#[test]
+fn a_person_coming_back_is_recognised_until_forgotten() {
+    let config = TrackingConfig {
+        forget_after: 5.0,
+        ..TrackingConfig::default()
+    };
+    let mut tracks = PersonTracks::new(config);
+    let red = [200, 30, 30];
+    let id = tracks.update("cam0", 0.0, &[det(100.0, red)])[0]
+        .person_id
+        .clone();
+    // Back 3 s later on the other side of the frame: no overlap, same look.
+    let back = &tracks.update("cam0", 3.0, &[det(500.0, red)])[0];
+    assert_eq!((&back.person_id, back.matched), (&id, Matched::Appearance));
+    // Gone for longer than forget_after: a new person.
+    let later = &tracks.update("cam0", 9.0, &[det(300.0, red)])[0];
+    assert_ne!(later.person_id, id);
+    assert_eq!(later.matched, Matched::New);
+    assert_eq!(tracks.stats().persons_forgotten, 1);
+}
+
+#[test]
+fn the_same_person_in_another_camera_gets_the_same_id_and_a_stranger_does_not() {
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let (red, blue) = ([200, 30, 30], [30, 30, 200]);
+    let cam0 = tracks.update("cam0", 0.0, &[det(100.0, red), det(400.0, blue)]);
+    let cam1 = tracks.update("cam1", 0.02, &[det(300.0, blue), det(250.0, [30, 200, 30])]);
+    assert_eq!(
+        cam1[0].person_id, cam0[1].person_id,
+        "blue seen by both cameras"
+    );
+    assert_eq!(cam1[0].matched, Matched::Appearance);
+    assert_eq!(cam1[1].matched, Matched::New, "green was never seen");
+    // Two detections in one frame never share an id, however alike.
+    let same = tracks.update("cam2", 0.04, &[det(100.0, red), det(300.0, red)]);
+    assert_ne!(same[0].person_id, same[1].person_id);
+}
+
+#[test]
+fn past_max_persons_the_least_recently_seen_is_dropped_and_counted() {
+    let config = TrackingConfig {
+        max_persons: 2,
+        ..TrackingConfig::default()
+    };
+    let mut tracks = PersonTracks::new(config);
+    tracks.update("cam0", 0.0, &[det(100.0, [200, 30, 30])]);
+    tracks.update("cam0", 1.0, &[det(400.0, [30, 30, 200])]);
+    tracks.update("cam0", 2.0, &[det(700.0, [30, 200, 30])]);
+    assert_eq!(tracks.persons(), ["person_1", "person_2"]);
+    assert_eq!(tracks.stats().persons_dropped, 1);
+}
+
+#[test]
+fn tracking_is_deterministic() {
+    let frames: Vec<(f64, Vec<Detection>)> = (0..20)
+        .map(|k| {
+            let t = k as f64 * 0.1;
+            let x = 100.0 + 40.0 * k as f32;
+            (
+                t,
+                vec![
+                    det(x, [90, 90, 90]),
+                    det(900.0 - x, [90, 90, 90]),
+                    det(500.0, [10, 200, 10]),
+                ],
+            )
+        })
+        .collect();
+    let run = || {
+        let mut tracks = PersonTracks::new(TrackingConfig::default());
+        frames
+            .iter()
+            .flat_map(|(t, d)| tracks.update("cam0", *t, d))
+            .map(|a| a.person_id)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(run(), run());
+}
+
+#[test]
+fn appearance_tells_colours_apart_and_boxes_overlap_as_expected() {
+    assert!((look([200, 30, 30]).similarity(&look([200, 30, 30])) - 1.0).abs() < 1e-6);
+    assert!(look([200, 30, 30]).similarity(&look([30, 30, 200])) < 0.01);
+    let a = BoxPx::new([0.0, 0.0], [10.0, 10.0]);
+    assert!((a.iou(&BoxPx::new([5.0, 0.0], [15.0, 10.0])) - 1.0 / 3.0).abs() < 1e-6);
+    assert_eq!(a.iou(&BoxPx::new([20.0, 0.0], [30.0, 10.0])), 0.0);
+    let empty_mask = GrayImage::new(8, 8);
+    assert!(Appearance::from_masked(&RgbImage::new(8, 8), &empty_mask, None).is_none());
+}
