@@ -12,7 +12,12 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 /// The captions of the sheet's columns.
-const CAPTIONS: [&str; 4] = ["front (albedo)", "side (albedo)", "back (albedo)", "front, lit"];
+const CAPTIONS: [&str; 4] = [
+    "front (albedo)",
+    "side (albedo)",
+    "back (albedo)",
+    "front, lit",
+];
 
 /// Height of the caption band above the first row, pixels.
 const BAND: u32 = 28;
