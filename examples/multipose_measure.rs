@@ -2,7 +2,7 @@
 //! (`scripts/devset/install` puts them in target/devset):
 //!
 //! 1. people found per photo (score ≥ `--min-score`, default 0.2) with their scores and boxes,
-//!    at input sides 256, 384 and 512;
+//!    at inputs 256², 384², 512² and 256×448 (a 16:9 frame's aspect);
 //! 2. the small-person finding rate: a person cut from a photo (their box as MoveNet finds it
 //!    at 512, plus a margin) is scaled to 1/2 … 1/12 of a 1280×720 frame's height and pasted on a
 //!    flat grey frame at three places; "found" is a person scoring ≥ `--min-score` whose box
@@ -21,7 +21,8 @@ use image::imageops::{self, FilterType};
 use image::{Rgb, RgbImage};
 use lhmpp::perception::multipose::{MultiPoseDetector, PersonInstance};
 
-const SIDES: [usize; 3] = [256, 384, 512];
+/// Input sizes (height, width) measured: three squares and one of a 16:9 frame's aspect.
+const SIZES: [(usize, usize); 4] = [(256, 256), (384, 384), (512, 512), (256, 448)];
 
 fn iou(a: (Vec2, Vec2), b: (Vec2, Vec2)) -> f32 {
     let lo = a.0.max(b.0);
@@ -73,14 +74,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
-    let detectors: Vec<MultiPoseDetector> = SIDES
+    let detectors: Vec<MultiPoseDetector> = SIZES
         .iter()
-        .map(|&s| MultiPoseDetector::embedded(s))
+        .map(|&(h, w)| MultiPoseDetector::embedded_sized(h, w))
         .collect::<Result<_, _>>()?;
 
     println!("## People found (score ≥ {min_score})\n");
-    println!("| photo | size | 256 | 384 | 512 |");
-    println!("| --- | --- | --- | --- | --- |");
+    println!("| photo | size | 256 | 384 | 512 | 256×448 |");
+    println!("| --- | --- | --- | --- | --- | --- |");
     let files = photos(&devset);
     if files.is_empty() {
         return Err(format!(
@@ -142,11 +143,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (fw, fh) = (1280u32, 720u32);
     let fractions = [2u32, 3, 4, 6, 8, 10, 12];
     print!("| person height |");
-    for s in SIDES {
-        print!(" {s} |");
+    for (h, w) in SIZES {
+        print!(" {h}×{w} |");
     }
     println!();
-    println!("| --- |{}", " --- |".repeat(SIDES.len()));
+    println!("| --- |{}", " --- |".repeat(SIZES.len()));
     for k in fractions {
         let target_h = fh as f32 / k as f32;
         print!("| 1/{k} ({target_h:.0} px) |");
@@ -190,8 +191,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     println!("\n## Time per call (network + decoding), median of 5\n");
     for det in &detectors {
-        let s = det.side();
-        let pixels: Vec<u8> = (0..s * s * 3).map(|i| (i * 7919 % 251) as u8).collect();
+        let (h, w) = det.input_size();
+        let pixels: Vec<u8> = (0..h * w * 3).map(|i| (i * 7919 % 251) as u8).collect();
         let mut times: Vec<f64> = Vec::new();
         det.run(&pixels)?;
         for _ in 0..5 {
@@ -201,7 +202,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         times.sort_by(f64::total_cmp);
         println!(
-            "- {s}×{s}: {:.1} ms ({} rayon threads)",
+            "- {h}×{w}: {:.1} ms ({} rayon threads)",
             times[2],
             rayon::current_num_threads()
         );

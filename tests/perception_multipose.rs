@@ -18,10 +18,11 @@ use safetensors::{Dtype, SafeTensors};
 /// The largest relative difference parity allows.
 const TOLERANCE: f32 = 1e-4;
 
-/// A fixture: input pixels, side, and TF.js's outputs by name.
+/// A fixture: input pixels, input size, and TF.js's outputs by name.
 struct Fixture {
     pixels: Vec<u8>,
-    side: usize,
+    height: usize,
+    width: usize,
     outputs: HashMap<String, (Vec<usize>, Vec<f32>)>,
 }
 
@@ -39,7 +40,7 @@ fn read_fixture(name: &str) -> Fixture {
     assert_eq!(input.dtype(), Dtype::U8);
     let shape = input.shape().to_vec();
     assert!(
-        shape.len() == 4 && shape[1] == shape[2] && shape[3] == 3,
+        shape.len() == 4 && shape[0] == 1 && shape[3] == 3,
         "{shape:?}"
     );
     let mut outputs = HashMap::new();
@@ -57,7 +58,8 @@ fn read_fixture(name: &str) -> Fixture {
     }
     Fixture {
         pixels: input.data().to_vec(),
-        side: shape[1],
+        height: shape[1],
+        width: shape[2],
         outputs,
     }
 }
@@ -86,7 +88,7 @@ fn differences(det: &MultiPoseDetector, fx: &Fixture) -> Vec<(String, f32)> {
     }
     let (shape, want) = &fx.outputs["Identity"];
     assert_eq!(shape, &[1, multipose::MAX_PEOPLE, PERSON_VALUES]);
-    let got = decode(&heads_out, fx.side, fx.side).unwrap();
+    let got = decode(&heads_out, fx.height, fx.width).unwrap();
     diffs.push(("Identity".into(), relative(&got, want)));
     // the same through the public entry point
     assert_eq!(det.run(&fx.pixels).unwrap(), got);
@@ -95,7 +97,8 @@ fn differences(det: &MultiPoseDetector, fx: &Fixture) -> Vec<(String, f32)> {
 
 fn check(name: &str) {
     let fx = read_fixture(name);
-    let det = MultiPoseDetector::embedded(fx.side).unwrap();
+    let det = MultiPoseDetector::embedded_sized(fx.height, fx.width).unwrap();
+    assert_eq!(det.input_size(), (fx.height, fx.width));
     for (output, diff) in differences(&det, &fx) {
         println!("{name}: {output}: max relative difference {diff:.3e}");
         assert!(
@@ -111,11 +114,11 @@ fn multipose_256_matches_tfjs() {
     check("movenet_multipose_256.safetensors");
 }
 
-/// A 384×384 input (the graph re-derived for another size): the centre heatmap and the final
-/// output.
+/// A 256×448 input (the graph re-derived for another, non-square size; a 16:9 frame): the
+/// centre heatmap and the final output.
 #[test]
-fn multipose_384_matches_tfjs() {
-    check("movenet_multipose_384.safetensors");
+fn multipose_256x448_matches_tfjs() {
+    check("movenet_multipose_256x448.safetensors");
 }
 
 /// Planted mistakes must break parity: a ReLU dropped in the FPN's last layer (network), and
@@ -140,7 +143,7 @@ fn planted_mistakes_break_parity() {
         assert!(*diff > TOLERANCE, "{output} still matches: {diff:e}");
     }
 
-    let det = MultiPoseDetector::embedded(fx.side).unwrap();
+    let det = MultiPoseDetector::embedded(256).unwrap();
     let mut out = det.heads(&fx.pixels).unwrap();
     let t = out
         .tensors
@@ -148,7 +151,7 @@ fn planted_mistakes_break_parity() {
         .find(|t| t.name == heads::BOX_OFFSET)
         .unwrap();
     t.data.iter_mut().for_each(|v| *v = 0.0);
-    let got = decode(&out, fx.side, fx.side).unwrap();
+    let got = decode(&out, 256, 256).unwrap();
     let diff = relative(&got, &fx.outputs["Identity"].1);
     println!("planted zero box offsets: Identity {diff:.3e}");
     assert!(diff > TOLERANCE, "Identity still matches: {diff:e}");
@@ -173,7 +176,14 @@ fn bad_sizes_are_refused() {
     let det = MultiPoseDetector::embedded(256).unwrap();
     let err = det.run(&[0; 10]).unwrap_err().to_string();
     assert!(err.contains("196608"), "{err}");
-    let err = MultiPoseDetector::load(Path::new("/nonexistent/movenet.safetensors"), 256)
+    let err = MultiPoseDetector::embedded_sized(256, 100)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("multiple of 32") && err.contains("100"),
+        "{err}"
+    );
+    let err = MultiPoseDetector::load(Path::new("/nonexistent/movenet.safetensors"), 256, 256)
         .unwrap_err()
         .to_string();
     assert!(err.contains("/nonexistent/movenet.safetensors"), "{err}");

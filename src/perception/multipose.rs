@@ -10,8 +10,9 @@
 //! person's score, coordinates normalised to the input. `tests/perception_multipose.rs` checks
 //! it against TF.js's CPU backend.
 //!
-//! [`MultiPoseDetector::detect`] letterboxes a frame into the square input (any side that is a
-//! multiple of 32; 256 is the model's native size) and maps the people back into frame pixels.
+//! [`MultiPoseDetector::detect`] letterboxes a frame into the input (any sides that are
+//! multiples of 32; 256×256 is the model's native size, an input of the frame's aspect wastes
+//! nothing on bars) and maps the people back into frame pixels.
 
 use glam::Vec2;
 use image::RgbImage;
@@ -119,51 +120,66 @@ pub struct PersonInstance {
     pub keypoints: [Keypoint; KEYPOINTS],
 }
 
-/// MoveNet MultiPose Lightning at one square input size.
+/// MoveNet MultiPose Lightning at one input size.
 #[derive(Debug)]
 pub struct MultiPoseDetector {
     net: Network,
-    side: usize,
+    height: usize,
+    width: usize,
 }
 
 impl MultiPoseDetector {
-    /// The embedded model at input side `side` (a multiple of 32; [`NATIVE_SIDE`] is the size
-    /// it was trained for, larger sides find smaller people at a higher cost).
+    /// The embedded model at a square input of side `side` (a multiple of 32; [`NATIVE_SIDE`]
+    /// is the size it was trained for, larger sides find smaller people at a higher cost).
     pub fn embedded(side: usize) -> Result<Self, PerceptionError> {
+        Self::embedded_sized(side, side)
+    }
+
+    /// The embedded model at an `height × width` input (both multiples of 32): an input of the
+    /// frames' aspect (256×448 for 16:9) spends no pixels on letterbox bars.
+    pub fn embedded_sized(height: usize, width: usize) -> Result<Self, PerceptionError> {
         Self::from_bytes(
             super::weights::MOVENET_MULTIPOSE,
             "movenet_multipose.safetensors (embedded)",
-            side,
+            height,
+            width,
         )
     }
 
-    /// The model in the weights file at `path` (written by `convert_movenet.py`), at input
-    /// side `side`.
-    pub fn load(path: &Path, side: usize) -> Result<Self, PerceptionError> {
+    /// The model in the weights file at `path` (written by `convert_movenet.py`), at an
+    /// `height × width` input.
+    pub fn load(path: &Path, height: usize, width: usize) -> Result<Self, PerceptionError> {
         let bytes = std::fs::read(path).map_err(|source| PerceptionError::Io {
             path: path.to_path_buf(),
             source,
         })?;
-        Self::from_bytes(&bytes, &path.display().to_string(), side)
+        Self::from_bytes(&bytes, &path.display().to_string(), height, width)
     }
 
-    /// The model in the bytes of a weights file (`origin` names it in errors), at input side
-    /// `side`.
-    pub fn from_bytes(bytes: &[u8], origin: &str, side: usize) -> Result<Self, PerceptionError> {
-        check_side(side, origin)?;
-        let net = Network::from_bytes_resized(bytes, origin, side, side)?;
+    /// The model in the bytes of a weights file (`origin` names it in errors), at an
+    /// `height × width` input.
+    pub fn from_bytes(
+        bytes: &[u8],
+        origin: &str,
+        height: usize,
+        width: usize,
+    ) -> Result<Self, PerceptionError> {
+        check_side(height, origin)?;
+        check_side(width, origin)?;
+        let net = Network::from_bytes_resized(bytes, origin, height, width)?;
         Self::from_network(net)
     }
 
-    /// Wraps a loaded network (its input must be square, a multiple of 32, and its outputs the
-    /// six [`heads`]).
+    /// Wraps a loaded network (its input sides must be multiples of 32, its input RGB and its
+    /// outputs the six [`heads`]).
     pub fn from_network(net: Network) -> Result<Self, PerceptionError> {
         let [_, h, w, c] = net.input_shape();
         check_side(h, net.origin())?;
-        if h != w || c != 3 {
+        check_side(w, net.origin())?;
+        if c != 3 {
             return Err(PerceptionError::format(
                 net.origin(),
-                format!("input {h}×{w}×{c}, expected a square RGB image"),
+                format!("input {h}×{w}×{c}, expected an RGB image"),
             ));
         }
         let names = net.output_names();
@@ -173,12 +189,16 @@ impl MultiPoseDetector {
                 format!("output `{missing}` is missing: not a MoveNet MultiPose network"),
             ));
         }
-        Ok(Self { net, side: h })
+        Ok(Self {
+            net,
+            height: h,
+            width: w,
+        })
     }
 
-    /// The input side in pixels.
-    pub fn side(&self) -> usize {
-        self.side
+    /// The input size in pixels, `(height, width)`.
+    pub fn input_size(&self) -> (usize, usize) {
+        (self.height, self.width)
     }
 
     /// The network (for profiles).
@@ -186,13 +206,13 @@ impl MultiPoseDetector {
         &self.net
     }
 
-    /// The six head maps for an input image: `side × side × 3` RGB pixels, row-major.
+    /// The six head maps for an input image: `height × width × 3` RGB pixels, row-major.
     pub fn heads(&self, pixels: &[u8]) -> Result<NetworkOutputs, PerceptionError> {
-        let want = self.side * self.side * 3;
+        let want = self.height * self.width * 3;
         if pixels.len() != want {
             return Err(PerceptionError::Input {
                 what: format!("{} input pixels", self.net.origin()),
-                expected: format!("{want} values ({0}×{0}×3)", self.side),
+                expected: format!("{want} values ({}×{}×3)", self.height, self.width),
                 got: format!("{} values", pixels.len()),
             });
         }
@@ -203,29 +223,41 @@ impl MultiPoseDetector {
         self.net.run(&input)
     }
 
-    /// The model's output for an input image (`side × side × 3` RGB pixels): the
+    /// The model's output for an input image (`height × width × 3` RGB pixels): the
     /// `[1, 6, 56]` tensor TF.js computes, row-major (see the module doc).
     pub fn run(&self, pixels: &[u8]) -> Result<Vec<f32>, PerceptionError> {
         let out = self.heads(pixels)?;
-        decode(&out, self.side, self.side)
+        decode(&out, self.height, self.width)
             .map_err(|e| PerceptionError::format(self.net.origin(), e))
     }
 
+    /// The rectangle of a `width × height` frame the input covers: the frame centred in the
+    /// smallest rectangle of the input's aspect around it (black bars on the short sides).
+    pub fn letterbox(&self, width: u32, height: u32) -> RotatedRect {
+        let (fw, fh) = (width as f32, height as f32);
+        let aspect = self.width as f32 / self.height as f32;
+        RotatedRect {
+            center: Vec2::new(fw / 2.0, fh / 2.0),
+            size: Vec2::new(fw.max(fh * aspect), fh.max(fw / aspect)),
+            rotation: 0.0,
+        }
+    }
+
     /// The people in `image` scoring at least `min_score`, best first: the frame is letterboxed
-    /// (centred, black bars) into the square input and the results mapped back into frame
+    /// ([`MultiPoseDetector::letterbox`]) into the input and the results mapped back into frame
     /// pixels.
     pub fn detect(
         &self,
         image: &RgbImage,
         min_score: f32,
     ) -> Result<Vec<PersonInstance>, PerceptionError> {
-        let letterbox = RotatedRect::letterbox(image.width(), image.height());
+        let letterbox = self.letterbox(image.width(), image.height());
         let mut input = Vec::new();
         crop_into(
             image,
             &letterbox,
-            self.side,
-            self.side,
+            self.width,
+            self.height,
             ValueRange {
                 min: 0.0,
                 max: 255.0,
@@ -253,8 +285,8 @@ fn check_side(side: usize, origin: &str) -> Result<(), PerceptionError> {
     Ok(())
 }
 
-/// The people of a model output (`[6 × 56]`, coordinates normalised to the input square
-/// `letterbox` of the frame) scoring at least `min_score`, best first, in frame pixels.
+/// The people of a model output (`[6 × 56]`, coordinates normalised to the input, which
+/// covers `letterbox` of the frame) scoring at least `min_score`, best first, in frame pixels.
 pub fn people(out: &[f32], letterbox: &RotatedRect, min_score: f32) -> Vec<PersonInstance> {
     let mut found: Vec<PersonInstance> = out
         .chunks_exact(PERSON_VALUES)
