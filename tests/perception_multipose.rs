@@ -228,3 +228,45 @@ fn detect_maps_people_into_the_frame() {
         }
     }
 }
+
+/// The same for a non-square input: a 448×256 frame holding the 256×448 fixture's pixels is
+/// the input itself (no bars), so its people are TF.js's scaled by 448 across and 256 down.
+#[test]
+fn detect_maps_people_of_a_wide_input() {
+    let fx = read_fixture("movenet_multipose_256x448.safetensors");
+    let (h, w) = (fx.height as u32, fx.width as u32);
+    let frame = image::RgbImage::from_fn(w, h, |x, y| {
+        let at = (y * w + x) as usize * 3;
+        image::Rgb([fx.pixels[at], fx.pixels[at + 1], fx.pixels[at + 2]])
+    });
+    let det = MultiPoseDetector::embedded_sized(fx.height, fx.width).unwrap();
+    let rect = det.letterbox(w, h);
+    assert_eq!(rect.size, glam::Vec2::new(w as f32, h as f32));
+    let people = det.detect(&frame, 0.3).unwrap();
+    let want = &fx.outputs["Identity"].1;
+    let best = want
+        .chunks_exact(PERSON_VALUES)
+        .max_by(|a, b| a[PERSON_VALUES - 1].total_cmp(&b[PERSON_VALUES - 1]))
+        .unwrap();
+    assert_eq!(people.len(), 1, "{people:?}");
+    let p = &people[0];
+    let (sx, sy) = (w as f32, h as f32);
+    let close = |a: f32, b: f32| (a - b).abs() < 0.05;
+    assert!((p.score - best[PERSON_VALUES - 1]).abs() < 1e-4, "{p:?}");
+    let b = &best[3 * multipose::KEYPOINTS..];
+    assert!(
+        close(p.min.y, b[0] * sy) && close(p.min.x, b[1] * sx),
+        "{p:?}"
+    );
+    assert!(
+        close(p.max.y, b[2] * sy) && close(p.max.x, b[3] * sx),
+        "{p:?}"
+    );
+    for (k, kp) in p.keypoints.iter().enumerate() {
+        assert!(close(kp.position.y, best[3 * k] * sy), "{k}: {kp:?}");
+        assert!(close(kp.position.x, best[3 * k + 1] * sx), "{k}: {kp:?}");
+    }
+    // a 9:16 portrait frame gets bars left and right
+    let rect = det.letterbox(720, 1280);
+    assert_eq!(rect.size, glam::Vec2::new(1280.0 * 448.0 / 256.0, 1280.0));
+}
