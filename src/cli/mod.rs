@@ -16,6 +16,7 @@ mod loadgen;
 mod model;
 mod model_parity;
 mod perceive;
+mod perceive_people;
 mod record;
 mod render;
 mod replay;

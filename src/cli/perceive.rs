@@ -1,7 +1,8 @@
 //! `lhmpp perceive IMAGE... -o DIR`: what camera-only perception sees in photos, for
 //! debugging. Per image: `<stem>_mask.png` (the feathered person mask), `<stem>_overlay.png`
 //! (the mask tinted and the landmark skeleton) and `<stem>.json` (detection, crop, image and
-//! world landmarks, and the BodyPose the solver derives from them).
+//! world landmarks, and the BodyPose the solver derives from them). With `--people`, every
+//! person of each photo instead (`super::perceive_people`).
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -20,10 +21,10 @@ use std::sync::Arc;
 pub struct PerceiveArgs {
     /// Photos (JPEG or PNG), each perceived on its own.
     #[arg(required = true)]
-    images: Vec<PathBuf>,
+    pub(super) images: Vec<PathBuf>,
     /// Output directory (created if missing).
     #[arg(short, long)]
-    out: PathBuf,
+    pub(super) out: PathBuf,
     /// Landmark model: `lite`, `full` or `heavy`.
     #[arg(long, default_value = "full")]
     model: String,
@@ -32,13 +33,20 @@ pub struct PerceiveArgs {
     heavy_weights: Option<PathBuf>,
     /// Person probability at the mask's edge.
     #[arg(long, default_value_t = 0.5)]
-    mask_threshold: f32,
+    pub(super) mask_threshold: f32,
     /// Half-width of the mask's soft edge, in probability.
     #[arg(long, default_value_t = 0.1)]
-    mask_feather: f32,
+    pub(super) mask_feather: f32,
     /// Landmarks less visible than this are left out of the overlay and the pose.
     #[arg(long, default_value_t = 0.5)]
-    min_visibility: f32,
+    pub(super) min_visibility: f32,
+    /// Every person of each photo (MoveNet MultiPose, then the landmark model per person);
+    /// photos given in order are frames of one camera, so persons keep their ids across them.
+    #[arg(long)]
+    people: bool,
+    /// MoveNet person score a person needs (with `--people`).
+    #[arg(long, default_value_t = 0.2)]
+    pub(super) min_score: f32,
 }
 
 /// Perceives every image; an image that cannot be read or shows nobody is reported and the
@@ -47,9 +55,12 @@ pub fn run(args: PerceiveArgs) -> Result<()> {
     let model = LandmarkModel::from_name(&args.model)
         .with_context(|| format!("--model `{}`: expected lite, full or heavy", args.model))?;
     let networks = Arc::new(PoseNetworks::load(model, args.heavy_weights.as_deref())?);
-    let template = BodyTemplate::load_default().context("loading the embedded body template")?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    if args.people {
+        return super::perceive_people::run(&args, networks);
+    }
+    let template = BodyTemplate::load_default().context("loading the embedded body template")?;
     let mut found = 0;
     for path in &args.images {
         match perceive_one(&args, &networks, &template, path) {
@@ -118,7 +129,7 @@ fn perceive_one(
     Ok(true)
 }
 
-fn write_json(path: &Path, value: &Value) -> Result<()> {
+pub(super) fn write_json(path: &Path, value: &Value) -> Result<()> {
     let text = serde_json::to_string_pretty(value).expect("JSON values serialise");
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
 }

@@ -8,7 +8,8 @@
 //! hip-centred) and a segmentation mask, which are mapped back into the frame.
 //!
 //! Several people at once: [`multipose`] runs MoveNet MultiPose Lightning (Apache-2.0), which
-//! splits a frame into up to six person instances with 17 keypoints each.
+//! splits a frame into up to six person instances with 17 keypoints each; [`people`] reads
+//! each of them with the landmark model (landmarks and a mask per person).
 //!
 //! Perception imports the CPU kernels and the body template, never the avatar network
 //! (`tests/module_layers.rs`).
@@ -21,6 +22,7 @@ pub mod landmarks;
 pub mod multipose;
 pub mod network;
 pub mod overlay;
+pub mod people;
 pub mod pose;
 pub mod roi;
 pub mod segmentation;
@@ -32,5 +34,6 @@ pub use error::PerceptionError;
 pub use landmark::{Landmark, LandmarkId, BODY_LANDMARKS};
 pub use multipose::{MultiPoseDetector, PersonInstance};
 pub use network::{Network, NetworkOutputs};
+pub use people::{FoundPerson, PeopleConfig, PeopleFinder};
 pub use tracker::{Perceived, PersonTracker, PoseNetworks, TrackerConfig};
 pub use weights::LandmarkModel;
