@@ -146,6 +146,17 @@ def overview(out, target):
     ).save(target)
 
 
+def people(out, target):
+    """Several people in one real frame: perception's masks, skeletons and person ids."""
+    out = Path(out)
+    frame = Image.open(out / "people/multi_cam1_f030_people.png")
+    column(
+        [row([tile(frame, "lhmpp perceive --people: masks, skeletons, person ids, MoveNet scores",
+                   height=900)])],
+        title="Several people in one frame (Pose2Sim demo, BSD-3)",
+    ).save(target)
+
+
 if __name__ == "__main__":
     kind, out, target = sys.argv[1:4]
-    {"perception": perception, "live-pose": live_pose, "overview": overview}[kind](out, target)
+    {"perception": perception, "live-pose": live_pose, "overview": overview, "people": people}[kind](out, target)
