@@ -40,6 +40,8 @@ fn node_reconstructs_frames_from_a_cyclonedds_peer_and_publishes_avatars_and_ren
         "inputs.image_topics=[cam0/image_raw]".into(),
         "inputs.compressed_image_topics=[cam1/image_raw/compressed]".into(),
         "inputs.pose_topic=''".into(),
+        // The peer's frames are coloured boxes, not people: whole frames, as without perception.
+        "inputs.person_mask=off".into(),
         "frame_store.debounce_ms=50".into(),
         "model.num_points=1024".into(),
         "outputs.virtual_cameras=1".into(),
