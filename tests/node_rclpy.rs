@@ -80,6 +80,8 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
         "inputs.image_topics=[cam0/image_raw]".into(),
         "inputs.compressed_image_topics=[cam1/image_raw/compressed]".into(),
         "inputs.pose_topic=body_pose".into(),
+        // The peer's frames are coloured boxes, not people: whole frames, as without perception.
+        "inputs.person_mask=off".into(),
         "frame_store.debounce_ms=50".into(),
         "model.num_points=1024".into(),
         "outputs.virtual_cameras=1".into(),
