@@ -75,7 +75,9 @@ fn a_ten_second_run_is_quiet_by_default_and_log_opens_everything() {
         .filter(|l| !l.contains("no message on camera topic"))
         .collect();
     assert!(
-        !rest.iter().any(|l| l.contains("ERROR") || l.contains("WARN")),
+        !rest
+            .iter()
+            .any(|l| l.contains("ERROR") || l.contains("WARN")),
         "no other error or warning at a clean run and shutdown:\n{all}"
     );
     assert!(
