@@ -11,6 +11,7 @@ mod config_source;
 mod eval;
 mod eval_perception;
 mod eval_photos;
+mod eval_tracking;
 mod fuzz;
 mod loadgen;
 mod model;
@@ -72,6 +73,9 @@ enum Command {
     /// photo and on the avatar rendered in the photo's pose, compared with CIEDE2000
     /// (`eval-photos --manifest scripts/devset/photos.json`).
     EvalPhotos(eval_photos::EvalPhotosArgs),
+    /// Score person tracking on crowd bags of `synth --people N`: persons found, id switches
+    /// per 100 images, views given another person's id (`eval-tracking BAG...`).
+    EvalTracking(eval_tracking::EvalTrackingArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`), recover damaged ones
     /// (`bag recover IN -o OUT`).
     Bag(bag::BagArgs),
@@ -139,6 +143,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::Eval(args) => eval::run(args),
         Command::EvalPerception(args) => eval_perception::run(args),
         Command::EvalPhotos(args) => eval_photos::run(args),
+        Command::EvalTracking(args) => eval_tracking::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),

@@ -4,6 +4,7 @@
 
 pub mod backdrop;
 pub mod camera_fx;
+pub mod crowd;
 pub mod capture;
 pub mod dataset;
 pub mod dressed;

@@ -1,0 +1,430 @@
+//! Several seeded synthetic people walking across one room, seen by fixed cameras around it
+//! (`lhmpp synth --people N`): paths that cross, so people occlude one another, with the
+//! ground-truth identity of every pixel written beside each image.
+//!
+//! Each camera image comes with a mono8 id map on `<camera>/person_ids`: pixel value `k + 1`
+//! where person `k` (`person_k`) is what the camera sees there (opacity ≥ ½, the person in
+//! front where two overlap), 0 elsewhere. The id map comes from the same render as the image:
+//! every Gaussian carries a one-hot feature of its person, blended like the colour.
+
+use super::backdrop::Backdrop;
+use super::camera_fx::CameraEffects;
+use super::capture::{camera_info, camera_transform, image_topic, info_topic, optical_frame};
+use super::capture::{START_NS, TF_STATIC_TOPIC};
+use super::dressed::DressedPerson;
+use super::lighting::Lighting;
+use super::person::SynthError;
+use super::scene::RigCamera;
+use crate::bag::{BagWriter, BagWriterOptions};
+use crate::body::motion::walk_pose;
+use crate::msgs::{Header, Image, TFMessage, Time};
+use crate::splat::{render, Camera, Gaussians, Intrinsics, RenderOptions};
+use glam::{Quat, Vec2, Vec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::path::Path;
+
+/// Vertical field of view of the room cameras (radians), wide as a room camera.
+const FOV_Y: f32 = 0.9;
+/// Walk-cycle frames per second of the built-in walk (40 frames a cycle, a stride of two
+/// steps in about 1.3 s).
+const WALK_FPS: f32 = 30.0;
+/// Half the length of each walking path (metres).
+const PATH_HALF: f32 = 1.6;
+/// Most people in one scene (ids are one byte, features one channel each).
+pub const MAX_PEOPLE: usize = 8;
+
+/// Id-map topic of camera `name`.
+pub fn ids_topic(name: &str) -> String {
+    format!("/{name}/person_ids")
+}
+
+/// Person id of person `k` of a crowd scene, as the id maps number them (`k + 1`).
+pub fn crowd_person_id(k: usize) -> String {
+    format!("person_{k}")
+}
+
+/// What `lhmpp synth --people N` makes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CrowdOptions {
+    /// Seed of the people, their paths, the cameras and the lighting.
+    pub seed: u64,
+    /// People in the room (1..=[`MAX_PEOPLE`]).
+    pub people: usize,
+    /// Fixed cameras `cam0..` around the room.
+    pub cameras: usize,
+    /// Frames per camera.
+    pub frames: usize,
+    /// Camera frame rate (frames per second).
+    pub fps: f32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Gaussians per person.
+    pub points: usize,
+}
+
+impl Default for CrowdOptions {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            people: 3,
+            cameras: 2,
+            frames: 40,
+            fps: 10.0,
+            width: 640,
+            height: 480,
+            points: 20_000,
+        }
+    }
+}
+
+/// One person's straight walk across the room, at constant speed, turned along the path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WalkPath {
+    /// Floor position (x, z) at the first frame.
+    pub start: Vec2,
+    /// Floor position at the last frame.
+    pub end: Vec2,
+    /// Walk-cycle frame at the first frame.
+    pub phase: f32,
+}
+
+impl WalkPath {
+    /// Floor position at fraction `s` (0..1) of the scene.
+    pub fn at(&self, s: f32) -> Vec2 {
+        self.start.lerp(self.end, s)
+    }
+
+    /// Rotation about +Y that turns the body (facing +Z) along the path.
+    pub fn heading(&self) -> Quat {
+        let d = self.end - self.start;
+        Quat::from_rotation_y(d.x.atan2(d.y))
+    }
+}
+
+/// A crowd scene: its people, their paths and the cameras.
+pub struct Crowd {
+    /// The people, `person_0..`.
+    pub people: Vec<DressedPerson>,
+    /// Their paths, by person.
+    pub paths: Vec<WalkPath>,
+    /// The room cameras.
+    pub cameras: Vec<RigCamera>,
+    options: CrowdOptions,
+}
+
+/// One rendered camera frame of a crowd scene.
+pub struct CrowdFrame {
+    /// The image (lit people over the room's backdrop, through camera effects).
+    pub rgb: image::RgbImage,
+    /// The id map (`k + 1` where person `k` shows, 0 elsewhere).
+    pub ids: image::GrayImage,
+}
+
+impl Crowd {
+    /// Makes the people and lays out their crossing paths and the cameras for `options`.
+    pub fn new(options: &CrowdOptions) -> Result<Self, SynthError> {
+        if !(1..=MAX_PEOPLE).contains(&options.people) {
+            return Err(SynthError::Dataset(format!(
+                "--people {}: a crowd scene holds 1 to {MAX_PEOPLE} people",
+                options.people
+            )));
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x6372_6f77_64);
+        // Distinct person seeds, far from the single-person seeds of the fixtures.
+        let people = (0..options.people)
+            .map(|k| {
+                let seed = options.seed.wrapping_mul(1000).wrapping_add(700_000 + k as u64);
+                DressedPerson::new(seed, options.points)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        // Paths through the middle of the room at spread angles, offset sideways so the people
+        // pass one another (and cross in front of one another for most cameras).
+        let start_angle = rng.gen_range(0.0..std::f32::consts::PI);
+        let paths = (0..options.people)
+            .map(|k| {
+                let angle = start_angle
+                    + std::f32::consts::PI * k as f32 / options.people as f32
+                    + rng.gen_range(-0.2..0.2);
+                let dir = Vec2::new(angle.sin(), angle.cos());
+                let side = Vec2::new(-dir.y, dir.x) * rng.gen_range(-0.5..0.5);
+                let flip = if rng.gen_bool(0.5) { 1.0 } else { -1.0 };
+                WalkPath {
+                    start: side - dir * PATH_HALF * flip,
+                    end: side + dir * PATH_HALF * flip,
+                    phase: rng.gen_range(0.0..40.0),
+                }
+            })
+            .collect();
+        let tallest = people
+            .iter()
+            .map(|p| p.template.height())
+            .fold(0.0, f32::max);
+        let cameras = room_cameras(
+            &mut rng,
+            options.cameras,
+            options.width,
+            options.height,
+            tallest,
+        );
+        Ok(Self {
+            people,
+            paths,
+            cameras,
+            options: options.clone(),
+        })
+    }
+
+    /// Renders frame `f` of camera `c`.
+    pub fn render_frame(&self, f: usize, c: usize) -> Result<CrowdFrame, SynthError> {
+        let o = &self.options;
+        let n = self.people.len();
+        let s = f as f32 / (o.frames.max(2) - 1) as f32;
+        let seconds = f as f32 / o.fps;
+        let rig = &self.cameras[c];
+        let eye = Vec3::from(rig.camera.world_from_camera.translation);
+        let mut lights = ChaCha8Rng::seed_from_u64(o.seed ^ 0x6c69_6768_7473);
+        let lighting = Lighting::random(&mut lights);
+        let mut scene: Option<Gaussians> = None;
+        for (k, (person, path)) in self.people.iter().zip(&self.paths).enumerate() {
+            let pose = walk_pose(path.phase + seconds * WALK_FPS);
+            let matrices = person
+                .template
+                .skeleton
+                .try_skinning_matrices(&pose)
+                .map_err(|e| SynthError::Pose(e.to_string()))?;
+            let posed = person.avatar.animate(&matrices);
+            let heading = path.heading();
+            let floor = path.at(s);
+            let offset = Vec3::new(floor.x, 0.0, floor.y);
+            // Light in the body's frame: the camera's eye brought into it.
+            let eye_body = heading.inverse() * (eye - offset);
+            let key = lighting.lights.first().map(|l| l.direction);
+            let shadow = match key {
+                Some(d) => Some(person.light_visibility(&matrices, &posed, d)?),
+                None => None,
+            };
+            let mut lit = lighting.lit(person, &posed, eye_body, shadow.as_deref(), false);
+            place(&mut lit, heading, offset);
+            lit.feature_channels = n;
+            lit.features = (0..lit.len())
+                .flat_map(|_| (0..n).map(move |j| if j == k { 1.0 } else { 0.0 }))
+                .collect();
+            scene = Some(match scene {
+                None => lit,
+                Some(mut all) => {
+                    append(&mut all, lit);
+                    all
+                }
+            });
+        }
+        let scene = scene.expect("at least one person");
+        let options = RenderOptions {
+            background: Vec3::ZERO,
+            render_features: true,
+            ..RenderOptions::default()
+        };
+        let out = render(&scene, &rig.camera, &options);
+        let (w, h) = (out.width, out.height);
+        // A fixed camera keeps its exposure, white balance and optics; only the noise is new
+        // each frame. Its backdrop is a room or a smooth texture, not a test pattern.
+        let mut fx_rng = ChaCha8Rng::seed_from_u64(o.seed ^ 0x6678 ^ ((c as u64) << 16));
+        let mut effects = CameraEffects::random(&mut fx_rng);
+        effects.seed ^= (f as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        let mut bg_rng = ChaCha8Rng::seed_from_u64(o.seed ^ 0x726f_6f6d ^ c as u64);
+        let backdrop = std::iter::repeat_with(|| Backdrop::random(&mut bg_rng))
+            .find(|b| matches!(b, Backdrop::Room { .. } | Backdrop::Smooth { .. }))
+            .expect("rooms and smooth textures are drawn half the time");
+        let mut composed = out.rgb.clone();
+        for (i, px) in composed.chunks_exact_mut(3).enumerate() {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            let bg = backdrop.at(x, y, w, h) * (1.0 - out.alpha[i]);
+            for (ch, b) in px.iter_mut().zip(bg.to_array()) {
+                *ch += b;
+            }
+        }
+        let rgb = effects.apply(&composed, w, h);
+        let ids = image::GrayImage::from_fn(w, h, |x, y| {
+            let i = (y * w + x) as usize;
+            let weights = &out.features[i * n..(i + 1) * n];
+            let (best, weight) = weights
+                .iter()
+                .enumerate()
+                .fold((0, 0.0f32), |acc, (j, &v)| if v > acc.1 { (j, v) } else { acc });
+            image::Luma([if weight >= 0.5 { best as u8 + 1 } else { 0 }])
+        });
+        Ok(CrowdFrame { rgb, ids })
+    }
+}
+
+/// Turns Gaussians posed in a body frame by `heading` and moves them by `offset`.
+fn place(g: &mut Gaussians, heading: Quat, offset: Vec3) {
+    for p in &mut g.positions {
+        *p = heading * *p + offset;
+    }
+    for r in &mut g.rotations {
+        *r = (heading * *r).normalize();
+    }
+}
+
+/// Appends `more` to `all` (same SH degree and feature channels).
+fn append(all: &mut Gaussians, more: Gaussians) {
+    all.positions.extend(more.positions);
+    all.scales.extend(more.scales);
+    all.rotations.extend(more.rotations);
+    all.opacities.extend(more.opacities);
+    all.sh.extend(more.sh);
+    all.features.extend(more.features);
+}
+
+/// `count` cameras on a circle around the room, at head height with seeded jitter, looking
+/// at the middle of the room, every path in view.
+fn room_cameras(
+    rng: &mut ChaCha8Rng,
+    count: usize,
+    width: u32,
+    height: u32,
+    body_height: f32,
+) -> Vec<RigCamera> {
+    let intrinsics = Intrinsics::from_fov_y(width, height, FOV_Y);
+    let target = Vec3::new(0.0, 0.5 * body_height, 0.0);
+    // Far enough that a person at the near end of a path still fits (vertically) in view.
+    let distance = PATH_HALF + 0.62 * body_height / (0.5 * FOV_Y).tan();
+    let start = rng.gen_range(0.0..std::f32::consts::TAU);
+    (0..count)
+        .map(|i| {
+            let angle = start
+                + std::f32::consts::TAU * i as f32 / count.max(1) as f32
+                + rng.gen_range(-0.2..0.2);
+            let up = rng.gen_range(0.1..0.35) * body_height;
+            let eye = target + Vec3::new(angle.sin() * distance, up, angle.cos() * distance);
+            RigCamera {
+                name: format!("cam{i}"),
+                camera: Camera::look_at(eye, target, Vec3::Y, intrinsics),
+            }
+        })
+        .collect()
+}
+
+/// Renders the crowd scene of `options` and writes its bag at `path`: `/tf_static` with the
+/// cameras, then per frame and camera `camera_info`, `image_raw` (rgb8) and `person_ids`
+/// (mono8), frames `1 / fps` apart. `progress(done, total)` after each image.
+pub fn write_crowd_bag(
+    path: &Path,
+    options: &CrowdOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<super::SynthSummary, SynthError> {
+    if options.cameras == 0 || options.frames == 0 || options.fps <= 0.0 {
+        return Err(SynthError::Dataset(
+            "a crowd scene needs at least one camera, one frame and a positive frame rate".into(),
+        ));
+    }
+    let crowd = Crowd::new(options)?;
+    let mut bag = BagWriter::create_with(
+        path,
+        BagWriterOptions {
+            flush_interval: None,
+            ..BagWriterOptions::default()
+        },
+    )?;
+    let ns = START_NS;
+    bag.write(
+        TF_STATIC_TOPIC,
+        ns,
+        &TFMessage {
+            transforms: crowd
+                .cameras
+                .iter()
+                .map(|c| camera_transform(c, ns))
+                .collect(),
+        },
+    )?;
+    let period = (1e9 / options.fps as f64) as u64;
+    let total = options.frames * options.cameras;
+    for f in 0..options.frames {
+        for (c, rig) in crowd.cameras.iter().enumerate() {
+            let frame = crowd.render_frame(f, c)?;
+            // Cameras triggered together; 1 ms apart so every message has its own stamp.
+            let t = ns + period * (f as u64 + 1) + 1_000_000 * c as u64;
+            let name = &rig.name;
+            bag.write(&info_topic(name), t, &camera_info(rig, t))?;
+            bag.write(&image_topic(name), t, &image_message(&frame.rgb, name, t))?;
+            bag.write(&ids_topic(name), t, &ids_message(&frame.ids, name, t))?;
+            progress(f * options.cameras + c + 1, total);
+        }
+    }
+    let messages = bag.finish()?;
+    let bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    Ok(super::SynthSummary { messages, bytes })
+}
+
+fn image_message(rgb: &image::RgbImage, camera: &str, ns: u64) -> Image {
+    Image {
+        header: Header::new(Time::from_nanos(ns as i64), optical_frame(camera)),
+        height: rgb.height(),
+        width: rgb.width(),
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: 3 * rgb.width(),
+        data: rgb.as_raw().clone(),
+    }
+}
+
+fn ids_message(ids: &image::GrayImage, camera: &str, ns: u64) -> Image {
+    Image {
+        header: Header::new(Time::from_nanos(ns as i64), optical_frame(camera)),
+        height: ids.height(),
+        width: ids.width(),
+        encoding: "mono8".into(),
+        is_bigendian: 0,
+        step: ids.width(),
+        data: ids.as_raw().clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small() -> CrowdOptions {
+        CrowdOptions {
+            seed: 3,
+            people: 2,
+            cameras: 2,
+            frames: 5,
+            width: 160,
+            height: 120,
+            points: 3000,
+            ..CrowdOptions::default()
+        }
+    }
+
+    /// Every person shows in the id maps of the first frame, and the paths cross: in the
+    /// middle frame the two people stand closer together than at the ends.
+    #[test]
+    fn people_show_and_paths_cross() {
+        let crowd = Crowd::new(&small()).unwrap();
+        let frame = crowd.render_frame(0, 0).unwrap();
+        for k in 1..=2u8 {
+            let count = frame.ids.pixels().filter(|p| p.0[0] == k).count();
+            assert!(count > 50, "person {k} shows in {count} pixels");
+        }
+        let gap = |s: f32| crowd.paths[0].at(s).distance(crowd.paths[1].at(s));
+        assert!(gap(0.5) < gap(0.0) && gap(0.5) < gap(1.0));
+    }
+
+    /// Ids stay in range, and a scene without people is refused.
+    #[test]
+    fn ids_are_in_range() {
+        let crowd = Crowd::new(&small()).unwrap();
+        let frame = crowd.render_frame(2, 1).unwrap();
+        assert!(frame.ids.pixels().all(|p| p.0[0] <= 2));
+        assert!(Crowd::new(&CrowdOptions {
+            people: 0,
+            ..small()
+        })
+        .is_err());
+    }
+}
