@@ -75,7 +75,7 @@ impl Default for CrowdOptions {
             fps: 10.0,
             width: 640,
             height: 480,
-            points: 20_000,
+            points: 30_000,
         }
     }
 }
