@@ -9,9 +9,9 @@ use image::{Rgb, RgbImage};
 use lhmpp::eval::tracking::{read_crowd, track_and_score, CrowdImage, TrackingScore};
 use lhmpp::perception::people::tint_mask;
 use lhmpp::perception::FoundPerson;
+use lhmpp::perception::{LandmarkModel, PeopleConfig, PeopleFinder, PoseNetworks};
 use lhmpp::picture::draw_text;
 use lhmpp::tracking::Assignment;
-use lhmpp::perception::{LandmarkModel, PeopleConfig, PeopleFinder, PoseNetworks};
 use lhmpp::tracking::{PersonTracks, TrackingConfig};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -31,6 +31,10 @@ pub struct EvalTrackingArgs {
     /// Appearance similarity (0..1) from which a detection is a person seen elsewhere.
     #[arg(long, default_value_t = TrackingConfig::default().min_similarity)]
     min_similarity: f32,
+    /// Floor distance (metres) within which a detection can be a person another camera just
+    /// saw (calibrated cameras).
+    #[arg(long, default_value_t = TrackingConfig::default().max_floor_gap)]
+    max_floor_gap: f32,
     /// Write every image's overlay into this folder: each person's mask tinted by the id the
     /// tracker gave it, with the id, beside the true id map.
     #[arg(long)]
@@ -81,7 +85,11 @@ fn overlay(img: &CrowdImage, people: &[FoundPerson], ids: &[Assignment]) -> RgbI
     let (w, h) = img.rgb.dimensions();
     let mut left = img.rgb.clone();
     for (p, a) in people.iter().zip(ids) {
-        let k: usize = a.person_id.trim_start_matches("person_").parse().unwrap_or(0);
+        let k: usize = a
+            .person_id
+            .trim_start_matches("person_")
+            .parse()
+            .unwrap_or(0);
         tint_mask(&mut left, &p.mask, COLOURS[k % COLOURS.len()], 0.5);
     }
     for (p, a) in people.iter().zip(ids) {
@@ -106,6 +114,7 @@ pub fn run(args: EvalTrackingArgs) -> Result<()> {
     let config = TrackingConfig {
         forget_after: args.forget_after,
         min_similarity: args.min_similarity,
+        max_floor_gap: args.max_floor_gap,
         ..TrackingConfig::default()
     };
     println!("{HEADER}");
@@ -148,7 +157,8 @@ pub fn run(args: EvalTrackingArgs) -> Result<()> {
             "false_detections": score.false_detections,
             "ms_per_image": score.perception_ms,
         }));
-        let ms = total.perception_ms * total.images as f64 + score.perception_ms * score.images as f64;
+        let ms =
+            total.perception_ms * total.images as f64 + score.perception_ms * score.images as f64;
         total.persons += score.persons;
         total.images += score.images;
         total.visible += score.visible;

@@ -71,6 +71,7 @@ fn perceive_frame(
             Detection {
                 bbox,
                 appearance: Appearance::from_masked(&image, &p.mask, Some(bbox)),
+                floor: None,
             }
         })
         .collect();

@@ -13,11 +13,14 @@
 //! - **ids per person**: distinct ids each true person was given (1 is perfect).
 
 use crate::bag::{BagError, BagReader};
-use crate::msgs::Image;
+use crate::msgs::{CameraInfo, Image, TFMessage};
 use crate::perception::{FoundPerson, PeopleFinder, PerceptionError};
 use crate::reconstruct::image_decode::{decode_mask, decode_raw, RawImage};
+use crate::splat::Camera;
+use crate::synth::capture::TF_STATIC_TOPIC;
 use crate::synth::crowd::ids_topic;
 use crate::tracking::{Appearance, Assignment, BoxPx, Detection, PersonTracks};
+use glam::{Affine3A, Quat, Vec3};
 use image::{GrayImage, RgbImage};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -54,6 +57,25 @@ pub struct CrowdImage {
     pub rgb: RgbImage,
     /// True person ids (`k + 1` for `person_k`, 0 nobody).
     pub ids: GrayImage,
+    /// The camera, when the bag calibrates it (`camera_info` and its optical frame on
+    /// `/tf_static`): detections then get a floor position.
+    pub camera_model: Option<Camera>,
+}
+
+/// Where a person whose box is `bbox` stands: the bottom centre of the box cast onto the floor
+/// (the world's `y = 0` plane, +Y up), as (x, z); `None` when the ray misses the floor.
+pub fn floor_point(camera: &Camera, bbox: &BoxPx) -> Option<[f32; 2]> {
+    let i = &camera.intrinsics;
+    let (u, v) = (0.5 * (bbox.min[0] + bbox.max[0]), bbox.max[1]);
+    let dir_cam = Vec3::new((u - i.cx) / i.fx, (v - i.cy) / i.fy, 1.0);
+    let origin = Vec3::from(camera.world_from_camera.translation);
+    let dir = camera.world_from_camera.transform_vector3(dir_cam);
+    if dir.y >= -1e-6 {
+        return None;
+    }
+    let t = -origin.y / dir.y;
+    let hit = origin + dir * t;
+    (t > 0.0).then_some([hit.x, hit.z])
 }
 
 /// The camera images of a crowd bag, in bag order (time order), each with its id map.
@@ -64,6 +86,23 @@ pub fn read_crowd(path: &Path) -> Result<Vec<CrowdImage>, TrackingEvalError> {
         message,
     };
     let mut id_maps: BTreeMap<(String, i64), GrayImage> = BTreeMap::new();
+    let mut poses: BTreeMap<String, Affine3A> = BTreeMap::new();
+    let mut infos: BTreeMap<String, CameraInfo> = BTreeMap::new();
+    for m in bag
+        .messages()
+        .iter()
+        .filter(|m| &*m.topic == TF_STATIC_TOPIC)
+    {
+        let tf: TFMessage = bag.decode(m)?;
+        for t in &tf.transforms {
+            let q: Quat = t.transform.rotation.into();
+            let p: Vec3 = t.transform.translation.into();
+            poses.insert(
+                t.child_frame_id.clone(),
+                Affine3A::from_rotation_translation(q.normalize(), p),
+            );
+        }
+    }
     let mut images = Vec::new();
     for m in bag.messages() {
         let topic = &*m.topic;
@@ -80,6 +119,9 @@ pub fn read_crowd(path: &Path) -> Result<Vec<CrowdImage>, TrackingEvalError> {
                 let rgb = decode_raw(topic, &RawImage::from(&msg), 8192)
                     .map_err(|e| bad(format!("{topic}: {e}")))?;
                 images.push((camera.0, msg.header.stamp.as_nanos(), rgb));
+            }
+            "camera_info" => {
+                infos.insert(camera.0, bag.decode(m)?);
             }
             "person_ids" => {
                 let msg: Image = bag.decode(m)?;
@@ -111,16 +153,25 @@ pub fn read_crowd(path: &Path) -> Result<Vec<CrowdImage>, TrackingEvalError> {
                     rgb.dimensions()
                 )));
             }
+            let camera_model = infos.get(&camera).and_then(|info| {
+                let pose = poses.get(&info.header.frame_id)?;
+                Some(Camera::from_camera_info(
+                    info.k,
+                    rgb.width(),
+                    rgb.height(),
+                    *pose,
+                ))
+            });
             Ok(CrowdImage {
                 camera,
                 stamp_ns,
                 rgb,
                 ids,
+                camera_model,
             })
         })
         .collect()
 }
-
 
 /// One detection: the true person under it (`None`: nobody holds half its mask) and the id
 /// the tracker gave it.
@@ -231,6 +282,10 @@ pub fn track_and_score(
                 Detection {
                     bbox,
                     appearance: Appearance::from_masked(&img.rgb, &p.mask, Some(bbox)),
+                    floor: img
+                        .camera_model
+                        .as_ref()
+                        .and_then(|c| floor_point(c, &bbox)),
                 }
             })
             .collect();
@@ -349,11 +404,19 @@ mod tests {
             .collect();
         let s = score_sightings(&clean, &visible, 2);
         assert_eq!((s.found, s.visible, s.id_switches), (8, 8, 0));
-        assert_eq!((s.wrong_person_views, s.ids_per_person.clone()), (0, vec![1, 1]));
+        assert_eq!(
+            (s.wrong_person_views, s.ids_per_person.clone()),
+            (0, vec![1, 1])
+        );
 
         let mut swapped = clean.clone();
         for s in swapped.iter_mut().filter(|s| s.image >= 3) {
-            s.id = if s.id == "person_0" { "person_1" } else { "person_0" }.into();
+            s.id = if s.id == "person_0" {
+                "person_1"
+            } else {
+                "person_0"
+            }
+            .into();
         }
         swapped.push(sight(3, None, "person_2"));
         let s = score_sightings(&swapped, &visible, 2);

@@ -136,7 +136,10 @@ impl Crowd {
         // Distinct person seeds, far from the single-person seeds of the fixtures.
         let people = (0..options.people)
             .map(|k| {
-                let seed = options.seed.wrapping_mul(1000).wrapping_add(700_000 + k as u64);
+                let seed = options
+                    .seed
+                    .wrapping_mul(1000)
+                    .wrapping_add(700_000 + k as u64);
                 DressedPerson::new(seed, options.points)
             })
             .collect::<Result<Vec<_>, _>>()?;
@@ -249,10 +252,11 @@ impl Crowd {
         let ids = image::GrayImage::from_fn(w, h, |x, y| {
             let i = (y * w + x) as usize;
             let weights = &out.features[i * n..(i + 1) * n];
-            let (best, weight) = weights
-                .iter()
-                .enumerate()
-                .fold((0, 0.0f32), |acc, (j, &v)| if v > acc.1 { (j, v) } else { acc });
+            let (best, weight) =
+                weights.iter().enumerate().fold(
+                    (0, 0.0f32),
+                    |acc, (j, &v)| if v > acc.1 { (j, v) } else { acc },
+                );
             image::Luma([if weight >= 0.5 { best as u8 + 1 } else { 0 }])
         });
         Ok(CrowdFrame { rgb, ids })

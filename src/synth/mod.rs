@@ -4,8 +4,8 @@
 
 pub mod backdrop;
 pub mod camera_fx;
-pub mod crowd;
 pub mod capture;
+pub mod crowd;
 pub mod dataset;
 pub mod dressed;
 pub mod dressing_room;

@@ -5,8 +5,12 @@
 //! from its last two sightings) it overlaps most (greedy by IoU, best pair first). A detection
 //! no live track of its camera claims is compared by appearance ([`Appearance`]: a colour
 //! histogram of the person's pixels) with every person not seen in that camera in this frame:
-//! the same person seen by another camera, or coming back after leaving. Only when none is
-//! similar enough does it start a new person. Persons unseen for
+//! the same person seen by another camera, or coming back after leaving. Where the caller
+//! knows where a detection stands on the floor (calibrated cameras), position decides first: a
+//! person seen by another camera within [`TrackingConfig::floor_fresh`] seconds is the same
+//! person only if they stood within [`TrackingConfig::max_floor_gap`] of it, whatever their
+//! colours (a person's front and back rarely look alike). Only when no one matches does it
+//! start a new person. Persons unseen for
 //! [`TrackingConfig::forget_after`] are forgotten; past [`TrackingConfig::max_persons`] the
 //! least recently seen one is dropped (counted).
 //!
@@ -33,6 +37,11 @@ pub struct TrackingConfig {
     /// Appearance similarity (Bhattacharyya coefficient, 0..1) from which a detection is the
     /// same person as one tracked elsewhere or earlier.
     pub min_similarity: f32,
+    /// Distance on the floor (metres) within which a detection can be a person another camera
+    /// saw at nearly the same time.
+    pub max_floor_gap: f32,
+    /// How long (seconds) a person's floor position stays current for that comparison.
+    pub floor_fresh: f64,
 }
 
 impl Default for TrackingConfig {
@@ -42,6 +51,8 @@ impl Default for TrackingConfig {
             max_persons: 8,
             min_iou: 0.3,
             min_similarity: 0.8,
+            max_floor_gap: 0.5,
+            floor_fresh: 0.3,
         }
     }
 }
@@ -53,6 +64,9 @@ pub struct Detection {
     pub bbox: BoxPx,
     /// Its appearance, when the caller could measure one.
     pub appearance: Option<Appearance>,
+    /// Where it stands on the floor (world metres, two ground-plane coordinates), when the
+    /// caller's camera is calibrated.
+    pub floor: Option<[f32; 2]>,
 }
 
 /// How a detection was given its id.
@@ -62,6 +76,8 @@ pub enum Matched {
     Track,
     /// It looks like a person tracked in another camera or before (appearance).
     Appearance,
+    /// It stands where another camera saw a person a moment ago (floor position).
+    Floor,
     /// A new person.
     New,
 }
@@ -90,6 +106,8 @@ struct Person {
     id: String,
     cameras: BTreeMap<String, CameraTrack>,
     appearance: Option<Appearance>,
+    /// Last floor position and when.
+    floor: Option<([f32; 2], f64)>,
     last_seen: f64,
 }
 
@@ -173,29 +191,49 @@ impl PersonTracks {
 
         // 2. Appearance against persons not matched in this frame, most similar first.
         let mut pairs = Vec::new();
+        // Floor positions decide where both are known and fresh (scores above 1); colours
+        // otherwise (scores up to 1).
         for (d, det) in detections.iter().enumerate() {
-            let (None, Some(look)) = (&out[d], &det.appearance) else {
+            if out[d].is_some() {
                 continue;
-            };
+            }
             for (p, person) in self.persons.iter().enumerate() {
                 if taken[p] {
                     continue;
                 }
-                if let Some(known) = &person.appearance {
-                    let similarity = look.similarity(known);
-                    if similarity >= self.config.min_similarity {
-                        pairs.push((similarity, p, d));
+                let similarity = match (&det.appearance, &person.appearance) {
+                    (Some(look), Some(known)) => Some(look.similarity(known)),
+                    _ => None,
+                };
+                match self.floor_gap(person, det, stamp) {
+                    Some(gap) => {
+                        if gap <= self.config.max_floor_gap {
+                            let closeness = 1.0 - gap / self.config.max_floor_gap.max(1e-6);
+                            pairs.push((1.0 + closeness + 0.1 * similarity.unwrap_or(0.0), p, d));
+                        }
+                    }
+                    None => {
+                        if let Some(similarity) =
+                            similarity.filter(|s| *s >= self.config.min_similarity)
+                        {
+                            pairs.push((similarity, p, d));
+                        }
                     }
                 }
             }
         }
         pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-        for (_, p, d) in pairs {
+        for (score, p, d) in pairs {
             if taken[p] || out[d].is_some() {
                 continue;
             }
             taken[p] = true;
-            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], Matched::Appearance));
+            let how = if score > 1.0 {
+                Matched::Floor
+            } else {
+                Matched::Appearance
+            };
+            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], how));
         }
 
         // 3. New persons, in detection order.
@@ -208,6 +246,16 @@ impl PersonTracks {
         out.into_iter()
             .map(|a| a.expect("every detection assigned"))
             .collect()
+    }
+
+    /// Floor distance (metres) between a detection and a person's fresh floor position, when
+    /// both are known.
+    fn floor_gap(&self, person: &Person, det: &Detection, stamp: f64) -> Option<f32> {
+        let ((known, _), here) = person
+            .floor
+            .filter(|(_, at)| (stamp - at).abs() <= self.config.floor_fresh)
+            .zip(det.floor)?;
+        Some((known[0] - here[0]).hypot(known[1] - here[1]))
     }
 
     /// Records a sighting of person `p`.
@@ -242,6 +290,9 @@ impl PersonTracks {
                 None => look.clone(),
             });
         }
+        if let Some(floor) = det.floor {
+            person.floor = Some((floor, stamp));
+        }
         person.last_seen = person.last_seen.max(stamp);
         Assignment {
             person_id: person.id.clone(),
@@ -266,6 +317,7 @@ impl PersonTracks {
             id: format!("person_{}", self.next_id),
             cameras: BTreeMap::new(),
             appearance: None,
+            floor: None,
             last_seen: stamp,
         });
         self.next_id += 1;

@@ -15,7 +15,50 @@ fn det(cx: f32, colour: [u8; 3]) -> Detection {
     Detection {
         bbox: person_box(cx),
         appearance: Some(look(colour)),
+        floor: None,
     }
+}
+
+fn on_floor(cx: f32, colour: [u8; 3], floor: [f32; 2]) -> Detection {
+    Detection {
+        floor: Some(floor),
+        ..det(cx, colour)
+    }
+}
+
+#[test]
+fn floor_position_decides_across_cameras() {
+    // Camera 0 sees A (red front) at (0, 0) and B (blue) at (2, 0). Camera 1, 10 ms later,
+    // sees A's back (blue, like B) where A stands, and B (grey back) where B stands.
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let cam0 = tracks.update(
+        "cam0",
+        0.0,
+        &[
+            on_floor(100.0, [200, 30, 30], [0.0, 0.0]),
+            on_floor(400.0, [30, 30, 200], [2.0, 0.0]),
+        ],
+    );
+    let cam1 = tracks.update(
+        "cam1",
+        0.01,
+        &[
+            on_floor(150.0, [30, 30, 200], [0.1, 0.05]),
+            on_floor(500.0, [128, 128, 128], [2.05, -0.1]),
+        ],
+    );
+    assert_eq!(
+        cam1[0].person_id, cam0[0].person_id,
+        "A by position, not B by colour"
+    );
+    assert_eq!(cam1[1].person_id, cam0[1].person_id);
+    assert_eq!(
+        (cam1[0].matched, cam1[1].matched),
+        (Matched::Floor, Matched::Floor)
+    );
+    // Someone far from everyone, looking like A: a new person while A's position is fresh.
+    let far = tracks.update("cam2", 0.02, &[on_floor(300.0, [200, 30, 30], [5.0, 5.0])]);
+    assert_eq!(far[0].matched, Matched::New);
 }
 
 #[test]
