@@ -132,7 +132,7 @@ impl Crowd {
                 options.people
             )));
         }
-        let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x6372_6f77_64);
+        let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x63_726f_7764);
         // Distinct person seeds, far from the single-person seeds of the fixtures.
         let people = (0..options.people)
             .map(|k| {
