@@ -427,6 +427,30 @@ mod tests {
         assert_eq!(s.ids, 3);
     }
 
+    /// The bottom centre of a box lands where the person stands: a floor point projected into
+    /// a camera and cast back comes out where it was; a box bottom above the horizon misses.
+    #[test]
+    fn floor_point_inverts_the_projection() {
+        use crate::splat::Intrinsics;
+        let camera = Camera::look_at(
+            Vec3::new(0.5, 1.6, 5.0),
+            Vec3::new(0.0, 0.9, 0.0),
+            Vec3::Y,
+            Intrinsics::from_fov_y(640, 480, 0.9),
+        );
+        let foot = Vec3::new(0.7, 0.0, -0.4);
+        let optical = camera.world_from_camera.inverse().transform_point3(foot);
+        let px = camera.project_camera_point(optical);
+        let bbox = BoxPx::new([px.x - 40.0, px.y - 300.0], [px.x + 40.0, px.y]);
+        let [x, z] = floor_point(&camera, &bbox).unwrap();
+        assert!(
+            (x - 0.7).abs() < 1e-3 && (z + 0.4).abs() < 1e-3,
+            "({x}, {z})"
+        );
+        let sky = BoxPx::new([300.0, -50.0], [340.0, 0.0]);
+        assert_eq!(floor_point(&camera, &sky), None);
+    }
+
     /// A mask is matched to the id holding half its pixels, else to nobody.
     #[test]
     fn covered_person_needs_half_the_mask() {
