@@ -3,6 +3,7 @@
 //! in another person's store, ids per person). The measures are defined in
 //! `lhmpp::eval::tracking`.
 
+use super::perceive_people::{number, COLOURS};
 use anyhow::{Context, Result};
 use clap::Args;
 use image::{Rgb, RgbImage};
@@ -69,27 +70,13 @@ fn row(name: &str, s: &TrackingScore) -> String {
     )
 }
 
-/// Colours of persons, by id number (then of the true ids, by `k`).
-const COLOURS: [[u8; 3]; 6] = [
-    [40, 200, 255],
-    [255, 60, 160],
-    [120, 255, 60],
-    [255, 200, 0],
-    [160, 90, 255],
-    [255, 90, 40],
-];
-
 /// The image with each person's mask tinted by its id and the id written at its box, beside
 /// the true id map in the same colours.
 fn overlay(img: &CrowdImage, people: &[FoundPerson], ids: &[Assignment]) -> RgbImage {
     let (w, h) = img.rgb.dimensions();
     let mut left = img.rgb.clone();
     for (p, a) in people.iter().zip(ids) {
-        let k: usize = a
-            .person_id
-            .trim_start_matches("person_")
-            .parse()
-            .unwrap_or(0);
+        let k = number(&a.person_id);
         tint_mask(&mut left, &p.mask, COLOURS[k % COLOURS.len()], 0.5);
     }
     for (p, a) in people.iter().zip(ids) {

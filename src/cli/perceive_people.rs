@@ -7,17 +7,18 @@
 use super::perceive::{write_json, PerceiveArgs};
 use anyhow::{Context, Result};
 use image::{Rgb, RgbImage};
+use lhmpp::eval::tracking::detection;
 use lhmpp::perception::overlay::{draw_line, draw_overlay};
 use lhmpp::perception::people::tint_mask;
 use lhmpp::perception::{FoundPerson, LandmarkId, PeopleConfig, PeopleFinder, PoseNetworks};
 use lhmpp::picture::draw_text;
-use lhmpp::tracking::{Appearance, BoxPx, Detection, PersonTracks, TrackingConfig};
+use lhmpp::tracking::{Detection, PersonTracks, TrackingConfig};
 use serde_json::{json, Value};
 use std::path::Path;
 use std::sync::Arc;
 
 /// Colours of persons, by id number.
-const COLOURS: [[u8; 3]; 6] = [
+pub(super) const COLOURS: [[u8; 3]; 6] = [
     [40, 200, 255],
     [255, 60, 160],
     [120, 255, 60],
@@ -64,17 +65,7 @@ fn perceive_frame(
     let started = std::time::Instant::now();
     let people = finder.find(&image)?;
     let ms = started.elapsed().as_secs_f64() * 1e3;
-    let detections: Vec<Detection> = people
-        .iter()
-        .map(|p| {
-            let bbox = BoxPx::new(p.min.to_array(), p.max.to_array());
-            Detection {
-                bbox,
-                appearance: Appearance::from_masked(&image, &p.mask, Some(bbox)),
-                floor: None,
-            }
-        })
-        .collect();
+    let detections: Vec<Detection> = people.iter().map(|p| detection(&image, p, None)).collect();
     let ids = tracks.update("camera", frame as f64, &detections);
     let stem = path
         .file_stem()
@@ -122,7 +113,7 @@ fn perceive_frame(
 }
 
 /// The number of a `person_<n>` id (0 for another form).
-fn number(id: &str) -> usize {
+pub(super) fn number(id: &str) -> usize {
     id.trim_start_matches("person_").parse().unwrap_or(0)
 }
 

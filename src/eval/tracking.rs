@@ -62,6 +62,17 @@ pub struct CrowdImage {
     pub camera_model: Option<Camera>,
 }
 
+/// The tracker's view of a person found in `image`: its box, its colours under its mask, and
+/// where it stands when the camera is calibrated.
+pub fn detection(image: &RgbImage, person: &FoundPerson, camera: Option<&Camera>) -> Detection {
+    let bbox = BoxPx::new(person.min.to_array(), person.max.to_array());
+    Detection {
+        bbox,
+        appearance: Appearance::from_masked(image, &person.mask, Some(bbox)),
+        floor: camera.and_then(|c| floor_point(c, &bbox)),
+    }
+}
+
 /// Where a person whose box is `bbox` stands: the bottom centre of the box cast onto the floor
 /// (the world's `y = 0` plane, +Y up), as (x, z); `None` when the ray misses the floor.
 pub fn floor_point(camera: &Camera, bbox: &BoxPx) -> Option<[f32; 2]> {
@@ -277,17 +288,7 @@ pub fn track_and_score(
         perception_s += started.elapsed().as_secs_f64();
         let detections: Vec<Detection> = people
             .iter()
-            .map(|p| {
-                let bbox = BoxPx::new(p.min.to_array(), p.max.to_array());
-                Detection {
-                    bbox,
-                    appearance: Appearance::from_masked(&img.rgb, &p.mask, Some(bbox)),
-                    floor: img
-                        .camera_model
-                        .as_ref()
-                        .and_then(|c| floor_point(c, &bbox)),
-                }
-            })
+            .map(|p| detection(&img.rgb, p, img.camera_model.as_ref()))
             .collect();
         let assigned = tracks.update(&img.camera, img.stamp_ns as f64 * 1e-9, &detections);
         inspect(i, img, &people, &assigned);

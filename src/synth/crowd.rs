@@ -180,18 +180,17 @@ impl Crowd {
         })
     }
 
-    /// Renders frame `f` of camera `c`.
-    pub fn render_frame(&self, f: usize, c: usize) -> Result<CrowdFrame, SynthError> {
+    /// Renders frame `f` from every camera, in camera order. Each person is posed (and its
+    /// key-light shadow computed) once per frame; only the shading depends on the camera.
+    pub fn render_frame(&self, f: usize) -> Result<Vec<CrowdFrame>, SynthError> {
         let o = &self.options;
-        let n = self.people.len();
         let s = f as f32 / (o.frames.max(2) - 1) as f32;
         let seconds = f as f32 / o.fps;
-        let rig = &self.cameras[c];
-        let eye = Vec3::from(rig.camera.world_from_camera.translation);
         let mut lights = ChaCha8Rng::seed_from_u64(o.seed ^ 0x6c69_6768_7473);
         let lighting = Lighting::random(&mut lights);
-        let mut scene: Option<Gaussians> = None;
-        for (k, (person, path)) in self.people.iter().zip(&self.paths).enumerate() {
+        let key = lighting.lights.first().map(|l| l.direction);
+        let mut posed_people = Vec::with_capacity(self.people.len());
+        for (person, path) in self.people.iter().zip(&self.paths) {
             let pose = walk_pose(path.phase + seconds * WALK_FPS);
             let matrices = person
                 .template
@@ -199,18 +198,42 @@ impl Crowd {
                 .try_skinning_matrices(&pose)
                 .map_err(|e| SynthError::Pose(e.to_string()))?;
             let posed = person.avatar.animate(&matrices);
-            let heading = path.heading();
-            let floor = path.at(s);
-            let offset = Vec3::new(floor.x, 0.0, floor.y);
-            // Light in the body's frame: the camera's eye brought into it.
-            let eye_body = heading.inverse() * (eye - offset);
-            let key = lighting.lights.first().map(|l| l.direction);
             let shadow = match key {
                 Some(d) => Some(person.light_visibility(&matrices, &posed, d)?),
                 None => None,
             };
-            let mut lit = lighting.lit(person, &posed, eye_body, shadow.as_deref(), false);
-            place(&mut lit, heading, offset);
+            let floor = path.at(s);
+            posed_people.push(PosedPerson {
+                posed,
+                shadow,
+                heading: path.heading(),
+                offset: Vec3::new(floor.x, 0.0, floor.y),
+            });
+        }
+        Ok((0..self.cameras.len())
+            .map(|c| self.render_camera(f, c, &lighting, &posed_people))
+            .collect())
+    }
+
+    /// Shades the posed people for camera `c` (lit in each body's frame), renders them
+    /// together with their one-hot person features, and composes image and id map.
+    fn render_camera(
+        &self,
+        f: usize,
+        c: usize,
+        lighting: &Lighting,
+        posed_people: &[PosedPerson],
+    ) -> CrowdFrame {
+        let o = &self.options;
+        let n = self.people.len();
+        let rig = &self.cameras[c];
+        let eye = Vec3::from(rig.camera.world_from_camera.translation);
+        let mut scene: Option<Gaussians> = None;
+        for (k, (person, p)) in self.people.iter().zip(posed_people).enumerate() {
+            // Light in the body's frame: the camera's eye brought into it.
+            let eye_body = p.heading.inverse() * (eye - p.offset);
+            let mut lit = lighting.lit(person, &p.posed, eye_body, p.shadow.as_deref(), false);
+            place(&mut lit, p.heading, p.offset);
             lit.feature_channels = n;
             lit.features = (0..lit.len())
                 .flat_map(|_| (0..n).map(move |j| if j == k { 1.0 } else { 0.0 }))
@@ -259,8 +282,20 @@ impl Crowd {
                 );
             image::Luma([if weight >= 0.5 { best as u8 + 1 } else { 0 }])
         });
-        Ok(CrowdFrame { rgb, ids })
+        CrowdFrame { rgb, ids }
     }
+}
+
+/// One person posed for a frame, before shading.
+struct PosedPerson {
+    /// Posed Gaussians in the body's frame.
+    posed: Gaussians,
+    /// How much of the key light reaches each Gaussian.
+    shadow: Option<Vec<f32>>,
+    /// Turn along the walking path.
+    heading: Quat,
+    /// Floor position in the room.
+    offset: Vec3,
 }
 
 /// Turns Gaussians posed in a body frame by `heading` and moves them by `offset`.
@@ -348,14 +383,17 @@ pub fn write_crowd_bag(
     let period = (1e9 / options.fps as f64) as u64;
     let total = options.frames * options.cameras;
     for f in 0..options.frames {
-        for (c, rig) in crowd.cameras.iter().enumerate() {
-            let frame = crowd.render_frame(f, c)?;
+        let frames = crowd.render_frame(f)?;
+        for (c, (rig, frame)) in crowd.cameras.iter().zip(frames).enumerate() {
             // Cameras triggered together; 1 ms apart so every message has its own stamp.
             let t = ns + period * (f as u64 + 1) + 1_000_000 * c as u64;
             let name = &rig.name;
             bag.write(&info_topic(name), t, &camera_info(rig, t))?;
-            bag.write(&image_topic(name), t, &image_message(&frame.rgb, name, t))?;
-            bag.write(&ids_topic(name), t, &ids_message(&frame.ids, name, t))?;
+            let size = frame.rgb.dimensions();
+            let rgb = image_message(name, t, "rgb8", size, 3, frame.rgb.into_raw());
+            bag.write(&image_topic(name), t, &rgb)?;
+            let ids = image_message(name, t, "mono8", size, 1, frame.ids.into_raw());
+            bag.write(&ids_topic(name), t, &ids)?;
             progress(f * options.cameras + c + 1, total);
         }
     }
@@ -364,27 +402,23 @@ pub fn write_crowd_bag(
     Ok(super::SynthSummary { messages, bytes })
 }
 
-fn image_message(rgb: &image::RgbImage, camera: &str, ns: u64) -> Image {
+/// A raw image message of camera `name`'s optical frame: `channels` bytes per pixel.
+fn image_message(
+    name: &str,
+    ns: u64,
+    encoding: &str,
+    (width, height): (u32, u32),
+    channels: u32,
+    data: Vec<u8>,
+) -> Image {
     Image {
-        header: Header::new(Time::from_nanos(ns as i64), optical_frame(camera)),
-        height: rgb.height(),
-        width: rgb.width(),
-        encoding: "rgb8".into(),
+        header: Header::new(Time::from_nanos(ns as i64), optical_frame(name)),
+        height,
+        width,
+        encoding: encoding.into(),
         is_bigendian: 0,
-        step: 3 * rgb.width(),
-        data: rgb.as_raw().clone(),
-    }
-}
-
-fn ids_message(ids: &image::GrayImage, camera: &str, ns: u64) -> Image {
-    Image {
-        header: Header::new(Time::from_nanos(ns as i64), optical_frame(camera)),
-        height: ids.height(),
-        width: ids.width(),
-        encoding: "mono8".into(),
-        is_bigendian: 0,
-        step: ids.width(),
-        data: ids.as_raw().clone(),
+        step: channels * width,
+        data,
     }
 }
 
@@ -410,7 +444,7 @@ mod tests {
     #[test]
     fn people_show_and_paths_cross() {
         let crowd = Crowd::new(&small()).unwrap();
-        let frame = crowd.render_frame(0, 0).unwrap();
+        let frame = &crowd.render_frame(0).unwrap()[0];
         for k in 1..=2u8 {
             let count = frame.ids.pixels().filter(|p| p.0[0] == k).count();
             assert!(count > 50, "person {k} shows in {count} pixels");
@@ -423,7 +457,7 @@ mod tests {
     #[test]
     fn ids_are_in_range() {
         let crowd = Crowd::new(&small()).unwrap();
-        let frame = crowd.render_frame(2, 1).unwrap();
+        let frame = &crowd.render_frame(2).unwrap()[1];
         assert!(frame.ids.pixels().all(|p| p.0[0] <= 2));
         assert!(Crowd::new(&CrowdOptions {
             people: 0,
