@@ -5,6 +5,7 @@
 //! name the key and the file they came from.
 
 mod choices;
+mod people;
 mod table;
 mod validate;
 
@@ -12,6 +13,7 @@ pub use choices::{
     Choice, ComputeDevice, Dtype, FrameQos, ImageQos, LandmarkModelChoice, PersonMask, PoseSource,
     RenderDevice, RendererChoice, UnknownDevice,
 };
+pub use people::{owner, ClusterConfig, TrackingSettings};
 pub use table::{markdown_table, parameters, Parameter};
 
 use serde::{Deserialize, Serialize};
@@ -89,6 +91,10 @@ pub struct NodeConfig {
     pub outputs: OutputConfig,
     /// Bag replay instead of live topics (the demo uses this).
     pub replay: ReplayConfig,
+    /// Several people: persons tracked in the camera images, one avatar each.
+    pub tracking: TrackingSettings,
+    /// Nodes sharing the tracked persons.
+    pub cluster: ClusterConfig,
 }
 
 impl NodeConfig {
@@ -112,7 +118,9 @@ impl NodeConfig {
     /// Whether camera-only perception runs: for masks, or for the pose
     /// (`inputs.pose_source: camera`).
     pub fn runs_perception(&self) -> bool {
-        self.perception_masks() || self.inputs.pose_source == PoseSource::Camera
+        self.perception_masks()
+            || self.inputs.pose_source == PoseSource::Camera
+            || self.tracking.enabled
     }
 }
 
@@ -325,6 +333,8 @@ impl Default for NodeConfig {
             perception: PerceptionConfig::default(),
             outputs: OutputConfig::default(),
             replay: ReplayConfig::default(),
+            tracking: TrackingSettings::default(),
+            cluster: ClusterConfig::default(),
         }
     }
 }

@@ -690,7 +690,7 @@ impl Publisher for Published {
     fn status(&self, msg: ReconstructionStatus) {
         self.statuses.lock().unwrap().push(msg);
     }
-    fn frame(&self, _: usize, _: &RenderedFrame, _: i64) {}
+    fn frame(&self, _: &str, _: usize, _: &RenderedFrame, _: i64) {}
 }
 
 /// Replays `bag` through the node's replay path in this process.

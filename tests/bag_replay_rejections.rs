@@ -123,7 +123,7 @@ impl Publisher for Statuses {
     fn status(&self, msg: ReconstructionStatus) {
         self.0.lock().unwrap().push(msg);
     }
-    fn frame(&self, _: usize, _: &RenderedFrame, _: i64) {}
+    fn frame(&self, _: &str, _: usize, _: &RenderedFrame, _: i64) {}
 }
 
 #[test]

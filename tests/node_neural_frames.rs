@@ -54,7 +54,7 @@ impl Publisher for Captured {
     fn status(&self, msg: ReconstructionStatus) {
         self.0.lock().unwrap().statuses.push(msg);
     }
-    fn frame(&self, _: usize, f: &RenderedFrame, _: i64) {
+    fn frame(&self, _: &str, _: usize, f: &RenderedFrame, _: i64) {
         let o = f.output();
         self.0.lock().unwrap().frames.push(Frame {
             width: f.width(),

@@ -29,7 +29,7 @@ impl Publisher for Captured {
         self.0.lock().unwrap().push(msg);
     }
     fn status(&self, _: ReconstructionStatus) {}
-    fn frame(&self, _: usize, _: &RenderedFrame, _: i64) {}
+    fn frame(&self, _: &str, _: usize, _: &RenderedFrame, _: i64) {}
 }
 
 fn config(shape_topic: &str) -> NodeConfig {

@@ -171,11 +171,11 @@ fn ramp_render(width: u32, height: u32) -> RenderOutput {
 #[test]
 fn node_shm_output_sends_renders_as_their_rgb8_pixels() {
     let person = unique_person("loannode");
-    let outputs = ShmOutputs::new(&person, 2).unwrap();
+    let outputs = ShmOutputs::new(&person, 2, 4).unwrap();
     let node = ShmNode::new(&format!("{person}-sub"), ShmOptions::default()).unwrap();
     let mut subscriber = node.subscriber(&person, &["cam1"]).unwrap();
     let frame = RenderedFrame::new(ramp_render(64, 48));
-    outputs.frame(1, &frame, 42);
+    outputs.frame(&person, 1, &frame, 42);
     let sample = receive(&mut subscriber);
     let decoded = sample.decode().unwrap();
     assert_eq!(decoded.stamp.revision, 42);

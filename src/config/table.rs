@@ -3,9 +3,9 @@
 //! uses. `lhmpp config --markdown` prints it as docs/configuration.md's table (a test keeps them equal).
 
 use super::{
-    Choice, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, InputConfig,
+    Choice, ClusterConfig, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, InputConfig,
     LandmarkModelChoice, ModelConfig, NodeConfig, OutputConfig, PerceptionConfig, PersonMask,
-    PoseSource, RenderDevice, RendererChoice, RATE_RANGE,
+    PoseSource, RenderDevice, RendererChoice, TrackingSettings, RATE_RANGE,
 };
 use crate::model::LhmppConfig;
 use std::fmt::Display;
@@ -355,6 +355,50 @@ pub fn parameters() -> Vec<Parameter> {
             "replay.exit_when_done",
             boolean(),
             "exit after the bag and the last reconstruction",
+        ),
+        p(
+            "tracking.enabled",
+            boolean(),
+            "several people: every frame is split into persons (MoveNet MultiPose, then the \
+             landmark model per person), each tracked person (`person_<n>`) gets its own frame \
+             store, avatar (`person_id` in the message) and frames \
+             (`render/<person_id>/cam<i>/image_raw`); needs `inputs.person_mask` `auto` or \
+             `perception`. Off: one person, `person_id`",
+        ),
+        p(
+            "tracking.forget_after",
+            float_in(&TrackingSettings::FORGET_AFTER),
+            "seconds a tracked person is kept without a sighting (their avatar is kept)",
+        ),
+        p(
+            "tracking.max_persons",
+            int_in(&TrackingSettings::MAX_PERSONS),
+            "persons tracked at once; past it the least recently seen is dropped",
+        ),
+        p(
+            "tracking.min_similarity",
+            float_in(&PerceptionConfig::UNIT),
+            "colour-histogram similarity from which a detection is a person seen in another \
+             camera or before",
+        ),
+        p(
+            "tracking.max_floor_gap",
+            float_in(&TrackingSettings::FLOOR_GAP),
+            "metres: in calibrated cameras (CameraInfo, TF in `outputs.world_frame`, floor at \
+             y = 0), a person another camera saw within 0.3 s is the same person only within \
+             this distance on the floor",
+        ),
+        p(
+            "cluster.members",
+            int_in(&ClusterConfig::MEMBERS),
+            "nodes sharing the tracked persons (same cameras, same config); needs \
+             `tracking.enabled`",
+        ),
+        p(
+            "cluster.index",
+            int(),
+            "this node's index below `cluster.members`: it reconstructs the persons whose id \
+             hashes to it (FNV-1a) and tracks all of them, so ids agree between nodes",
         ),
     ]
 }

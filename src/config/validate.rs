@@ -2,8 +2,9 @@
 //! non-empty names, and settings that depend on each other or on the build.
 
 use super::{
-    ConfigError, FrameStoreConfig, InputConfig, LandmarkModelChoice, ModelConfig, NodeConfig,
-    OutputConfig, PerceptionConfig, RenderDevice, RATE_RANGE,
+    Choice, ClusterConfig, ConfigError, FrameStoreConfig, InputConfig, LandmarkModelChoice,
+    ModelConfig, NodeConfig, OutputConfig, PerceptionConfig, PersonMask, RenderDevice,
+    TrackingSettings, RATE_RANGE,
 };
 use std::fmt::Display;
 use std::ops::RangeInclusive;
@@ -174,6 +175,61 @@ impl NodeConfig {
             ));
         }
         check("replay.rate", rate(self.replay.rate))?;
+        self.validate_people(&bad)
+    }
+
+    /// The `tracking` and `cluster` sections.
+    fn validate_people(
+        &self,
+        bad: &dyn Fn(&str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
+        let check = |key: &str, r: Result<(), String>| r.map_err(|m| bad(key, m));
+        let t = &self.tracking;
+        if !t.forget_after.is_finite() {
+            return Err(bad("tracking.forget_after", "must be finite".into()));
+        }
+        check(
+            "tracking.forget_after",
+            in_range(t.forget_after, &TrackingSettings::FORGET_AFTER),
+        )?;
+        check(
+            "tracking.max_persons",
+            in_range(t.max_persons, &TrackingSettings::MAX_PERSONS),
+        )?;
+        check(
+            "tracking.min_similarity",
+            in_range(t.min_similarity, &PerceptionConfig::UNIT),
+        )?;
+        check(
+            "tracking.max_floor_gap",
+            in_range(t.max_floor_gap, &TrackingSettings::FLOOR_GAP),
+        )?;
+        if t.enabled && matches!(self.inputs.person_mask, PersonMask::Off | PersonMask::Topic) {
+            return Err(bad(
+                "tracking.enabled",
+                format!(
+                    "tracked persons are cut out by perception's masks, but inputs.person_mask                      is `{}`: set it to `auto` or `perception`",
+                    self.inputs.person_mask.as_str()
+                ),
+            ));
+        }
+        let c = &self.cluster;
+        check(
+            "cluster.members",
+            in_range(c.members, &ClusterConfig::MEMBERS),
+        )?;
+        if c.index >= c.members {
+            return Err(bad(
+                "cluster.index",
+                format!("{} is not below cluster.members ({})", c.index, c.members),
+            ));
+        }
+        if c.members > 1 && !t.enabled {
+            return Err(bad(
+                "cluster.members",
+                "nodes share tracked persons: set tracking.enabled to true".into(),
+            ));
+        }
         Ok(())
     }
 }

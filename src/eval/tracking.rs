@@ -19,7 +19,7 @@ use crate::reconstruct::image_decode::{decode_mask, decode_raw, RawImage};
 use crate::splat::Camera;
 use crate::synth::capture::TF_STATIC_TOPIC;
 use crate::synth::crowd::ids_topic;
-use crate::tracking::{Appearance, Assignment, BoxPx, Detection, PersonTracks};
+use crate::tracking::{Assignment, BoxPx, Detection, FloorCamera, PersonTracks};
 use glam::{Affine3A, Quat, Vec3};
 use image::{GrayImage, RgbImage};
 use std::collections::BTreeMap;
@@ -66,27 +66,21 @@ pub struct CrowdImage {
 /// where it stands when the camera is calibrated.
 pub fn detection(image: &RgbImage, person: &FoundPerson, camera: Option<&Camera>) -> Detection {
     let bbox = BoxPx::new(person.min.to_array(), person.max.to_array());
-    Detection {
-        bbox,
-        appearance: Appearance::from_masked(image, &person.mask, Some(bbox)),
-        floor: camera.and_then(|c| floor_point(c, &bbox)),
+    Detection::seen(image, &person.mask, bbox, camera.map(floor_camera).as_ref())
+}
+
+/// A rendering camera as the tracker's floor position needs it.
+pub fn floor_camera(camera: &Camera) -> FloorCamera {
+    let i = &camera.intrinsics;
+    FloorCamera {
+        intrinsics: [i.fx, i.fy, i.cx, i.cy],
+        world_from_camera: camera.world_from_camera,
     }
 }
 
-/// Where a person whose box is `bbox` stands: the bottom centre of the box cast onto the floor
-/// (the world's `y = 0` plane, +Y up), as (x, z); `None` when the ray misses the floor.
+/// Where a person whose box is `bbox` stands (see [`crate::tracking::floor_point`]).
 pub fn floor_point(camera: &Camera, bbox: &BoxPx) -> Option<[f32; 2]> {
-    let i = &camera.intrinsics;
-    let (u, v) = (0.5 * (bbox.min[0] + bbox.max[0]), bbox.max[1]);
-    let dir_cam = Vec3::new((u - i.cx) / i.fx, (v - i.cy) / i.fy, 1.0);
-    let origin = Vec3::from(camera.world_from_camera.translation);
-    let dir = camera.world_from_camera.transform_vector3(dir_cam);
-    if dir.y >= -1e-6 {
-        return None;
-    }
-    let t = -origin.y / dir.y;
-    let hit = origin + dir * t;
-    (t > 0.0).then_some([hit.x, hit.z])
+    crate::tracking::floor_point(&floor_camera(camera), bbox)
 }
 
 /// The camera images of a crowd bag, in bag order (time order), each with its id map.

@@ -137,7 +137,11 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         publishers.push(Box::new(RosPublisher(node.clone())));
     }
     if config.outputs.shm {
-        let shm = ShmOutputs::new(&config.person_id, config.outputs.virtual_cameras)?;
+        let shm = ShmOutputs::new(
+            &config.person_id,
+            config.outputs.virtual_cameras,
+            2 * config.tracking.max_persons,
+        )?;
         tracing::info!(services = ?shm.services(), "shared-memory outputs up");
         publishers.push(Box::new(shm));
     }

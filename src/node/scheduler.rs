@@ -131,7 +131,8 @@ impl Scheduler {
         p.last_change = now;
     }
 
-    /// Jobs to start at `now` (each person at most one, none while one is in flight).
+    /// Jobs to start at `now` (each person at most one, none while one is in flight), the
+    /// person whose view set changed longest ago first.
     pub fn poll(&mut self, now: Duration) -> Vec<Job> {
         let cfg = self.cfg.clone();
         let mut jobs = Vec::new();
@@ -156,9 +157,21 @@ impl Scheduler {
                 started: now,
             };
             p.in_flight = Some(job.clone());
-            jobs.push(job);
+            jobs.push((p.first_change, job));
         }
-        jobs
+        jobs.sort_by_key(|(first_change, _)| *first_change);
+        jobs.into_iter().map(|(_, job)| job).collect()
+    }
+
+    /// Forgets `person` (no longer tracked): a pending change is dropped; returns whether the
+    /// person was known.
+    pub fn forget(&mut self, person: &str) -> bool {
+        self.persons.remove(person).is_some()
+    }
+
+    /// Whether a job is in flight for anyone.
+    pub fn busy(&self) -> bool {
+        self.persons.values().any(|p| p.in_flight.is_some())
     }
 
     /// Earliest clock value at which [`poll`](Self::poll) may start a job, if any is pending.

@@ -348,6 +348,38 @@ impl Reconstructor {
         Ok(true)
     }
 
+    /// Uses `shape` from the next reconstruction on, or the template as shipped for `None`
+    /// (one network serving several people switches between their shapes); returns whether
+    /// anything changed.
+    pub fn use_shape(&mut self, shape: Option<AcceptedShape>) -> Result<bool, ReconstructError> {
+        match shape {
+            Some(shape) => self.set_shape(shape),
+            None if self.shape.is_none() => Ok(false),
+            None => {
+                if let Some(base) = &self.base_template {
+                    let anchors = base.sample_anchors(self.num_points, self.seed);
+                    let (p, n) = anchor_tensors(
+                        &anchors.positions,
+                        &anchors.normals,
+                        self.anchor_positions.dtype(),
+                        &self.device,
+                    )?;
+                    self.anchor_positions = p;
+                    self.anchor_normals = n;
+                    self.skin = anchors.skin;
+                    self.template = base.clone();
+                }
+                self.shape = None;
+                Ok(true)
+            }
+        }
+    }
+
+    /// The shape given by [`Self::set_shape`] or [`Self::use_shape`] (not the predicted one).
+    pub fn given_shape(&self) -> Option<&AcceptedShape> {
+        self.shape.as_ref()
+    }
+
     /// Anchor positions in the canonical frame (metres), as the network receives them.
     pub fn anchor_positions(&self) -> Result<Vec<Vec3>, ReconstructError> {
         let rows = self

@@ -19,9 +19,11 @@
 
 mod appearance;
 mod boxes;
+mod floor;
 
 pub use appearance::Appearance;
 pub use boxes::BoxPx;
+pub use floor::{floor_point, FloorCamera};
 
 use std::collections::BTreeMap;
 
@@ -67,6 +69,23 @@ pub struct Detection {
     /// Where it stands on the floor (world metres, two ground-plane coordinates), when the
     /// caller's camera is calibrated.
     pub floor: Option<[f32; 2]>,
+}
+
+impl Detection {
+    /// A person found in `image` under `mask` inside `bbox`: its colours measured under the
+    /// mask, and where it stands when `camera` is calibrated.
+    pub fn seen(
+        image: &image::RgbImage,
+        mask: &image::GrayImage,
+        bbox: BoxPx,
+        camera: Option<&FloorCamera>,
+    ) -> Self {
+        Self {
+            bbox,
+            appearance: Appearance::from_masked(image, mask, Some(bbox)),
+            floor: camera.and_then(|c| floor_point(c, &bbox)),
+        }
+    }
 }
 
 /// How a detection was given its id.

@@ -118,7 +118,7 @@ impl Publisher for FileOutputs {
         }
     }
     fn status(&self, _msg: ReconstructionStatus) {}
-    fn frame(&self, _camera: usize, _frame: &RenderedFrame, _stamp_ns: i64) {}
+    fn frame(&self, _: &str, _camera: usize, _frame: &RenderedFrame, _stamp_ns: i64) {}
     fn live(&self) -> bool {
         false
     }

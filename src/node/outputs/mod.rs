@@ -72,8 +72,8 @@ pub trait Publisher {
     fn avatar(&self, update: &AvatarUpdate<'_>);
     /// Publishes the reconstruction status.
     fn status(&self, msg: ReconstructionStatus);
-    /// Publishes a rendered frame of virtual camera `camera`.
-    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64);
+    /// Publishes a rendered frame of `person`'s avatar from virtual camera `camera`.
+    fn frame(&self, person: &str, camera: usize, frame: &RenderedFrame, stamp_ns: i64);
     /// Publishes the avatar preview: the Gaussians posed at the latest BodyPose.
     fn preview(&self, _posed: &Gaussians, _stamp_ns: i64) {}
     /// Publishes the person mask perception made of a frame of camera `camera` (resolved
@@ -122,8 +122,10 @@ impl Publisher for Fanout {
     fn status(&self, msg: ReconstructionStatus) {
         self.0.iter().for_each(|p| p.status(msg.clone()));
     }
-    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
-        self.0.iter().for_each(|p| p.frame(camera, frame, stamp_ns));
+    fn frame(&self, person: &str, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
+        self.0
+            .iter()
+            .for_each(|p| p.frame(person, camera, frame, stamp_ns));
     }
     fn preview(&self, posed: &Gaussians, stamp_ns: i64) {
         self.0.iter().for_each(|p| p.preview(posed, stamp_ns));
@@ -170,7 +172,7 @@ mod tests {
     impl Publisher for Live {
         fn avatar(&self, _update: &AvatarUpdate<'_>) {}
         fn status(&self, _msg: ReconstructionStatus) {}
-        fn frame(&self, _camera: usize, _frame: &RenderedFrame, _stamp_ns: i64) {}
+        fn frame(&self, _: &str, _camera: usize, _frame: &RenderedFrame, _stamp_ns: i64) {}
     }
 
     #[test]

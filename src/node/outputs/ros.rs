@@ -32,13 +32,13 @@ impl Publisher for RosPublisher {
             tracing::warn!("{e}");
         }
     }
-    fn frame(&self, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
+    fn frame(&self, person: &str, camera: usize, frame: &RenderedFrame, stamp_ns: i64) {
         let msg = frame_message(
             frame.rgb8(),
             stamp_ns,
             &format!("lhmpp_virtual_cam{camera}"),
         );
-        if let Err(e) = self.0.publish_frame(camera, msg) {
+        if let Err(e) = self.0.publish_person_frame(person, camera, msg) {
             tracing::warn!("{e}");
         }
     }

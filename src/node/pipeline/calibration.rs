@@ -8,6 +8,7 @@ use crate::node::inputs::CameraFrame;
 use crate::node::tf_buffer::TfBuffer;
 use crate::perception::shape::{CalibratedView, ShapeReader};
 use crate::perception::{Landmark, BODY_LANDMARKS};
+use crate::tracking::FloorCamera;
 use std::collections::{BTreeMap, HashMap};
 
 /// Views whose stamps are this close to the newest one are triangulated together.
@@ -27,6 +28,11 @@ pub struct Calibration {
     world_frame: String,
     reader: Option<ShapeReader>,
     min_visibility: f32,
+}
+
+/// One person's body height as read from calibrated views.
+#[derive(Debug, Clone, Default)]
+pub struct HeightReading {
     /// Newest calibrated view of each camera, with its stamp.
     views: BTreeMap<String, (i64, CalibratedView)>,
     /// Running average of the height estimates, and how many went in.
@@ -46,9 +52,6 @@ impl Calibration {
             world_frame: world_frame.to_owned(),
             reader,
             min_visibility,
-            views: BTreeMap::new(),
-            average: None,
-            applied: None,
         }
     }
 
@@ -80,11 +83,23 @@ impl Calibration {
         self.reader.is_some()
     }
 
-    /// The person's image landmarks in `frame`: kept as that camera's newest view when the
-    /// camera is calibrated; returns a new height when the averaged estimate moved by more than
-    /// 1 % from the one last returned.
+    /// `frame`'s camera as the person tracker needs it, when it is calibrated (CameraInfo and
+    /// its optical frame in the world frame).
+    pub fn floor_camera(&self, frame: &CameraFrame) -> Option<FloorCamera> {
+        let intrinsics = *self.intrinsics.get(&frame.topic)?;
+        let world_from_camera = self.tf.lookup(&self.world_frame, &frame.frame_id)?;
+        Some(FloorCamera {
+            intrinsics,
+            world_from_camera,
+        })
+    }
+
+    /// A person's image landmarks in `frame`: kept in `reading` as that camera's newest view
+    /// when the camera is calibrated; returns a new height when the person's averaged estimate
+    /// moved by more than 1 % from the one last returned.
     pub fn landmarks(
-        &mut self,
+        &self,
+        reading: &mut HeightReading,
         frame: &CameraFrame,
         landmarks: &[Landmark; BODY_LANDMARKS],
     ) -> Option<f32> {
@@ -99,10 +114,11 @@ impl Calibration {
             world_from_camera,
             landmarks: *landmarks,
         };
-        self.views
+        reading
+            .views
             .insert(frame.topic.clone(), (frame.stamp_ns, view));
-        let newest = self.views.values().map(|(t, _)| *t).max()?;
-        let synced: Vec<CalibratedView> = self
+        let newest = reading.views.values().map(|(t, _)| *t).max()?;
+        let synced: Vec<CalibratedView> = reading
             .views
             .values()
             .filter(|(t, _)| newest - *t <= SYNC_WINDOW_NS)
@@ -110,15 +126,15 @@ impl Calibration {
             .collect();
         let estimate = reader.estimate(&synced, self.min_visibility)?;
         let h = estimate.shape.height_scale;
-        let (mean, n) = self.average.unwrap_or((h, 0.0));
+        let (mean, n) = reading.average.unwrap_or((h, 0.0));
         let n = n + 1.0;
         let mean = mean + (h - mean) / n.min(AVERAGE_OVER);
-        self.average = Some((mean, n));
-        let moved = self
+        reading.average = Some((mean, n));
+        let moved = reading
             .applied
             .is_none_or(|applied| (mean / applied - 1.0).abs() > REAPPLY);
         if moved {
-            self.applied = Some(mean);
+            reading.applied = Some(mean);
             Some(mean)
         } else {
             None

@@ -8,11 +8,12 @@ pub mod calibration;
 pub mod masks;
 pub mod neural_frames;
 pub mod perceive;
+mod person;
 pub mod render;
 
 use crate::avatar::Avatar;
 use crate::body::Pose;
-use crate::config::{LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
+use crate::config::{ClusterConfig, LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
 use crate::msgs::{BodyPose, BodyShape, Header, ReconstructionStatus, Time};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::inputs::{CameraFrame, InputEvent};
@@ -22,6 +23,7 @@ use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::node::timings::Timings;
 use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig};
 use crate::perception::shape::ShapeReader;
+use crate::perception::PeopleConfig;
 use crate::perception::{
     Landmark, LandmarkModel, PerceptionError, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
 };
@@ -32,13 +34,14 @@ use calibration::Calibration;
 use image::GrayImage;
 use masks::{MaskPairing, Paired};
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
-use perceive::{MaskSettings, PerceivedFrame, Perception};
+use perceive::{Finders, MaskSettings, PerceivedFrame, Perception};
+use person::{Animation, CameraPose, Current, PersonState};
 pub use render::RenderedFrame;
 use render::{
     display_pose, render_frames, FrameRasterizer, FrameRasterizerError, FrameRenderer,
     VirtualCameras,
 };
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
@@ -55,9 +58,6 @@ const LATENCIES_KEPT: usize = 256;
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
 /// How often the pipeline looks for perception results while perception is busy.
 const PERCEPTION_POLL: Duration = Duration::from_millis(5);
-/// With `inputs.pose_source: auto`, a pose topic counts as published for this long after its
-/// last message.
-const TOPIC_POSE_FRESH: Duration = Duration::from_secs(2);
 /// The camera whose pose drives the avatar keeps that role while it saw the person this
 /// recently.
 const POSE_CAMERA_HOLD: Duration = Duration::from_millis(500);
@@ -114,12 +114,10 @@ pub struct PipelineStats {
     pub perception_times: Timings,
     /// Poses read from the cameras.
     pub camera_poses: u64,
-}
-
-/// The latest avatar and what it was built from.
-struct Current {
-    revision: u64,
-    avatar: Avatar,
+    /// Persons the pipeline started following (1 without tracking once a frame arrived).
+    pub persons_started: u64,
+    /// Tracked persons let go (the tracker forgot or dropped them), with their views.
+    pub persons_released: u64,
 }
 
 /// Where a camera's frames get their person mask.
@@ -133,54 +131,24 @@ enum MaskRoute {
     Whole,
 }
 
-/// The pose read from the cameras, and where and when.
-struct CameraPose {
-    pose: Pose,
-    camera: String,
-    at: Duration,
-}
-
-/// What drives the avatar and where its pose comes from.
-struct Animation {
+/// How a person's animation is set up when the person is first seen.
+struct AnimationSetup {
     source: PoseSource,
-    /// The latest pose from the pose topic.
-    topic_pose: Option<Pose>,
-    /// When the last one arrived (node clock).
-    topic_pose_at: Option<Duration>,
-    /// Turns the pose camera's world landmarks into poses (`None`: no camera pose).
+    /// A fresh pose estimator (`None`: no camera pose), cloned for each person.
     estimator: Option<PoseEstimator>,
-    camera_pose: Option<CameraPose>,
-    /// Recent camera poses, for the end-of-replay animation.
-    track: VecDeque<Pose>,
     /// Publish camera poses on the pose topic, in this world frame.
     publish: Option<String>,
 }
 
-impl Animation {
-    /// The pose the frames show at `now` (`None`: the walk cycle).
-    fn pose(&self, now: Duration) -> Option<&Pose> {
-        let camera = self.camera_pose.as_ref().map(|c| &c.pose);
-        match self.source {
-            PoseSource::Walk => None,
-            PoseSource::Topic => self.topic_pose.as_ref(),
-            PoseSource::Camera => camera,
-            PoseSource::Auto => {
-                let fresh = self
-                    .topic_pose_at
-                    .is_some_and(|at| now.saturating_sub(at) < TOPIC_POSE_FRESH);
-                if fresh {
-                    self.topic_pose.as_ref()
-                } else {
-                    camera.or(self.topic_pose.as_ref())
-                }
-            }
-        }
-    }
-}
-
-/// The node's pipeline for one configured person.
+/// The node's pipeline: the configured person, or (`tracking.enabled`) every tracked person,
+/// each with its own frame store entry, schedule, avatar and frames.
 pub struct Pipeline {
-    person: String,
+    /// The configured `person_id` (the one person without tracking).
+    default_person: String,
+    /// Persons come from the tracker (`tracking.enabled`).
+    tracking: bool,
+    cluster: ClusterConfig,
+    persons: BTreeMap<String, PersonState>,
     recon: Reconstructor,
     store: FrameStore,
     scheduler: Scheduler,
@@ -194,14 +162,10 @@ pub struct Pipeline {
     /// When the pipeline next looks for perception results.
     perception_due: Duration,
     publish_masks: bool,
-    animation: Animation,
-    /// Camera calibration, and the body height read from calibrated views.
+    animation: AnimationSetup,
+    /// Camera calibration (and the shape reader).
     calibration: Calibration,
-    /// Whether the shape topic has given the body shape (it then wins over the views).
-    shape_from_topic: bool,
     next_frame_id: u64,
-    shape_changes: u64,
-    current: Option<Current>,
     /// Where results go: the files first, then the live publishers.
     outputs: Fanout,
     cameras: VirtualCameras,
@@ -219,8 +183,6 @@ pub struct Pipeline {
     stats: PipelineStats,
     /// Rejections counted by the live subscriptions, as last reported.
     input_rejections: Rejections,
-    /// The last status published, republished with new counts when only they change.
-    last_status: Option<ReconstructionStatus>,
     /// When rejections may next republish the status (node clock).
     status_refresh_due: Duration,
 }
@@ -251,7 +213,13 @@ impl Pipeline {
         config: &NodeConfig,
         publisher: Option<Box<dyn Publisher>>,
     ) -> Result<Self, PipelineError> {
-        let recon = Reconstructor::new(&config.model, config.frame_store.max_views)?;
+        // The token cache holds every person's views.
+        let people = if config.tracking.enabled {
+            config.tracking.max_persons
+        } else {
+            1
+        };
+        let recon = Reconstructor::new(&config.model, config.frame_store.max_views * people)?;
         let (h, w) = recon.input_size();
         let rgb = recon.rgb_kind();
         // An unusable output directory costs the files only: the ROS 2 and shared-memory
@@ -345,7 +313,10 @@ impl Pipeline {
             "reconstruction network ready"
         );
         Ok(Self {
-            person: config.person_id.clone(),
+            default_person: config.person_id.clone(),
+            tracking: config.tracking.enabled,
+            cluster: config.cluster.clone(),
+            persons: BTreeMap::new(),
             recon,
             store: FrameStore::new((&config.frame_store).into()),
             scheduler: Scheduler::new(SchedulerConfig::from_debounce_ms(
@@ -362,23 +333,16 @@ impl Pipeline {
             perception,
             perception_due: Duration::ZERO,
             publish_masks: config.outputs.masks,
-            animation: Animation {
+            animation: AnimationSetup {
                 source: config.inputs.pose_source,
-                topic_pose: None,
-                topic_pose_at: None,
                 estimator,
-                camera_pose: None,
-                track: VecDeque::new(),
                 publish: config
                     .outputs
                     .camera_pose
                     .then(|| config.outputs.world_frame.clone()),
             },
             calibration,
-            shape_from_topic: false,
             next_frame_id: 1,
-            shape_changes: 0,
-            current: None,
             outputs,
             cameras,
             frames: FrameRenderer::new(rasterizer, neural),
@@ -393,7 +357,6 @@ impl Pipeline {
             neural_renderer_id,
             stats: PipelineStats::default(),
             input_rejections: Rejections::default(),
-            last_status: None,
             status_refresh_due: Duration::ZERO,
         })
     }
@@ -434,19 +397,47 @@ impl Pipeline {
         self.stats.rejections.merged(&self.input_rejections)
     }
 
-    /// Views currently held for the person.
+    /// Views currently held for the configured person (without tracking).
     pub fn views_held(&self) -> usize {
-        self.store.len(&self.person)
+        self.store.len(&self.default_person)
     }
 
-    /// Latest avatar revision (0 before the first).
+    /// Latest avatar revision of the configured person (0 before the first).
     pub fn revision(&self) -> u64 {
-        self.current.as_ref().map_or(0, |c| c.revision)
+        self.revision_of(&self.default_person)
     }
 
-    /// The latest avatar.
+    /// The configured person's latest avatar.
     pub fn avatar(&self) -> Option<&Avatar> {
-        self.current.as_ref().map(|c| &c.avatar)
+        self.avatar_of(&self.default_person)
+    }
+
+    /// The persons followed now (the configured one without tracking, once seen), by id.
+    pub fn persons(&self) -> Vec<String> {
+        self.persons.keys().cloned().collect()
+    }
+
+    /// Whether this node reconstructs `person` (`cluster`); the others are only tracked.
+    pub fn reconstructs(&self, person: &str) -> bool {
+        self.persons.get(person).is_some_and(|p| p.owned)
+    }
+
+    /// Views held for `person`.
+    pub fn views_held_by(&self, person: &str) -> usize {
+        self.store.len(person)
+    }
+
+    /// `person`'s latest avatar revision (0 before the first).
+    pub fn revision_of(&self, person: &str) -> u64 {
+        self.persons.get(person).map_or(0, PersonState::revision)
+    }
+
+    /// `person`'s latest avatar.
+    pub fn avatar_of(&self, person: &str) -> Option<&Avatar> {
+        self.persons
+            .get(person)
+            .and_then(|p| p.current.as_ref())
+            .map(|c| &c.avatar)
     }
 
     /// Views the network has encoded (each held view once, thanks to the token cache).
@@ -472,14 +463,14 @@ impl Pipeline {
         !self.perception.as_ref().is_some_and(Perception::busy)
             && self.masks.waiting() == 0
             && self.scheduler.next_deadline().is_none()
-            && self.scheduler.in_flight(&self.person).is_none()
+            && !self.scheduler.busy()
     }
 
     /// When the next scheduled work is due (reconstruction debounce or frame rendering).
     pub fn next_deadline(&self) -> Option<Duration> {
         let render = self
             .render_period
-            .filter(|_| self.current.is_some() && self.outputs.live())
+            .filter(|_| self.any_avatar() && self.outputs.live())
             .map(|_| self.next_render);
         let perception = self
             .perception
@@ -524,21 +515,49 @@ impl Pipeline {
                 topic,
                 pose,
                 arrival,
-            } => match pose.to_pose() {
-                Ok(p) => match self.recon.template().skeleton.check_pose(&p) {
-                    Ok(()) => {
-                        self.animation.topic_pose = Some(p);
-                        self.animation.topic_pose_at = Some(arrival);
-                    }
-                    Err(e) => self.reject_pose(&topic, &e.to_string()),
-                },
-                Err(e) => self.reject_pose(&topic, &e.to_string()),
-            },
+            } => self.on_topic_pose(&topic, &pose, arrival),
             InputEvent::BodyShape {
                 topic,
                 arrival,
                 shape,
             } => self.on_shape(&topic, &shape, arrival, now),
+        }
+    }
+
+    /// The person a pose or shape message is for: its `person_id`, or the configured person
+    /// when it has none and nobody is tracked; `None` when no followed person has that id.
+    fn addressee(&self, person_id: &str) -> Option<String> {
+        match (person_id.is_empty(), self.tracking) {
+            (true, false) => Some(self.default_person.clone()),
+            (true, true) => None,
+            (false, false) => (person_id == self.default_person).then(|| person_id.to_owned()),
+            (false, true) => self
+                .persons
+                .contains_key(person_id)
+                .then(|| person_id.to_owned()),
+        }
+    }
+
+    fn on_topic_pose(&mut self, topic: &str, msg: &BodyPose, arrival: Duration) {
+        let Some(person) = self.addressee(&msg.person_id) else {
+            tracing::debug!(%topic, "body pose for person `{}` ignored (not followed here)", msg.person_id);
+            return;
+        };
+        let checked = msg.to_pose().map_err(|e| e.to_string()).and_then(|p| {
+            self.recon
+                .template()
+                .skeleton
+                .check_pose(&p)
+                .map(|()| p)
+                .map_err(|e| e.to_string())
+        });
+        match checked {
+            Ok(p) => {
+                let state = self.person_mut(&person);
+                state.animation.topic_pose = Some(p);
+                state.animation.topic_pose_at = Some(arrival);
+            }
+            Err(e) => self.reject_pose(topic, &e),
         }
     }
 
@@ -557,22 +576,63 @@ impl Pipeline {
         self.recon.anchor_positions()
     }
 
-    /// Version of everything a reconstruction depends on: grows with every view-set change and
-    /// every body-shape change.
-    fn input_version(&self) -> u64 {
-        self.store.version(&self.person) + self.shape_changes
+    /// Version of everything `person`'s reconstruction depends on: grows with every view-set
+    /// change and every body-shape change.
+    fn input_version(&self, person: &str) -> u64 {
+        self.store.version(person) + self.persons.get(person).map_or(0, |p| p.shape_changes)
     }
 
+    /// `person`'s state, made when first seen: with tracking, this node reconstructs them
+    /// when `cluster` gives them to it.
+    fn person_mut(&mut self, person: &str) -> &mut PersonState {
+        if !self.persons.contains_key(person) {
+            let owned = !self.tracking || self.cluster.owns(person);
+            let animation = Animation::new(self.animation.source, self.animation.estimator.clone());
+            self.stats.persons_started += 1;
+            if self.tracking {
+                tracing::info!(person, reconstructed_here = owned, "tracking a new person");
+            }
+            self.persons
+                .insert(person.to_owned(), PersonState::new(animation, owned));
+        }
+        self.persons.get_mut(person).expect("inserted above")
+    }
+
+    /// Lets go of tracked persons the tracker no longer holds: their views, schedule and
+    /// avatar (their avatar was published; it is no longer rendered).
+    fn release_untracked(&mut self, tracked: &[String]) {
+        let gone: Vec<String> = self
+            .persons
+            .keys()
+            .filter(|p| !tracked.contains(p))
+            .cloned()
+            .collect();
+        for person in gone {
+            self.persons.remove(&person);
+            self.scheduler.forget(&person);
+            if let Some(set) = self.store.snapshot(&person) {
+                for v in &set.views {
+                    self.recon.forget(v.frame_id);
+                }
+            }
+            self.store.remove_person(&person);
+            self.stats.persons_released += 1;
+            tracing::info!(person, "person no longer tracked: released");
+        }
+    }
+
+    /// A body shape from the shape topic for the person it names: checked against the
+    /// network's body model, then used for that person's reconstructions (it wins over the
+    /// height read from the views).
     fn on_shape(&mut self, topic: &str, msg: &BodyShape, arrival: Duration, now: Duration) {
-        if !msg.person_id.is_empty() && msg.person_id != self.person {
+        let Some(person) = self.addressee(&msg.person_id) else {
             tracing::debug!(
                 %topic,
-                "body shape for person `{}` ignored (this node reconstructs `{}`)",
-                msg.person_id,
-                self.person
+                "body shape for person `{}` ignored (not followed here)",
+                msg.person_id
             );
             return;
-        }
+        };
         let accepted = match shape::check_shape(topic, msg, self.recon.body_model()) {
             Ok(s) => s,
             Err(e) => {
@@ -582,34 +642,51 @@ impl Pipeline {
                 return;
             }
         };
-        match self.recon.set_shape(accepted) {
-            Ok(false) => {}
-            Ok(true) => {
-                self.shape_from_topic = true;
-                self.stats.shapes_applied += 1;
-                self.shape_changes += 1;
-                tracing::info!(
-                    %topic,
-                    person = %self.person,
-                    shape_params = ?self.shape_params(),
-                    "body shape applied"
-                );
-                if self.views_held() > 0 {
-                    let version = self.input_version();
-                    self.scheduler
-                        .view_set_changed(&self.person, version, arrival, now);
-                }
-            }
-            Err(e) => {
-                self.stats.shapes_rejected += 1;
-                self.stats.rejections.add(RejectReason::Shape);
-                tracing::warn!(%topic, "body shape rejected: {e}");
-            }
+        // Applying it checks that it fits the body; the person's reconstruction applies it
+        // again (the network serves every person).
+        if let Err(e) = self.recon.use_shape(Some(accepted.clone())) {
+            self.stats.shapes_rejected += 1;
+            self.stats.rejections.add(RejectReason::Shape);
+            tracing::warn!(%topic, "body shape rejected: {e}");
+            return;
+        }
+        self.person_mut(&person).shape_from_topic = true;
+        self.apply_shape(&person, accepted, arrival, now);
+        tracing::debug!(%topic, person, "body shape from the shape topic");
+    }
+
+    /// Uses `shape` for `person` from their next reconstruction on; a change reruns it.
+    fn apply_shape(
+        &mut self,
+        person: &str,
+        shape: AcceptedShape,
+        arrival: Duration,
+        now: Duration,
+    ) {
+        let state = self.person_mut(person);
+        if state.shape.as_ref() == Some(&shape) {
+            return;
+        }
+        state.shape = Some(shape);
+        state.shape_changes += 1;
+        self.stats.shapes_applied += 1;
+        tracing::info!(
+            person,
+            shape_params = ?self.persons[person].shape.as_ref().map(AcceptedShape::params),
+            "body shape applied"
+        );
+        if self.store.len(person) > 0 {
+            let version = self.input_version(person);
+            self.scheduler
+                .view_set_changed(person, version, arrival, now);
         }
     }
 
     /// Where frames of camera `topic` get their mask.
     fn route(&self, topic: &str) -> MaskRoute {
+        if self.tracking {
+            return MaskRoute::Perception;
+        }
         match self.person_mask {
             PersonMask::Off => MaskRoute::Whole,
             PersonMask::Topic => MaskRoute::Topic,
@@ -625,18 +702,26 @@ impl Pipeline {
     /// `inputs.pose_source: camera` every frame also goes to perception for the pose.
     fn on_camera_frame(&mut self, frame: CameraFrame, now: Duration) {
         let route = self.route(&frame.topic);
+        let camera = self
+            .tracking
+            .then(|| self.calibration.floor_camera(&frame))
+            .flatten();
         match (route, self.perception.as_mut()) {
-            (MaskRoute::Perception, Some(perception)) => perception.submit(frame),
-            (MaskRoute::Perception, None) => self.on_frame(frame, None, now),
+            (MaskRoute::Perception, Some(perception)) => perception.submit(frame, camera),
+            (MaskRoute::Perception, None) => {
+                let person = self.default_person.clone();
+                self.on_frame(frame, None, &person, now)
+            }
             (MaskRoute::Topic | MaskRoute::Whole, perception) => {
                 if let (PoseSource::Camera, Some(p)) = (self.animation.source, perception) {
-                    p.submit(frame.clone());
+                    p.submit(frame.clone(), camera);
                 }
                 if route == MaskRoute::Topic {
                     let ready = self.masks.frame(frame, now);
                     self.admit(ready, now);
                 } else {
-                    self.on_frame(frame, None, now);
+                    let person = self.default_person.clone();
+                    self.on_frame(frame, None, &person, now);
                 }
             }
         }
@@ -653,60 +738,67 @@ impl Pipeline {
         self.perception_due = now + PERCEPTION_POLL;
     }
 
-    /// A perceived frame: its mask is published, the person's landmarks update the camera
-    /// pose, and frames routed to perception go on to the frame store cropped by the mask (or,
-    /// with nobody in them, no further).
+    /// A perceived frame: the persons' masks are published (together, one camera mask), each
+    /// person's landmarks update their camera pose and body height, and frames routed to
+    /// perception go on to each person's frame store cropped by their mask (or, with nobody in
+    /// them, no further).
     fn on_perceived(&mut self, done: PerceivedFrame, now: Duration) {
         let PerceivedFrame {
             frame,
-            person,
+            people,
+            tracked,
             took,
         } = done;
         self.stats.perceived += 1;
         self.stats.perception_times.record(took);
         if self.publish_masks && self.outputs.live() {
-            let empty;
-            let mask = match &person {
-                Some(p) => p.mask.as_ref(),
-                None => {
-                    empty = GrayImage::new(frame.image.width(), frame.image.height());
-                    &empty
-                }
-            };
+            let mask = union_mask(&people, frame.image.width(), frame.image.height());
             self.outputs
-                .mask(&frame.topic, mask, frame.stamp_ns, &frame.frame_id);
+                .mask(&frame.topic, &mask, frame.stamp_ns, &frame.frame_id);
         }
-        if let Some(p) = &person {
-            self.on_camera_landmarks(&frame, &p.world, now);
-            if let Some(height) = self.calibration.landmarks(&frame, &p.image) {
-                self.on_height_from_views(height, frame.arrival, now);
+        if self.tracking {
+            self.release_untracked(&tracked);
+        }
+        let to_store = self.route(&frame.topic) == MaskRoute::Perception;
+        if people.is_empty() && to_store {
+            self.stats.no_person += 1;
+            tracing::debug!(topic = %frame.topic, "no person in the frame: not stored");
+        }
+        for seen in people {
+            let person = seen.id.unwrap_or_else(|| self.default_person.clone());
+            if !self.person_mut(&person).owned {
+                continue;
             }
-        }
-        if self.route(&frame.topic) != MaskRoute::Perception {
-            return;
-        }
-        match person {
-            Some(p) => {
+            self.on_camera_landmarks(&person, &frame, &seen.world, now);
+            let state = self.persons.get_mut(&person).expect("made above");
+            if let Some(height) =
+                self.calibration
+                    .landmarks(&mut state.heights, &frame, &seen.image)
+            {
+                self.on_height_from_views(&person, height, frame.arrival, now);
+            }
+            if to_store {
                 self.stats.perception_masked += 1;
-                self.on_frame(frame, Some(p.mask), now);
-            }
-            None => {
-                self.stats.no_person += 1;
-                tracing::debug!(topic = %frame.topic, "no person in the frame: not stored");
+                self.on_frame(frame.clone(), Some(seen.mask), &person, now);
             }
         }
     }
 
-    /// Updates the camera pose from `camera`'s world landmarks when that camera drives the
-    /// pose (the current pose camera, or any camera once it has not seen the person for
+    /// Updates `person`'s camera pose from `camera`'s world landmarks when that camera drives
+    /// the pose (the current pose camera, or any camera once it has not seen the person for
     /// [`POSE_CAMERA_HOLD`]), and publishes it.
     fn on_camera_landmarks(
         &mut self,
+        person: &str,
         frame: &CameraFrame,
         world: &[Landmark; BODY_LANDMARKS],
         now: Duration,
     ) {
-        let animation = &mut self.animation;
+        let publish = self.animation.publish.clone();
+        let Some(state) = self.persons.get_mut(person) else {
+            return;
+        };
+        let animation = &mut state.animation;
         let Some(estimator) = animation.estimator.as_mut() else {
             return;
         };
@@ -725,10 +817,10 @@ impl Pipeline {
         };
         let pose = estimator.update(t, world);
         self.stats.camera_poses += 1;
-        if let (Some(world_frame), true) = (&animation.publish, self.outputs.live()) {
+        if let (Some(world_frame), true) = (&publish, self.outputs.live()) {
             let header = Header::new(Time::from_nanos(frame.stamp_ns), world_frame.as_str());
             self.outputs
-                .pose(&BodyPose::from_pose(header, self.person.clone(), &pose));
+                .pose(&BodyPose::from_pose(header, person.to_owned(), &pose));
         }
         animation.track.push_back(pose.clone());
         while animation.track.len() > POSE_TRACK_KEPT {
@@ -741,34 +833,28 @@ impl Pipeline {
         });
     }
 
-    /// A body height read from calibrated views: applied (girth 1) unless the shape topic has
-    /// given the shape; a change reruns the reconstruction.
-    fn on_height_from_views(&mut self, height: f32, arrival: Duration, now: Duration) {
-        if self.shape_from_topic {
+    /// A body height read from `person`'s calibrated views: applied (girth 1) unless the
+    /// shape topic has given their shape; a change reruns their reconstruction.
+    fn on_height_from_views(
+        &mut self,
+        person: &str,
+        height: f32,
+        arrival: Duration,
+        now: Duration,
+    ) {
+        if self.persons.get(person).is_none_or(|p| p.shape_from_topic) {
             return;
         }
         let shape = crate::body::MakeHumanShape {
             height_scale: height.clamp(0.5, 2.0),
             girth_scale: 1.0,
         };
-        match self.recon.set_shape(AcceptedShape::MakeHuman(shape)) {
-            Ok(true) => {
-                self.stats.shapes_applied += 1;
-                self.shape_changes += 1;
-                tracing::info!(
-                    person = %self.person,
-                    height_scale = format!("{height:.3}"),
-                    "body height read from the calibrated views"
-                );
-                if self.views_held() > 0 {
-                    let version = self.input_version();
-                    self.scheduler
-                        .view_set_changed(&self.person, version, arrival, now);
-                }
-            }
-            Ok(false) => {}
-            Err(e) => tracing::warn!("body height from the views not applied: {e}"),
-        }
+        tracing::info!(
+            person,
+            height_scale = format!("{height:.3}"),
+            "body height read from the calibrated views"
+        );
+        self.apply_shape(person, AcceptedShape::MakeHuman(shape), arrival, now);
     }
 
     /// Sets the camera topics (resolved: images, then compressed images) that CameraInfo
@@ -779,13 +865,22 @@ impl Pipeline {
 
     /// Frames whose mask pairing is settled go on to preprocessing and the frame store.
     fn admit(&mut self, ready: Vec<Paired>, now: Duration) {
+        let person = self.default_person.clone();
         for (frame, mask) in ready {
             self.stats.masked += u64::from(mask.is_some());
-            self.on_frame(frame, mask, now);
+            self.on_frame(frame, mask, &person, now);
         }
     }
 
-    fn on_frame(&mut self, frame: CameraFrame, mask: Option<Arc<GrayImage>>, now: Duration) {
+    /// A frame of `person` (cropped by `mask`, else whole) into their frame store.
+    fn on_frame(
+        &mut self,
+        frame: CameraFrame,
+        mask: Option<Arc<GrayImage>>,
+        person: &str,
+        now: Duration,
+    ) {
+        self.person_mut(person);
         let subject = mask.as_deref().map_or(Subject::FullFrame, Subject::Mask);
         let image = match preprocess(&frame.image, subject, &self.preprocess) {
             Ok(image) => Arc::new(image),
@@ -806,7 +901,7 @@ impl Pipeline {
             embedding: thumbnail_embedding(&image, EMBEDDING_GRID),
             image,
         };
-        let outcome = self.store.insert(&self.person, view);
+        let outcome = self.store.insert(person, view);
         match outcome {
             InsertOutcome::Dropped { .. } => self.stats.duplicates += 1,
             InsertOutcome::AddedEvicting { evicted } => self.recon.forget(evicted),
@@ -814,9 +909,9 @@ impl Pipeline {
             InsertOutcome::Added => {}
         }
         if outcome.changed() {
-            let version = self.input_version();
+            let version = self.input_version(person);
             self.scheduler
-                .view_set_changed(&self.person, version, frame.arrival, now);
+                .view_set_changed(person, version, frame.arrival, now);
         }
     }
 
@@ -837,7 +932,7 @@ impl Pipeline {
             self.run_job(job, &clock);
         }
         if let (Some(period), true) = (self.render_period, self.outputs.live()) {
-            if self.current.is_some() && now >= self.next_render {
+            if self.any_avatar() && now >= self.next_render {
                 let started = clock();
                 self.publish_frames(now);
                 let took = clock().saturating_sub(started);
@@ -846,7 +941,7 @@ impl Pipeline {
             }
         }
         if let (Some(period), true) = (self.preview_period, self.outputs.live()) {
-            if self.current.is_some() && now >= self.next_preview {
+            if self.any_avatar() && now >= self.next_preview {
                 self.publish_preview(now);
                 self.next_preview = now + period;
             }
@@ -854,43 +949,55 @@ impl Pipeline {
         self.refresh_status(now);
     }
 
-    /// Republishes the status (the last one, or an idle one before any) when the rejection
-    /// counts changed, at most once per [`STATUS_REFRESH`], so they show without a state
-    /// change.
+    /// Whether some person has an avatar.
+    fn any_avatar(&self) -> bool {
+        self.persons.values().any(|p| p.current.is_some())
+    }
+
+    /// Republishes the statuses (the last ones, or an idle one for the configured person
+    /// before any) when the rejection counts changed, at most once per [`STATUS_REFRESH`], so
+    /// they show without a state change.
     fn refresh_status(&mut self, now: Duration) {
         if !self.outputs.live() || now < self.status_refresh_due {
             return;
         }
         let (reasons, counts) = self.rejection_fields();
-        let Some(mut msg) = self.last_status.clone().or_else(|| {
-            (!counts.is_empty()).then(|| {
-                let state = if self.views_held() == 0 {
-                    ReconstructionStatus::STATE_IDLE
-                } else {
-                    ReconstructionStatus::STATE_WAITING
-                };
-                let render_ms = self.stats.last_render_ms;
-                let views = self.views_held();
-                status_message(
-                    &self.person,
-                    views,
-                    self.revision(),
-                    0.0,
-                    render_ms,
-                    state,
-                    "",
-                    0,
-                )
-            })
-        }) else {
-            return;
-        };
-        if msg.rejected_counts == counts && msg.rejected_reasons == reasons {
-            return;
+        let mut last: Vec<ReconstructionStatus> = self
+            .persons
+            .values()
+            .filter_map(|p| p.last_status.clone())
+            .collect();
+        if last.is_empty() && !counts.is_empty() {
+            let person = self.default_person.clone();
+            let views = self.store.len(&person);
+            let state = if views == 0 {
+                ReconstructionStatus::STATE_IDLE
+            } else {
+                ReconstructionStatus::STATE_WAITING
+            };
+            last.push(status_message(
+                &person,
+                views,
+                self.revision_of(&person),
+                0.0,
+                self.stats.last_render_ms,
+                state,
+                "",
+                0,
+            ));
         }
-        (msg.rejected_reasons, msg.rejected_counts) = (reasons, counts);
-        self.status_refresh_due = now + STATUS_REFRESH;
-        self.send_status(msg);
+        let mut sent = false;
+        for mut msg in last {
+            if msg.rejected_counts == counts && msg.rejected_reasons == reasons {
+                continue;
+            }
+            (msg.rejected_reasons, msg.rejected_counts) = (reasons.clone(), counts.clone());
+            self.send_status(msg);
+            sent = true;
+        }
+        if sent {
+            self.status_refresh_due = now + STATUS_REFRESH;
+        }
     }
 
     /// The rejection counts as `ReconstructionStatus` carries them.
@@ -904,17 +1011,26 @@ impl Pipeline {
     fn send_status(&mut self, msg: ReconstructionStatus) {
         if self.outputs.live() {
             self.outputs.status(msg.clone());
-            self.last_status = Some(msg);
+            let person = msg.person_id.clone();
+            self.person_mut(&person).last_status = Some(msg);
         }
     }
 
-    /// Poses the avatar at the pose the frames use and hands it to the publishers' preview.
+    /// Poses the avatar (the configured person's; with tracking, the first tracked person's
+    /// that has one) at the pose its frames use and hands it to the publishers' preview.
     fn publish_preview(&self, now: Duration) {
-        let (Some(current), true) = (&self.current, self.outputs.live()) else {
+        let Some((state, current)) = self
+            .persons
+            .values()
+            .find_map(|p| p.current.as_ref().map(|c| (p, c)))
+        else {
             return;
         };
-        let pose = display_pose(self.animation.pose(now), now.as_secs_f32());
-        let matrices = self.recon.template().skeleton.skinning_matrices(&pose);
+        if !self.outputs.live() {
+            return;
+        }
+        let pose = display_pose(state.animation.pose(now), now.as_secs_f32());
+        let matrices = current.skeleton.skinning_matrices(&pose);
         let posed = current.avatar.animate(&matrices);
         self.outputs.preview(&posed, unix_now_ns());
     }
@@ -929,7 +1045,13 @@ impl Pipeline {
         self.drop_debt += periods - 1.0;
         let whole = self.drop_debt.floor();
         self.drop_debt -= whole;
-        self.stats.frames_dropped += whole as u64 * self.cameras.cameras().len() as u64;
+        let rendered = self.cameras.cameras().len()
+            * self
+                .persons
+                .values()
+                .filter(|p| p.current.is_some())
+                .count();
+        self.stats.frames_dropped += whole as u64 * rendered as u64;
         if !self.slow_render_noted {
             self.slow_render_noted = true;
             let achieved = 1.0 / took.as_secs_f64();
@@ -939,7 +1061,7 @@ impl Pipeline {
                  wins",
                 self.render_rate_hz,
                 took.as_secs_f64() * 1e3,
-                self.cameras.cameras().len(),
+                rendered,
                 if self.frames.is_neural() {
                     "neural"
                 } else {
@@ -947,41 +1069,58 @@ impl Pipeline {
                 },
             );
             tracing::warn!("{message}");
-            self.publish_status(
-                self.revision(),
-                0.0,
-                ReconstructionStatus::STATE_IDLE,
-                message,
-            );
+            let revisions: Vec<(String, u64)> = self
+                .persons
+                .iter()
+                .filter(|(_, p)| p.current.is_some())
+                .map(|(id, p)| (id.clone(), p.revision()))
+                .collect();
+            for (person, revision) in revisions {
+                self.publish_status(
+                    &person,
+                    revision,
+                    0.0,
+                    ReconstructionStatus::STATE_IDLE,
+                    message.clone(),
+                );
+            }
         }
     }
 
     fn run_job(&mut self, job: Job, clock: &impl Fn() -> Duration) {
-        let Some(set) = self.store.snapshot(&job.person) else {
-            let _ = self.scheduler.failed(&job.person, job.revision);
+        let person = job.person.clone();
+        let Some(set) = self.store.snapshot(&person) else {
+            let _ = self.scheduler.failed(&person, job.revision);
             return;
         };
         self.publish_status(
+            &person,
             job.revision.saturating_sub(1),
             0.0,
             ReconstructionStatus::STATE_RECONSTRUCTING,
             "reconstructing",
         );
+        let shape = self.persons.get(&person).and_then(|p| p.shape.clone());
         let views: Vec<(u64, &crate::reconstruct::preprocess::Preprocessed)> = set
             .views
             .iter()
             .map(|v| (v.frame_id, v.image.as_ref()))
             .collect();
-        let result = self.recon.reconstruct(&views);
+        let result = self
+            .recon
+            .use_shape(shape)
+            .and_then(|_| self.recon.reconstruct(&views));
         match result {
             Ok(avatar) => {
                 let stamp = set.views.iter().map(|v| v.stamp_ns).max().unwrap_or(0);
                 self.publish_avatar(&job, &avatar, set.views.len(), stamp);
-                self.current = Some(Current {
+                let skeleton = self.recon.template().skeleton.clone();
+                self.person_mut(&person).current = Some(Current {
                     revision: job.revision,
                     avatar,
+                    skeleton,
                 });
-                match self.scheduler.finished(&job.person, job.revision, clock()) {
+                match self.scheduler.finished(&person, job.revision, clock()) {
                     Ok(done) => {
                         let latency = done.latency.as_secs_f64() * 1e3;
                         let run = done.run_time.as_secs_f64() * 1e3;
@@ -998,6 +1137,7 @@ impl Pipeline {
                             "avatar published"
                         );
                         self.publish_status(
+                            &person,
                             job.revision,
                             latency,
                             ReconstructionStatus::STATE_IDLE,
@@ -1010,8 +1150,9 @@ impl Pipeline {
             Err(e) => {
                 self.stats.failures += 1;
                 tracing::error!(person = %job.person, revision = job.revision, "reconstruction failed: {e}");
-                let _ = self.scheduler.failed(&job.person, job.revision);
+                let _ = self.scheduler.failed(&person, job.revision);
                 self.publish_status(
+                    &person,
                     job.revision,
                     0.0,
                     ReconstructionStatus::STATE_ERROR,
@@ -1038,14 +1179,15 @@ impl Pipeline {
 
     fn publish_status(
         &mut self,
+        person: &str,
         revision: u64,
         latency_ms: f64,
         state: u8,
         message: impl Into<String>,
     ) {
         let mut msg = status_message(
-            &self.person,
-            self.views_held(),
+            person,
+            self.store.len(person),
             revision,
             latency_ms,
             self.stats.last_render_ms,
@@ -1057,79 +1199,108 @@ impl Pipeline {
         self.send_status(msg);
     }
 
+    /// Renders every person's latest avatar from every virtual camera at the pose their
+    /// frames use and hands the frames to the outputs.
     fn publish_frames(&mut self, now: Duration) {
-        let (Some(current), true) = (&self.current, self.outputs.live()) else {
+        if !self.outputs.live() {
             return;
-        };
-        let pose = display_pose(self.animation.pose(now), now.as_secs_f32());
-        let started = std::time::Instant::now();
-        let frames = render_frames(
-            &current.avatar,
-            self.recon.template(),
-            &pose,
-            &self.cameras,
-            &mut self.frames,
-        );
-        self.stats.last_render_ms =
-            started.elapsed().as_secs_f64() * 1e3 / frames.len().max(1) as f64;
-        let stamp = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as i64);
-        for (i, f) in frames.iter().enumerate() {
-            self.outputs.frame(i, f, stamp);
         }
-        self.stats.rendered_frames += frames.len() as u64;
-    }
-
-    /// Renders a short animation of the latest avatar from every virtual camera and hands it
-    /// to the outputs that store it (the files write `frames/<person>_cam<i>_<f>.png`);
-    /// nothing is rendered when none does. The animation replays the poses read from the
-    /// cameras when they drove the avatar (every one kept, up to the last 240), else `frames`
-    /// frames of the built-in walk cycle. Returns the frames stored.
-    pub fn write_animation(&mut self, frames: usize) -> usize {
-        let Some(current) = &self.current else {
-            return 0;
-        };
-        let Some(mut animation) = self.outputs.animation() else {
-            return 0;
-        };
-        let camera_driven = matches!(self.animation.source, PoseSource::Auto | PoseSource::Camera)
-            && self.animation.topic_pose.is_none();
-        let track: Vec<Pose> = if camera_driven {
-            self.animation.track.iter().cloned().collect()
-        } else {
-            Vec::new()
-        };
-        let frames = if track.is_empty() {
-            frames
-        } else {
-            track.len()
-        };
-        let mut written = 0;
-        for f in 0..frames {
-            let pose = track
-                .get(f)
-                .cloned()
-                .unwrap_or_else(|| display_pose(None, f as f32 / 24.0));
-            let started = std::time::Instant::now();
-            let images = render_frames(
+        let started = std::time::Instant::now();
+        let stamp = unix_now_ns();
+        let mut count = 0;
+        for (person, state) in &self.persons {
+            let Some(current) = &state.current else {
+                continue;
+            };
+            let pose = display_pose(state.animation.pose(now), now.as_secs_f32());
+            let frames = render_frames(
                 &current.avatar,
-                self.recon.template(),
+                &current.skeleton,
                 &pose,
                 &self.cameras,
                 &mut self.frames,
             );
-            self.stats.last_render_ms =
-                started.elapsed().as_secs_f64() * 1e3 / images.len().max(1) as f64;
-            for (c, image) in images.iter().enumerate() {
-                let name = format!("{}_cam{c}_{f:03}", self.person);
-                written += usize::from(animation.frame(&name, image));
+            for (i, f) in frames.iter().enumerate() {
+                self.outputs.frame(person, i, f, stamp);
+            }
+            count += frames.len();
+        }
+        self.stats.last_render_ms = started.elapsed().as_secs_f64() * 1e3 / count.max(1) as f64;
+        self.stats.rendered_frames += count as u64;
+    }
+
+    /// Renders a short animation of each person's latest avatar from every virtual camera and
+    /// hands it to the outputs that store it (the files write
+    /// `frames/<person>_cam<i>_<f>.png`); nothing is rendered when none does. The animation
+    /// replays the poses read from the cameras when they drove the avatar (every one kept, up
+    /// to the last 240), else `frames` frames of the built-in walk cycle. Returns the frames
+    /// stored.
+    pub fn write_animation(&mut self, frames: usize) -> usize {
+        if !self.any_avatar() {
+            return 0;
+        }
+        let Some(mut animation) = self.outputs.animation() else {
+            return 0;
+        };
+        let mut written = 0;
+        for (person, state) in &self.persons {
+            let Some(current) = &state.current else {
+                continue;
+            };
+            let camera_driven = matches!(
+                state.animation.source,
+                PoseSource::Auto | PoseSource::Camera
+            ) && state.animation.topic_pose.is_none();
+            let track: Vec<Pose> = if camera_driven {
+                state.animation.track.iter().cloned().collect()
+            } else {
+                Vec::new()
+            };
+            let count = if track.is_empty() {
+                frames
+            } else {
+                track.len()
+            };
+            for f in 0..count {
+                let pose = track
+                    .get(f)
+                    .cloned()
+                    .unwrap_or_else(|| display_pose(None, f as f32 / 24.0));
+                let started = std::time::Instant::now();
+                let images = render_frames(
+                    &current.avatar,
+                    &current.skeleton,
+                    &pose,
+                    &self.cameras,
+                    &mut self.frames,
+                );
+                self.stats.last_render_ms =
+                    started.elapsed().as_secs_f64() * 1e3 / images.len().max(1) as f64;
+                for (c, image) in images.iter().enumerate() {
+                    let name = format!("{person}_cam{c}_{f:03}");
+                    written += usize::from(animation.frame(&name, image));
+                }
             }
         }
         animation.finish();
         self.stats.rendered_frames += written as u64;
         written
     }
+}
+
+/// The persons' masks of one frame as one mask (the brightest value per pixel); an empty mask
+/// when nobody was found.
+fn union_mask(people: &[perceive::PersonSeen], width: u32, height: u32) -> GrayImage {
+    let mut out = GrayImage::new(width, height);
+    for p in people {
+        if p.mask.dimensions() != (width, height) {
+            continue;
+        }
+        for (o, m) in out.iter_mut().zip(p.mask.iter()) {
+            *o = (*o).max(*m);
+        }
+    }
+    out
 }
 
 /// The perception stage `config` needs: none when no camera can be routed to perception and
@@ -1158,13 +1329,33 @@ fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, Perceptio
         },
         "camera-only perception ready"
     );
-    Ok(Some(Perception::new(
-        networks,
-        TrackerConfig {
+    let finders = if config.tracking.enabled {
+        tracing::info!(
+            max_persons = config.tracking.max_persons,
+            cluster_members = config.cluster.members,
+            cluster_index = config.cluster.index,
+            "several people: MoveNet MultiPose, the landmark model per person, tracked ids"
+        );
+        Finders::many(
+            networks.clone(),
+            PeopleConfig {
+                min_presence: p.min_presence,
+                mask_threshold: p.mask_threshold,
+                mask_feather: p.mask_feather,
+                ..PeopleConfig::default()
+            },
+            config.tracking.tracker(),
+        )
+    } else {
+        Finders::one(TrackerConfig {
             min_detection_score: p.min_detection_score,
             min_presence: p.min_presence,
             smooth_masks: live,
-        },
+        })
+    };
+    Ok(Some(Perception::new(
+        networks,
+        finders,
         MaskSettings {
             threshold: p.mask_threshold,
             feather: p.mask_feather,

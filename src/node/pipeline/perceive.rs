@@ -1,12 +1,18 @@
-//! Camera-only perception inside the pipeline: each camera's frames go through its own
-//! [`PersonTracker`] (person mask, landmarks), either on the pipeline's thread (bag replay:
+//! Camera-only perception inside the pipeline, either on the pipeline's thread (bag replay:
 //! every frame, in order) or on a worker thread of its own (live: one pending frame per camera,
 //! the newest wins, so perception never stalls the pipeline and its memory stays bounded).
+//!
+//! One person ([`Finders::One`]): each camera's frames go through its own [`PersonTracker`]
+//! (person mask, landmarks). Several people ([`Finders::Many`], `tracking.enabled`): every
+//! frame is split into persons by a [`PeopleFinder`] and one [`PersonTracks`] over all cameras
+//! gives each a stable id (using where they stand when the camera is calibrated).
 
 use crate::node::inputs::CameraFrame;
 use crate::perception::{
-    Landmark, PerceptionError, PersonTracker, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
+    Landmark, PeopleConfig, PeopleFinder, PersonTracker, PoseNetworks, TrackerConfig,
+    BODY_LANDMARKS,
 };
+use crate::tracking::{BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats};
 use image::GrayImage;
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Condvar, Mutex};
@@ -34,6 +40,8 @@ pub struct PersonSeen {
     pub world: [Landmark; BODY_LANDMARKS],
     /// Image landmarks (frame pixels).
     pub image: [Landmark; BODY_LANDMARKS],
+    /// The tracked person's id (`None`: one person is followed, the configured one).
+    pub id: Option<String>,
 }
 
 /// What perception made of one frame.
@@ -41,45 +49,150 @@ pub struct PersonSeen {
 pub struct PerceivedFrame {
     /// The frame.
     pub frame: CameraFrame,
-    /// The person, if one was found.
-    pub person: Option<PersonSeen>,
+    /// The persons found (one at most when one person is followed).
+    pub people: Vec<PersonSeen>,
+    /// Every person the tracker holds after this frame (empty when one person is followed).
+    pub tracked: Vec<String>,
     /// Time the networks took for this frame.
     pub took: Duration,
 }
 
-/// One tracker per camera topic, sharing the networks.
+/// A frame handed to perception, with its camera's calibration when known.
+#[derive(Clone)]
+pub struct Submitted {
+    /// The frame.
+    pub frame: CameraFrame,
+    /// The camera, for where tracked persons stand (several people only).
+    pub camera: Option<FloorCamera>,
+}
+
+/// How persons are found.
+pub enum Finders {
+    /// One person: a [`PersonTracker`] per camera topic, sharing the networks.
+    One {
+        /// The trackers' settings.
+        config: TrackerConfig,
+        /// Trackers by camera topic.
+        trackers: HashMap<String, PersonTracker>,
+    },
+    /// Several people: every person in every frame, ids across cameras.
+    Many {
+        /// MoveNet MultiPose, then the landmark model per person.
+        finder: Box<PeopleFinder>,
+        /// Person ids over all cameras.
+        tracks: PersonTracks,
+    },
+}
+
+impl Finders {
+    /// One person per camera.
+    pub fn one(config: TrackerConfig) -> Self {
+        Self::One {
+            config,
+            trackers: HashMap::new(),
+        }
+    }
+
+    /// Several tracked people.
+    pub fn many(
+        networks: Arc<PoseNetworks>,
+        people: PeopleConfig,
+        tracking: TrackingConfig,
+    ) -> Self {
+        Self::Many {
+            finder: Box::new(PeopleFinder::new(networks, people)),
+            tracks: PersonTracks::new(tracking),
+        }
+    }
+
+    fn tracking_stats(&self) -> Option<TrackingStats> {
+        match self {
+            Self::One { .. } => None,
+            Self::Many { tracks, .. } => Some(tracks.stats()),
+        }
+    }
+}
+
+/// The finders and what they run on.
 struct CameraTrackers {
     networks: Arc<PoseNetworks>,
-    config: TrackerConfig,
+    finders: Finders,
     masks: MaskSettings,
-    trackers: HashMap<String, PersonTracker>,
     pool: rayon::ThreadPool,
 }
 
 impl CameraTrackers {
-    fn perceive(&mut self, frame: CameraFrame) -> PerceivedFrame {
+    fn perceive(&mut self, job: Submitted) -> PerceivedFrame {
         let started = Instant::now();
-        let tracker = self
-            .trackers
-            .entry(frame.topic.clone())
-            .or_insert_with(|| PersonTracker::new(self.networks.clone(), self.config));
-        let result: Result<_, PerceptionError> =
-            self.pool.install(|| tracker.perceive(&frame.image));
-        let person = match result {
-            Ok(found) => found.map(|p| PersonSeen {
-                mask: Arc::new(p.mask.to_mask(self.masks.threshold, self.masks.feather)),
-                world: p.landmarks.world,
-                image: p.landmarks.image,
-            }),
-            Err(e) => {
-                tracing::error!(topic = %frame.topic, "perception failed: {e}");
-                tracker.reset();
-                None
+        let Submitted { frame, camera } = job;
+        let people = match &mut self.finders {
+            Finders::One { config, trackers } => {
+                let tracker = trackers
+                    .entry(frame.topic.clone())
+                    .or_insert_with(|| PersonTracker::new(self.networks.clone(), *config));
+                match self.pool.install(|| tracker.perceive(&frame.image)) {
+                    Ok(found) => found
+                        .map(|p| PersonSeen {
+                            mask: Arc::new(
+                                p.mask.to_mask(self.masks.threshold, self.masks.feather),
+                            ),
+                            world: p.landmarks.world,
+                            image: p.landmarks.image,
+                            id: None,
+                        })
+                        .into_iter()
+                        .collect(),
+                    Err(e) => {
+                        tracing::error!(topic = %frame.topic, "perception failed: {e}");
+                        tracker.reset();
+                        Vec::new()
+                    }
+                }
+            }
+            Finders::Many { finder, tracks } => {
+                match self.pool.install(|| finder.find(&frame.image)) {
+                    Ok(found) => {
+                        let detections: Vec<Detection> = found
+                            .iter()
+                            .map(|p| {
+                                let bbox = BoxPx::new(p.min.to_array(), p.max.to_array());
+                                Detection::seen(&frame.image, &p.mask, bbox, camera.as_ref())
+                            })
+                            .collect();
+                        let stamp = if frame.stamp_ns > 0 {
+                            frame.stamp_ns as f64 * 1e-9
+                        } else {
+                            frame.arrival.as_secs_f64()
+                        };
+                        let ids = tracks.update(&frame.topic, stamp, &detections);
+                        found
+                            .into_iter()
+                            .zip(ids)
+                            .map(|(p, a)| PersonSeen {
+                                mask: Arc::new(p.mask),
+                                world: p.landmarks.world,
+                                image: p.landmarks.image,
+                                id: Some(a.person_id),
+                            })
+                            .collect()
+                    }
+                    Err(e) => {
+                        tracing::error!(topic = %frame.topic, "perception failed: {e}");
+                        Vec::new()
+                    }
+                }
+            }
+        };
+        let tracked = match &self.finders {
+            Finders::One { .. } => Vec::new(),
+            Finders::Many { tracks, .. } => {
+                tracks.persons().into_iter().map(String::from).collect()
             }
         };
         PerceivedFrame {
             frame,
-            person,
+            people,
+            tracked,
             took: started.elapsed(),
         }
     }
@@ -89,7 +202,9 @@ impl CameraTrackers {
 #[derive(Default)]
 struct Exchange {
     /// The newest frame of each camera not yet taken by the worker.
-    pending: BTreeMap<String, CameraFrame>,
+    pending: BTreeMap<String, Submitted>,
+    /// The tracker's counters after the last frame (several people only).
+    tracking: Option<TrackingStats>,
     results: VecDeque<PerceivedFrame>,
     /// Pending frames replaced by a newer one of their camera.
     replaced: u64,
@@ -125,7 +240,7 @@ impl Worker {
                             let next = x
                                 .pending
                                 .iter()
-                                .min_by_key(|(_, f)| f.arrival)
+                                .min_by_key(|(_, f)| f.frame.arrival)
                                 .map(|(topic, _)| topic.clone());
                             if let Some(frame) = next.and_then(|t| x.pending.remove(&t)) {
                                 x.working = true;
@@ -137,6 +252,7 @@ impl Worker {
                     let done = trackers.perceive(frame);
                     let mut x = lock.lock().expect("perception exchange poisoned");
                     x.working = false;
+                    x.tracking = trackers.finders.tracking_stats();
                     x.results.push_back(done);
                     while x.results.len() > RESULTS_KEPT {
                         x.results.pop_front();
@@ -171,7 +287,7 @@ enum Runner {
     /// On the caller's thread, every frame in order, when the results are taken.
     Inline {
         trackers: Box<CameraTrackers>,
-        pending: VecDeque<CameraFrame>,
+        pending: VecDeque<Submitted>,
     },
     /// On a worker thread, the newest frame per camera.
     Worker(Worker),
@@ -188,7 +304,7 @@ impl Perception {
     /// the caller's thread.
     pub fn new(
         networks: Arc<PoseNetworks>,
-        config: TrackerConfig,
+        finders: Finders,
         masks: MaskSettings,
         threads: usize,
         live: bool,
@@ -200,9 +316,8 @@ impl Perception {
             .expect("building the perception thread pool");
         let trackers = CameraTrackers {
             networks,
-            config,
+            finders,
             masks,
-            trackers: HashMap::new(),
             pool,
         };
         let runner = if live {
@@ -216,14 +331,16 @@ impl Perception {
         Self { runner }
     }
 
-    /// Hands a frame to perception (live: it replaces the camera's pending frame).
-    pub fn submit(&mut self, frame: CameraFrame) {
+    /// Hands a frame to perception (live: it replaces the camera's pending frame); `camera`
+    /// is its calibration, when known.
+    pub fn submit(&mut self, frame: CameraFrame, camera: Option<FloorCamera>) {
+        let job = Submitted { frame, camera };
         match &mut self.runner {
-            Runner::Inline { pending, .. } => pending.push_back(frame),
+            Runner::Inline { pending, .. } => pending.push_back(job),
             Runner::Worker(worker) => {
                 {
                     let mut x = worker.exchange();
-                    if x.pending.insert(frame.topic.clone(), frame).is_some() {
+                    if x.pending.insert(job.frame.topic.clone(), job).is_some() {
                         x.replaced += 1;
                     }
                 }
@@ -250,6 +367,14 @@ impl Perception {
                 let x = worker.exchange();
                 x.working || !x.pending.is_empty() || !x.results.is_empty()
             }
+        }
+    }
+
+    /// The person tracker's counters (several people only).
+    pub fn tracking_stats(&self) -> Option<TrackingStats> {
+        match &self.runner {
+            Runner::Inline { trackers, .. } => trackers.finders.tracking_stats(),
+            Runner::Worker(worker) => worker.exchange().tracking,
         }
     }
 

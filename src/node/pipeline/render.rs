@@ -8,7 +8,7 @@
 
 use super::neural_frames::NeuralFrames;
 use crate::avatar::Avatar;
-use crate::body::{motion, BodyTemplate, Pose};
+use crate::body::{motion, Pose, Skeleton};
 use crate::config::RenderDevice;
 #[cfg(feature = "cuda")]
 use crate::splat::cuda::{CudaRasterizer, CudaScene};
@@ -220,16 +220,16 @@ impl FrameRenderer {
     }
 }
 
-/// Poses `avatar` with `pose` on `template`'s skeleton (its features travel with the
-/// Gaussians) and renders every virtual camera on a white background with `renderer`.
+/// Poses `avatar` with `pose` on `skeleton` (the avatar's own body's; its features travel with
+/// the Gaussians) and renders every virtual camera on a white background with `renderer`.
 pub fn render_frames(
     avatar: &Avatar,
-    template: &BodyTemplate,
+    skeleton: &Skeleton,
     pose: &Pose,
     cameras: &VirtualCameras,
     renderer: &mut FrameRenderer,
 ) -> Vec<RenderedFrame> {
-    let matrices = template.skeleton.skinning_matrices(pose);
+    let matrices = skeleton.skinning_matrices(pose);
     let posed = avatar.animate(&matrices);
     let outputs = match &renderer.neural {
         Some(neural) => neural.render(&mut renderer.rasterizer, &posed, cameras.cameras()),

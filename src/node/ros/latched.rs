@@ -27,7 +27,7 @@ pub(crate) const MATCH_POLL: Duration = Duration::from_millis(100);
 pub(crate) struct LatchedPort<M: Serialize> {
     port: Arc<OutputPort<M>>,
     /// The node that created `port` (its matched-reader counts).
-    node: Arc<Node>,
+    node: Arc<std::sync::Mutex<Node>>,
     /// The newest message not yet handed to DDS (no reader was matched). Locked around every
     /// hand-off, so the waiter never publishes an older message after a newer one.
     held: Arc<Mutex<Option<M>>>,
@@ -43,7 +43,11 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 impl<M: Serialize + Send + Sync + 'static> LatchedPort<M> {
     /// Wraps `port`, created by `node`; the waiting tasks run on `runtime`.
-    pub(crate) fn new(port: OutputPort<M>, node: Arc<Node>, runtime: Handle) -> Self {
+    pub(crate) fn new(
+        port: OutputPort<M>,
+        node: Arc<std::sync::Mutex<Node>>,
+        runtime: Handle,
+    ) -> Self {
         Self {
             port: Arc::new(port),
             node,

@@ -15,6 +15,7 @@
 mod context;
 mod latched;
 mod live_inputs;
+mod person_frames;
 pub(crate) mod ports;
 mod silent_cameras;
 mod sink;
@@ -24,6 +25,7 @@ pub use context::{
     resolve_domain_id, ParticipantOptions,
 };
 pub use live_inputs::LiveInputs;
+pub use person_frames::person_frame_topic;
 pub use ports::{rgb8_image, OutputTopics, PublishOutcome};
 pub use silent_cameras::{silence_warning, SILENT_CAMERA_WARNING};
 pub use sink::InputStats;
@@ -38,6 +40,7 @@ use crate::node::inputs::{EncodedImage, ImageMessage, Incoming, InputEvent};
 use crate::node::names::{split_fully_qualified, NameError, NameResolver};
 use crate::splat::Gaussians;
 use latched::LatchedPort;
+use person_frames::PersonFramePorts;
 use ports::OutputPort;
 use ros2_client::dds::Node;
 use ros2_client::qos::QosProfile;
@@ -47,7 +50,7 @@ use serde::Serialize;
 use sink::InputSink;
 use std::collections::BTreeMap;
 use std::net::IpAddr;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// A failure to set up or use the ROS 2 endpoint; each names what it was about.
@@ -115,6 +118,10 @@ pub struct RosNodeOptions {
     pub outputs: OutputTopics,
     /// Reliability of the rendered-frame publishers.
     pub frame_qos: FrameQos,
+    /// Rendered frames per tracked person (`render/<person_id>/cam<i>/image_raw`, made at
+    /// their first frame), keeping this many persons' publishers; `None`: one person, on
+    /// `outputs.frames`.
+    pub person_frames: Option<usize>,
     /// TF frame of the preview cloud and its parent on `/tf`; `None` disables both.
     pub preview_frames: Option<(String, String)>,
     /// Publish each camera's person mask on its `person_mask` topic.
@@ -166,6 +173,7 @@ impl RosNodeOptions {
             error_report_period: Duration::from_secs(5),
             outputs: OutputTopics::for_virtual_cameras(cfg.outputs.virtual_cameras),
             frame_qos: cfg.outputs.frame_qos,
+            person_frames: cfg.tracking.enabled.then_some(2 * cfg.tracking.max_persons),
             preview_frames: (cfg.outputs.preview_rate_hz > 0.0).then(|| {
                 (
                     cfg.outputs.preview_frame.clone(),
@@ -284,12 +292,13 @@ impl ResolvedTopics {
 pub struct RosNode {
     /// Held so the DDS participant outlives the node's own endpoints (see `shutdown`).
     context: ros2_client::Context,
-    node: Arc<Node>,
+    node: Arc<Mutex<Node>>,
     topics: ResolvedTopics,
     sink: InputSink<Incoming>,
     avatar: LatchedPort<GaussianAvatar>,
     status: LatchedPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
+    person_frames: Option<PersonFramePorts>,
     preview: Option<Preview>,
     /// Person-mask publishers by camera topic.
     masks: BTreeMap<String, OutputPort<Image>>,
@@ -490,7 +499,15 @@ impl RosNode {
                 tracing::error!("ROS 2 spinner stopped: {e:?}");
             }
         });
-        let node = Arc::new(node);
+        let node = Arc::new(Mutex::new(node));
+        let person_frames = opts.person_frames.map(|kept| {
+            PersonFramePorts::new(
+                names.clone(),
+                opts.frame_qos,
+                opts.outputs.frames.len() as u32,
+                kept,
+            )
+        });
         let runtime = tokio::runtime::Handle::current();
         let avatar = LatchedPort::new(avatar, Arc::clone(&node), runtime.clone());
         let status = LatchedPort::new(status, Arc::clone(&node), runtime.clone());
@@ -515,6 +532,7 @@ impl RosNode {
                 avatar,
                 status,
                 frames,
+                person_frames,
                 preview,
                 masks,
                 pose: pose_out,
@@ -555,6 +573,21 @@ impl RosNode {
     /// Publishes a ReconstructionStatus (reliable, transient-local).
     pub fn publish_status(&self, msg: ReconstructionStatus) -> Result<PublishOutcome, RosError> {
         self.status.publish(msg)
+    }
+
+    /// Publishes a rendered frame of `person` from virtual camera `camera` (`outputs.frame_qos`):
+    /// on `render/<person>/cam<i>/image_raw` when persons are tracked, else on the camera's
+    /// topic.
+    pub fn publish_person_frame(
+        &self,
+        person: &str,
+        camera: usize,
+        msg: Image,
+    ) -> Result<PublishOutcome, RosError> {
+        match &self.person_frames {
+            Some(ports) => ports.publish(&self.node, person, camera, msg),
+            None => self.publish_frame(camera, msg),
+        }
     }
 
     /// Publishes a rendered frame on virtual camera `camera`'s topic (`outputs.frame_qos`).

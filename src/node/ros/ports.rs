@@ -91,11 +91,12 @@ impl<M: Serialize> OutputPort<M> {
     /// Readers matched to this port's writer. ros2-client logs an ERROR for a writer that has
     /// never matched a reader, so the (cheaper, never failing) count of readers discovered on
     /// the topic is asked first: with none, none can be matched.
-    pub(crate) fn matched_readers(&self, node: &Node) -> usize {
+    pub(crate) fn matched_readers(&self, node: &std::sync::Mutex<Node>) -> usize {
+        let node = node.lock().unwrap_or_else(|e| e.into_inner());
         if node.subscription_count(&self.topic) == 0 {
             return 0;
         }
-        self.publisher.get_subscription_count(node)
+        self.publisher.get_subscription_count(&node)
     }
 
     pub(crate) fn back_pressure(&self) -> u64 {
