@@ -173,11 +173,18 @@ fn check_outputs(dir: &Path, command: &str, out: &Output) {
             exists("out/camera_only/avatar_person_0.ply");
             assert!(stdout.contains("perception: frames"), "{stdout}");
         }
+        "run" if command.contains("people.yaml") => {
+            exists("out/people/avatar_person_0.ply");
+            exists("out/people/avatar_person_1.ply");
+            assert!(stdout.contains("persons: 2 tracked"), "{stdout}");
+            assert!(stdout.contains("  person_1: views held"), "{stdout}");
+        }
         "avatar" => {
             for f in ["avatar.ply", "turntable.gif", "walk.gif", "masks"] {
                 exists(&format!("out/me/{f}"));
             }
         }
+        "synth" if command.contains("--people") => exists("out/people.mcap"),
         "synth" => exists("out/person.mcap"),
         "replay" => {
             exists("out/person/avatar_person_0.ply");

@@ -77,6 +77,26 @@ pub fn run(args: RunArgs) -> Result<()> {
             s.camera_poses
         );
     }
+    if config.tracking.enabled {
+        println!(
+            "persons: {} tracked at the end, {} started, {} released",
+            summary.persons.len(),
+            s.persons_started,
+            s.persons_released
+        );
+        for p in &summary.persons {
+            match p.reconstructed_here {
+                true => println!(
+                    "  {}: views held {}, avatar revision {}",
+                    p.id, p.views, p.revision
+                ),
+                false => println!(
+                    "  {}: tracked, reconstructed by another cluster member",
+                    p.id
+                ),
+            }
+        }
+    }
     if let Some(salvage) = summary.bag.as_ref().filter(|s| !s.is_complete()) {
         println!("bag {}: {salvage}", config.replay.bag);
     }

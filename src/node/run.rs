@@ -68,8 +68,23 @@ pub struct RunSummary {
     pub encoded_views: usize,
     /// Animation frames written at the end of a replay.
     pub animation_frames: usize,
+    /// Every person followed at the end (one without tracking).
+    pub persons: Vec<PersonSummary>,
     /// Wall time.
     pub wall: Duration,
+}
+
+/// One followed person at the end of a run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PersonSummary {
+    /// Person id.
+    pub id: String,
+    /// Whether this node reconstructs them (`cluster`).
+    pub reconstructed_here: bool,
+    /// Views held.
+    pub views: usize,
+    /// Latest avatar revision (0: none).
+    pub revision: u64,
 }
 
 /// Runs the node with `config`; `remap` holds command-line topic remappings.
@@ -180,6 +195,16 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         revision: pipeline.revision(),
         encoded_views: pipeline.encoded_views(),
         animation_frames,
+        persons: pipeline
+            .persons()
+            .into_iter()
+            .map(|id| PersonSummary {
+                reconstructed_here: pipeline.reconstructs(&id),
+                views: pipeline.views_held_by(&id),
+                revision: pipeline.revision_of(&id),
+                id,
+            })
+            .collect(),
         wall: started.elapsed(),
     };
     drop(pipeline);

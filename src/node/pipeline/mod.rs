@@ -849,7 +849,7 @@ impl Pipeline {
             height_scale: height.clamp(0.5, 2.0),
             girth_scale: 1.0,
         };
-        tracing::info!(
+        tracing::debug!(
             person,
             height_scale = format!("{height:.3}"),
             "body height read from the calibrated views"
