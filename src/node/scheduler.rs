@@ -259,6 +259,22 @@ mod tests {
         assert_eq!((jobs[0].revision, jobs[0].set_version), (1, 1));
     }
 
+    /// Several persons due at once: the one whose view set changed longest ago goes first,
+    /// whatever the ids' order; a forgotten person's pending change never runs.
+    #[test]
+    fn the_longest_waiting_person_goes_first() {
+        let mut s = sched();
+        s.view_set_changed("person_9", 1, ms(0), ms(0));
+        s.view_set_changed("person_1", 1, ms(40), ms(40));
+        s.view_set_changed("person_5", 1, ms(20), ms(20));
+        s.view_set_changed("person_7", 1, ms(10), ms(10));
+        assert!(s.forget("person_7"));
+        let order: Vec<String> = s.poll(ms(200)).into_iter().map(|j| j.person).collect();
+        assert_eq!(order, ["person_9", "person_5", "person_1"]);
+        assert!(s.busy());
+        assert!(!s.forget("nobody"));
+    }
+
     #[test]
     fn steady_changes_cannot_starve_reconstruction() {
         let mut s = sched();
