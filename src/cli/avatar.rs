@@ -18,8 +18,10 @@ use lhmpp::body::{motion, Pose};
 use lhmpp::config::ModelConfig;
 use lhmpp::perception::overlay::draw_overlay;
 use lhmpp::perception::{LandmarkModel, PoseNetworks};
+use lhmpp::reconstruct::photo_colours::PhotoColourConfig;
 use lhmpp::reconstruct::photos::{
-    photo_view, preprocess_config, reconstruct_photos, FrontStage, PersonHint, PhotoView,
+    colour_from_views, photo_view, preprocess_config, reconstruct_photos, FrontStage, PersonHint,
+    PhotoView,
 };
 use lhmpp::reconstruct::Reconstructor;
 use std::path::{Path, PathBuf};
@@ -58,6 +60,10 @@ pub struct AvatarArgs {
     /// Walk frames (24 per second; the cycle is 40 frames).
     #[arg(long, default_value_t = 40)]
     walk_frames: usize,
+    /// Keep the network's colours: no recolouring of the Gaussians the photos show from the
+    /// photos themselves.
+    #[arg(long)]
+    network_colours: bool,
 }
 
 /// Masks the photos, reconstructs, writes the avatar and its pictures.
@@ -119,7 +125,15 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         );
     }
     let started = std::time::Instant::now();
-    let avatar = reconstruct_photos(&mut recon, &views)?;
+    let mut avatar = reconstruct_photos(&mut recon, &views)?;
+    if !args.network_colours {
+        colour_from_views(
+            &mut avatar,
+            recon.template(),
+            &views,
+            &PhotoColourConfig::default(),
+        );
+    }
     tracing::info!(
         views = views.len(),
         ms = format!("{:.0}", started.elapsed().as_secs_f64() * 1e3),

@@ -54,6 +54,9 @@ pub struct EvalPhotosArgs {
     /// Side of the avatar's renders, pixels.
     #[arg(long, default_value_t = 512)]
     render_size: u32,
+    /// Keep the network's colours (no recolouring from the photos), to compare.
+    #[arg(long)]
+    network_colours: bool,
 }
 
 fn opt(v: Option<f64>) -> String {
@@ -89,9 +92,11 @@ pub fn run(args: EvalPhotosArgs) -> Result<()> {
         landmark_model,
         args.heavy_weights.as_deref(),
     )?);
+    let defaults = EvalPhotosConfig::default();
     let config = EvalPhotosConfig {
         render_size: args.render_size,
-        ..EvalPhotosConfig::default()
+        photo_colours: defaults.photo_colours.filter(|_| !args.network_colours),
+        ..defaults
     };
     println!(
         "weights: {} (preset {}); perception: {}",

@@ -11,6 +11,7 @@
 
 pub mod image_decode;
 pub mod part_rules;
+pub mod photo_colours;
 pub mod photos;
 pub mod preprocess;
 pub mod reconstructor;

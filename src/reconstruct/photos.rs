@@ -9,6 +9,7 @@
 //! 4. [`FrontStage`]: renders of the avatar framed by its canonical bounds, from the front (or
 //!    any camera of a ring), in any pose, on white.
 
+use super::photo_colours::{colour_from_photos, PhotoColourConfig, PhotoColourReport, PhotoSample};
 use super::preprocess::{mask_bbox, preprocess, PreprocessConfig, PreprocessError, Preprocessed};
 use super::{ReconstructError, Reconstructor};
 use crate::avatar::{Avatar, AvatarError};
@@ -300,6 +301,39 @@ pub fn reconstruct_photos(
         recon.forget(*id);
     }
     avatar
+}
+
+/// Recolours `avatar` (made from `views` on `template`'s skeleton) from the photos where
+/// perception read the person and their pose was solved
+/// ([`super::photo_colours::colour_from_photos`]).
+pub fn colour_from_views(
+    avatar: &mut Avatar,
+    template: &BodyTemplate,
+    views: &[PhotoView],
+    config: &PhotoColourConfig,
+) -> PhotoColourReport {
+    let samples: Vec<PhotoSample<'_>> = views
+        .iter()
+        .filter_map(|v| {
+            Some(PhotoSample {
+                image: &v.image,
+                mask: &v.mask,
+                landmarks: &v.perceived.as_ref()?.landmarks.image,
+                pose: v.pose.as_ref()?,
+            })
+        })
+        .collect();
+    let report = colour_from_photos(avatar, template, &samples, config);
+    for why in &report.skipped {
+        tracing::warn!("colours from the photos: {why}");
+    }
+    tracing::info!(
+        photos = report.photos_used,
+        seen = report.seen,
+        mapped = report.mapped,
+        "colours from the photos"
+    );
+    report
 }
 
 /// Cameras framing an avatar's canonical body: a ring around its bounds' centre at a distance

@@ -35,9 +35,10 @@ pub mod sheet;
 use crate::body::{BodyTemplate, Pose};
 use crate::perception::pose::{template_landmarks, PoseSolveError};
 use crate::perception::{Landmark, PerceptionError, PoseNetworks, BODY_LANDMARKS};
+use crate::reconstruct::photo_colours::PhotoColourConfig;
 use crate::reconstruct::photos::{
-    perceive_person, photo_view, preprocess_config, reconstruct_photos, FrontStage, MaskSource,
-    PersonHint, PhotoError, PhotoView,
+    colour_from_views, perceive_person, photo_view, preprocess_config, reconstruct_photos,
+    FrontStage, MaskSource, PersonHint, PhotoError, PhotoView,
 };
 use crate::reconstruct::{ReconstructError, Reconstructor};
 use crate::splat::{Camera, RenderOutput};
@@ -76,6 +77,8 @@ pub struct EvalPhotosConfig {
     pub render_size: u32,
     /// Region extraction.
     pub regions: RegionConfig,
+    /// Recolour the avatar from the photos (`None`: the network's colours).
+    pub photo_colours: Option<PhotoColourConfig>,
 }
 
 impl Default for EvalPhotosConfig {
@@ -83,6 +86,7 @@ impl Default for EvalPhotosConfig {
         Self {
             render_size: 512,
             regions: RegionConfig::default(),
+            photo_colours: Some(PhotoColourConfig::default()),
         }
     }
 }
@@ -453,8 +457,11 @@ pub fn score_person(
     if views.is_empty() {
         return Ok((score, Vec::new()));
     }
-    let avatar = reconstruct_photos(recon, &views)?;
+    let mut avatar = reconstruct_photos(recon, &views)?;
     let template = recon.template();
+    if let Some(colours) = &config.photo_colours {
+        colour_from_views(&mut avatar, template, &views, colours);
+    }
     let stage = FrontStage::new(&avatar, config.render_size);
     let mut pictures = Vec::new();
     for (view, path) in views.iter().zip(paths) {

@@ -1,0 +1,381 @@
+//! Colours from the photos: after the network has made the avatar from photos, each Gaussian
+//! that a photo shows takes its colour from that photo (texture back-projection), and the rest
+//! get the network's colour mapped by the colour transform that best turns the network's
+//! colours into the photos' over the Gaussians seen.
+//!
+//! Per photo with a solved pose: the avatar is posed as the person stands; an affine camera
+//! (`pixel = A · X + b`, 8 values) is fitted by least squares to perception's image landmarks
+//! and the posed template's landmarks; its rows' cross product is the viewing direction. A
+//! point z-buffer over the photo (cells of 1/64 of the person's height) keeps the Gaussians
+//! within [`PhotoColourConfig::depth_tolerance`] of the front-most one in their cell; those
+//! that land on the person's mask (eroded, away from its edge) sample the photo there. A
+//! Gaussian seen in several photos takes the mean. The landmark the fit misses most is dropped
+//! while the fit misses by more than [`PhotoColourConfig::max_fit_error`] of the person's height
+//! (down to two thirds of them); a photo whose fit still misses is skipped.
+
+use crate::avatar::Avatar;
+use crate::body::{BodyTemplate, Pose};
+use crate::perception::pose::template_landmarks;
+use crate::perception::{LandmarkId, BODY_LANDMARKS};
+use crate::splat::{rgb_to_sh_dc, sh_dc_to_rgb};
+use glam::{Mat4, Vec2, Vec3, Vec4};
+use image::{GrayImage, RgbImage};
+
+/// Settings of [`colour_from_photos`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PhotoColourConfig {
+    /// Landmark visibility from which a landmark places the camera.
+    pub min_visibility: f32,
+    /// Largest RMS landmark error of the camera fit, as a share of the person's height.
+    pub max_fit_error: f32,
+    /// Depth (metres) behind the front-most Gaussian of a cell within which a Gaussian counts as
+    /// seen.
+    pub depth_tolerance: f32,
+    /// Mask value (0–255) a sampled pixel and its neighbours need.
+    pub min_mask: u8,
+    /// Pull of the colour transform towards the identity (ridge weight per Gaussian seen).
+    pub ridge: f32,
+}
+
+impl Default for PhotoColourConfig {
+    fn default() -> Self {
+        Self {
+            min_visibility: 0.5,
+            max_fit_error: 0.06,
+            depth_tolerance: 0.05,
+            min_mask: 200,
+            ridge: 0.05,
+        }
+    }
+}
+
+/// A photo of the person with what the camera fit needs.
+pub struct PhotoSample<'a> {
+    /// The photo.
+    pub image: &'a RgbImage,
+    /// The person's mask on it (255 = person).
+    pub mask: &'a GrayImage,
+    /// Perception's image landmarks (pixels).
+    pub landmarks: &'a [crate::perception::Landmark; BODY_LANDMARKS],
+    /// The pose solved for the photo.
+    pub pose: &'a Pose,
+}
+
+/// What [`colour_from_photos`] did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PhotoColourReport {
+    /// Photos used (camera fit good enough).
+    pub photos_used: usize,
+    /// Photos skipped, with why.
+    pub skipped: Vec<String>,
+    /// Gaussians that took a photo's colour.
+    pub seen: usize,
+    /// Gaussians recoloured by the fitted transform.
+    pub mapped: usize,
+    /// RMS landmark error of each used photo's camera fit, as a share of the person's height.
+    pub fit_errors: Vec<f32>,
+}
+
+/// Landmarks that place the camera: the body joints (shoulders to feet) and the nose.
+const FIT_LANDMARKS: [LandmarkId; 15] = [
+    LandmarkId::Nose,
+    LandmarkId::LeftShoulder,
+    LandmarkId::RightShoulder,
+    LandmarkId::LeftElbow,
+    LandmarkId::RightElbow,
+    LandmarkId::LeftWrist,
+    LandmarkId::RightWrist,
+    LandmarkId::LeftHip,
+    LandmarkId::RightHip,
+    LandmarkId::LeftKnee,
+    LandmarkId::RightKnee,
+    LandmarkId::LeftAnkle,
+    LandmarkId::RightAnkle,
+    LandmarkId::LeftHeel,
+    LandmarkId::RightHeel,
+];
+
+/// Fewest landmarks a camera is fitted to.
+const MIN_FIT_LANDMARKS: usize = 6;
+
+/// An affine camera: `pixel = rows · (X, 1)`.
+#[derive(Debug, Clone, Copy)]
+struct AffineCamera {
+    u: Vec4,
+    v: Vec4,
+}
+
+impl AffineCamera {
+    fn project(&self, p: Vec3) -> Vec2 {
+        let h = p.extend(1.0);
+        Vec2::new(self.u.dot(h), self.v.dot(h))
+    }
+
+    /// The direction the camera looks along (depth grows along it).
+    fn forward(&self) -> Vec3 {
+        self.u
+            .truncate()
+            .cross(self.v.truncate())
+            .normalize_or_zero()
+    }
+}
+
+/// Least-squares affine camera through `(X, pixel)` pairs (at least 4, not coplanar).
+fn fit_camera(pairs: &[(Vec3, Vec2)]) -> Option<AffineCamera> {
+    if pairs.len() < 4 {
+        return None;
+    }
+    let mut ata = Mat4::ZERO;
+    let (mut atu, mut atv) = (Vec4::ZERO, Vec4::ZERO);
+    for (x, px) in pairs {
+        let h = x.extend(1.0);
+        ata += Mat4::from_cols(h * h.x, h * h.y, h * h.z, h * h.w);
+        atu += h * px.x;
+        atv += h * px.y;
+    }
+    if ata.determinant().abs() < 1e-9 {
+        return None;
+    }
+    let inv = ata.inverse();
+    Some(AffineCamera {
+        u: inv * atu,
+        v: inv * atv,
+    })
+}
+
+/// Whether the mask is at least `min` over the 3×3 pixels around `(x, y)`.
+fn inside_mask(mask: &GrayImage, x: i64, y: i64, min: u8) -> bool {
+    (-1..=1).all(|dy| {
+        (-1..=1).all(|dx| {
+            let (px, py) = (x + dx, y + dy);
+            px >= 0
+                && py >= 0
+                && (px as u32) < mask.width()
+                && (py as u32) < mask.height()
+                && mask.get_pixel(px as u32, py as u32).0[0] >= min
+        })
+    })
+}
+
+/// Mean sRGB colour (0–1) of the 3×3 pixels around `(x, y)`.
+fn sample(image: &RgbImage, x: i64, y: i64) -> Vec3 {
+    let mut sum = Vec3::ZERO;
+    for dy in -1..=1 {
+        for dx in -1..=1 {
+            let px = (x + dx).clamp(0, image.width() as i64 - 1) as u32;
+            let py = (y + dy).clamp(0, image.height() as i64 - 1) as u32;
+            let p = image.get_pixel(px, py).0;
+            sum += Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
+        }
+    }
+    sum / (9.0 * 255.0)
+}
+
+/// Per Gaussian, the sum of the colours the photo shows it with (and how many), when the
+/// camera fit is good enough; else why not.
+fn photo_colours(
+    avatar: &Avatar,
+    template: &BodyTemplate,
+    photo: &PhotoSample<'_>,
+    cfg: &PhotoColourConfig,
+    sums: &mut [(Vec3, u32)],
+) -> Result<f32, String> {
+    let posed_landmarks =
+        template_landmarks(template, photo.pose).map_err(|e| format!("landmarks: {e}"))?;
+    let mut pairs: Vec<(Vec3, Vec2)> = FIT_LANDMARKS
+        .iter()
+        .map(|&id| id as usize)
+        .filter(|&i| photo.landmarks[i].visibility >= cfg.min_visibility)
+        .map(|i| (posed_landmarks[i], photo.landmarks[i].position.truncate()))
+        .collect();
+    let (lo, hi) = pairs.iter().fold((f32::MAX, f32::MIN), |(lo, hi), (_, p)| {
+        (lo.min(p.y), hi.max(p.y))
+    });
+    let height = (hi - lo).max(1.0);
+    // The worst landmark is dropped while the fit misses and two thirds of them remain (a
+    // limb the pose got wrong must not tilt the camera).
+    let keep = (2 * pairs.len()).div_ceil(3).max(MIN_FIT_LANDMARKS);
+    let (camera, rms) = loop {
+        let camera = fit_camera(&pairs).ok_or("too few visible landmarks to place the camera")?;
+        let errors: Vec<f32> = pairs
+            .iter()
+            .map(|(x, p)| camera.project(*x).distance_squared(*p))
+            .collect();
+        let rms = (errors.iter().sum::<f32>() / pairs.len() as f32).sqrt() / height;
+        if rms <= cfg.max_fit_error || pairs.len() <= keep {
+            break (camera, rms);
+        }
+        let worst = (0..errors.len())
+            .max_by(|&a, &b| errors[a].total_cmp(&errors[b]))
+            .expect("pairs are not empty");
+        pairs.swap_remove(worst);
+    };
+    if rms > cfg.max_fit_error {
+        return Err(format!(
+            "the camera fit misses the landmarks by {:.1} % of the person's height",
+            rms * 100.0
+        ));
+    }
+    let forward = camera.forward();
+    let matrices = template.skeleton.skinning_matrices(photo.pose);
+    let posed = avatar.animate(&matrices);
+    let cell = (height / 64.0).max(1.0);
+    let (gw, gh) = (
+        (photo.image.width() as f32 / cell).ceil() as usize + 1,
+        (photo.image.height() as f32 / cell).ceil() as usize + 1,
+    );
+    let mut front = vec![f32::MAX; gw * gh];
+    let mut placed = Vec::with_capacity(posed.len());
+    for (i, p) in posed.positions.iter().enumerate() {
+        let px = camera.project(*p);
+        let depth = forward.dot(*p);
+        let (cx, cy) = ((px.x / cell).floor(), (px.y / cell).floor());
+        if posed.opacities[i] < 0.05
+            || cx < 0.0
+            || cy < 0.0
+            || cx as usize >= gw
+            || cy as usize >= gh
+        {
+            placed.push(None);
+            continue;
+        }
+        let c = cy as usize * gw + cx as usize;
+        front[c] = front[c].min(depth);
+        placed.push(Some((px, depth, c)));
+    }
+    for (i, at) in placed.into_iter().enumerate() {
+        let Some((px, depth, c)) = at else {
+            continue;
+        };
+        if depth > front[c] + cfg.depth_tolerance {
+            continue;
+        }
+        let (x, y) = (px.x.round() as i64, px.y.round() as i64);
+        if inside_mask(photo.mask, x, y, cfg.min_mask) {
+            sums[i].0 += sample(photo.image, x, y);
+            sums[i].1 += 1;
+        }
+    }
+    Ok(rms)
+}
+
+/// The affine colour transform (`out = M · (rgb, 1)`, one row per channel) that best maps
+/// `from` to `to`, pulled towards the identity by `ridge` per pair.
+fn fit_colour_transform(pairs: &[(Vec3, Vec3)], ridge: f32) -> [Vec4; 3] {
+    let n = pairs.len() as f32;
+    let lambda = ridge * n.max(1.0);
+    let mut ata = Mat4::from_diagonal(Vec4::new(lambda, lambda, lambda, 1e-6 * n.max(1.0)));
+    let mut atb = [Vec4::ZERO; 3];
+    let identity = [Vec4::X, Vec4::Y, Vec4::Z];
+    for (c, row) in atb.iter_mut().enumerate() {
+        *row = identity[c] * lambda;
+    }
+    for (from, to) in pairs {
+        let h = from.extend(1.0);
+        ata += Mat4::from_cols(h * h.x, h * h.y, h * h.z, h * h.w);
+        for c in 0..3 {
+            atb[c] += h * to[c];
+        }
+    }
+    let inv = ata.inverse();
+    [inv * atb[0], inv * atb[1], inv * atb[2]]
+}
+
+/// Recolours `avatar` (made from `photos` on `template`'s skeleton) from the photos: the
+/// Gaussians they show take the photos' colours, the others the network's colours through the
+/// fitted colour transform. Degree-0 colours only (higher SH bands are left as they are).
+pub fn colour_from_photos(
+    avatar: &mut Avatar,
+    template: &BodyTemplate,
+    photos: &[PhotoSample<'_>],
+    cfg: &PhotoColourConfig,
+) -> PhotoColourReport {
+    let n = avatar.canonical.len();
+    let mut sums = vec![(Vec3::ZERO, 0u32); n];
+    let mut report = PhotoColourReport::default();
+    for (k, photo) in photos.iter().enumerate() {
+        match photo_colours(avatar, template, photo, cfg, &mut sums) {
+            Ok(rms) => {
+                report.photos_used += 1;
+                report.fit_errors.push(rms);
+            }
+            Err(why) => report.skipped.push(format!("photo {k}: {why}")),
+        }
+    }
+    let g = &mut avatar.canonical;
+    let k = g.sh_per_gaussian();
+    let network: Vec<Vec3> = (0..n).map(|i| sh_dc_to_rgb(g.sh[i * k])).collect();
+    let pairs: Vec<(Vec3, Vec3)> = (0..n)
+        .filter(|&i| sums[i].1 > 0)
+        .map(|i| (network[i], sums[i].0 / sums[i].1 as f32))
+        .collect();
+    if pairs.is_empty() {
+        return report;
+    }
+    let m = fit_colour_transform(&pairs, cfg.ridge);
+    for i in 0..n {
+        let rgb = if sums[i].1 > 0 {
+            report.seen += 1;
+            sums[i].0 / sums[i].1 as f32
+        } else {
+            report.mapped += 1;
+            let h = network[i].extend(1.0);
+            Vec3::new(m[0].dot(h), m[1].dot(h), m[2].dot(h))
+        };
+        g.sh[i * k] = rgb_to_sh_dc(rgb.clamp(Vec3::ZERO, Vec3::ONE));
+    }
+    report
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An affine camera is recovered from its own projections, and looks along its rows'
+    /// cross product (a camera in front of the person, +Z towards it, looks along −Z).
+    #[test]
+    fn the_camera_fit_recovers_a_camera() {
+        let truth = AffineCamera {
+            u: Vec4::new(300.0, 0.0, 0.0, 320.0),
+            v: Vec4::new(0.0, -300.0, 0.0, 400.0),
+        };
+        let points = [
+            Vec3::new(0.2, 1.4, 0.05),
+            Vec3::new(-0.2, 1.4, 0.0),
+            Vec3::new(0.1, 0.9, -0.05),
+            Vec3::new(-0.1, 0.9, 0.1),
+            Vec3::new(0.1, 0.1, 0.0),
+            Vec3::new(-0.1, 0.5, 0.2),
+        ];
+        let pairs: Vec<(Vec3, Vec2)> = points.iter().map(|p| (*p, truth.project(*p))).collect();
+        let fit = fit_camera(&pairs).unwrap();
+        for p in points {
+            assert!(fit.project(p).distance(truth.project(p)) < 1e-2);
+        }
+        assert!(
+            fit.forward().distance(Vec3::NEG_Z) < 1e-4,
+            "{}",
+            fit.forward()
+        );
+        assert!(fit_camera(&pairs[..3]).is_none());
+    }
+
+    /// The colour transform learns a consistent colour cast and leaves the identity alone.
+    #[test]
+    fn the_colour_transform_learns_a_cast() {
+        let pairs: Vec<(Vec3, Vec3)> = (0..50)
+            .map(|i| {
+                let c = Vec3::new(
+                    (i % 5) as f32 / 5.0,
+                    (i % 7) as f32 / 7.0,
+                    (i % 3) as f32 / 3.0,
+                );
+                (c, Vec3::new(0.8 * c.x + 0.1, c.y * 0.5, c.z))
+            })
+            .collect();
+        let m = fit_colour_transform(&pairs, 1e-4);
+        let h = Vec3::new(0.5, 0.6, 0.3).extend(1.0);
+        let out = Vec3::new(m[0].dot(h), m[1].dot(h), m[2].dot(h));
+        assert!(out.distance(Vec3::new(0.5, 0.3, 0.3)) < 1e-2, "{out}");
+    }
+}
