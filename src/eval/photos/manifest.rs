@@ -92,6 +92,11 @@ pub struct ManifestView {
     /// Which person, when several are in the frame.
     #[serde(default)]
     pub person: Option<PersonHint>,
+    /// A held-out photo: the avatar is made (and recoloured) from the person's other photos
+    /// and only held-out photos are scored, so the score says how the avatar looks from a view
+    /// it never saw.
+    #[serde(default)]
+    pub heldout: bool,
 }
 
 impl Manifest {
@@ -175,6 +180,7 @@ impl Manifest {
                         photo,
                         mask: mask.is_file().then_some(mask),
                         person: None,
+                        heldout: false,
                     }],
                 }
             })

@@ -420,8 +420,9 @@ pub fn score_view(
 }
 
 /// Reconstructs one person from all their photos and scores each photo against the avatar
-/// rendered in its pose. Photos in which nobody is found (and no mask is given) are skipped;
-/// a person with no photo left has no views.
+/// rendered in its pose; with held-out photos in the manifest, the avatar is made from the
+/// others and only the held-out ones are scored. Photos in which nobody is found (and no mask
+/// is given) are skipped; a person with no photo left has no views.
 pub fn score_person(
     recon: &mut Reconstructor,
     networks: &Arc<PoseNetworks>,
@@ -431,6 +432,7 @@ pub fn score_person(
     let prep = preprocess_config(recon);
     let mut views: Vec<PhotoView> = Vec::new();
     let mut paths = Vec::new();
+    let mut heldout = Vec::new();
     let mut skipped = Vec::new();
     for v in &person.views {
         match photo_view(
@@ -444,6 +446,7 @@ pub fn score_person(
             Some(view) => {
                 views.push(view);
                 paths.push(v.photo.clone());
+                heldout.push(v.heldout);
             }
             None => skipped.push((v.photo.clone(), "no person found".to_string())),
         }
@@ -457,14 +460,27 @@ pub fn score_person(
     if views.is_empty() {
         return Ok((score, Vec::new()));
     }
-    let mut avatar = reconstruct_photos(recon, &views)?;
+    let any_heldout = heldout.iter().any(|h| *h);
+    let inputs: Vec<PhotoView> = views
+        .iter()
+        .zip(&heldout)
+        .filter(|(_, h)| !**h)
+        .map(|(v, _)| v.clone())
+        .collect();
+    if inputs.is_empty() {
+        return Ok((score, Vec::new()));
+    }
+    let mut avatar = reconstruct_photos(recon, &inputs)?;
     let template = recon.template();
     if let Some(colours) = &config.photo_colours {
-        colour_from_views(&mut avatar, template, &views, colours);
+        colour_from_views(&mut avatar, template, &inputs, colours);
     }
     let stage = FrontStage::new(&avatar, config.render_size);
     let mut pictures = Vec::new();
-    for (view, path) in views.iter().zip(paths) {
+    for ((view, path), held) in views.iter().zip(paths).zip(heldout) {
+        if any_heldout && !held {
+            continue;
+        }
         let pose = view.pose.clone().unwrap_or_else(Pose::identity);
         let out = stage.render(&avatar, template, &pose, 0, 1)?;
         let render = out.to_rgb8();
