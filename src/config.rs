@@ -245,6 +245,9 @@ pub struct PerceptionConfig {
     /// Read the body height from calibrated views (CameraInfo and the cameras' TF frames in
     /// `outputs.world_frame`, two or more cameras) when no shape topic gives the shape.
     pub estimate_shape: bool,
+    /// The Gaussians a perceived view shows take their colours from that view, the others the
+    /// network's colours matched to them (`crate::reconstruct::photo_colours`).
+    pub colours_from_views: bool,
 }
 
 impl PerceptionConfig {
@@ -416,6 +419,7 @@ impl Default for PerceptionConfig {
             min_visibility: 0.5,
             threads: 1,
             estimate_shape: true,
+            colours_from_views: true,
         }
     }
 }

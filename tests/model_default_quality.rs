@@ -34,7 +34,15 @@ fn scores_on(bag: &str, checkpoint: &str, crop: InputCrop) -> (f64, f64, f64) {
         checkpoint: checkpoint.into(),
         ..ModelConfig::default()
     };
-    let rows = evaluate_bag(Path::new(bag), &model, &[4], crop, Default::default()).unwrap();
+    let rows = evaluate_bag(
+        Path::new(bag),
+        &model,
+        &[4],
+        crop,
+        Default::default(),
+        Default::default(),
+    )
+    .unwrap();
     assert_eq!(rows.len(), 1);
     assert_eq!(rows[0].views, 4);
     rows[0].means()

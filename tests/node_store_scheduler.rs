@@ -88,6 +88,7 @@ fn stream_of_400_frames_keeps_at_most_k_views_and_few_reconstructions() {
                     arrival: now,
                     image: Arc::new(img),
                     embedding,
+                    evidence: None,
                 };
                 let outcome = store.insert("p0", view);
                 if outcome.changed() {

@@ -173,6 +173,7 @@ fn eval_uses_every_frame_of_a_moving_camera_as_a_view() {
         &[1, 4, 8],
         lhmpp::eval::heldout::InputCrop::FullFrame,
         Default::default(),
+        Default::default(),
     )
     .unwrap();
     // One camera topic with 4 frames gives 4 input views (8 is clamped to 4).

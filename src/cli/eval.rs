@@ -3,7 +3,7 @@
 use super::config_source::ConfigSource;
 use anyhow::{Context, Result};
 use lhmpp::body::MakeHumanShape;
-use lhmpp::eval::heldout::{evaluate_bag, InputCrop, ShapeSource};
+use lhmpp::eval::heldout::{evaluate_bag, ColourSource, InputCrop, ShapeSource};
 use std::path::PathBuf;
 
 /// Arguments of `lhmpp eval`.
@@ -30,6 +30,11 @@ pub struct EvalArgs {
     /// height and girth scales).
     #[arg(long, default_value = "bag")]
     shape: String,
+    /// Recolour each avatar from its input views as the node does with
+    /// `perception.colours_from_views` (perception reads the person in each input view; the
+    /// bag's masks cut them out).
+    #[arg(long)]
+    colours_from_views: bool,
     /// The model settings (`--set model.checkpoint=x.safetensors`).
     #[command(flatten)]
     pub source: ConfigSource,
@@ -48,7 +53,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
         } else {
             InputCrop::Mask
         };
-        let rows = evaluate_bag(bag, &config.model, &args.views, crop, shape)?;
+        let colours = match args.colours_from_views {
+            true => ColourSource::Views,
+            false => ColourSource::Network,
+        };
+        let rows = evaluate_bag(bag, &config.model, &args.views, crop, shape, colours)?;
         if let (0, Some(path), Some(last)) = (b, &args.picture, rows.last()) {
             last.picture
                 .save(path)

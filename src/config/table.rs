@@ -263,6 +263,13 @@ pub fn parameters() -> Vec<Parameter> {
              `shape_params`",
         ),
         p(
+            "perception.colours_from_views",
+            boolean(),
+            "the Gaussians a perceived view shows take their colours from that frame (an affine \
+             camera fitted to the landmarks, a point z-buffer, inside the person's mask), the \
+             others the network's colours through the colour transform fitted to them",
+        ),
+        p(
             "outputs.dir",
             path(),
             "PLY avatars and PNG frames; empty disables",

@@ -8,6 +8,7 @@ use crate::body::Pose;
 use crate::config::ModelConfig;
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, Image, TFMessage};
 use crate::reconstruct::image_decode::{decode_raw, RawImage};
+use crate::reconstruct::photo_colours::{colour_from_evidence, ViewEvidence};
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::shape::check_shape;
 use crate::reconstruct::{ReconstructError, Reconstructor};
@@ -150,6 +151,56 @@ pub fn estimate_bag_shape(
         });
     }
     estimate_shape(template, &views, 0.5).map_err(|e| failed(e.to_string()))
+}
+
+/// Where the avatar's colours come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ColourSource {
+    /// The network's colours.
+    #[default]
+    Network,
+    /// The input views perception reads the person in, as `perception.colours_from_views`
+    /// in the node ([`crate::reconstruct::photo_colours`]).
+    Views,
+}
+
+/// What perception sees of the person in each input view (a fresh tracker per view, the
+/// `full` landmark model; the bag's mask where it has one, else perception's); `None` where
+/// it finds nobody.
+fn perceive_inputs(
+    path: &Path,
+    inputs: &[InputView],
+) -> Result<Vec<Option<ViewEvidence>>, EvalError> {
+    use crate::perception::{LandmarkModel, PersonTracker, PoseNetworks, TrackerConfig};
+    let failed = |message: String| EvalError::MissingGroundTruth {
+        path: path.display().to_string(),
+        message,
+    };
+    let networks = std::sync::Arc::new(
+        PoseNetworks::load(LandmarkModel::Full, None).map_err(|e| failed(e.to_string()))?,
+    );
+    let config = TrackerConfig {
+        smooth_masks: false,
+        ..TrackerConfig::default()
+    };
+    inputs
+        .iter()
+        .map(|v| {
+            let mut tracker = PersonTracker::new(networks.clone(), config);
+            let seen = tracker
+                .perceive(&v.rgb)
+                .map_err(|e| failed(e.to_string()))?;
+            Ok(seen.map(|p| {
+                let mask = v.mask.clone().unwrap_or_else(|| p.mask.to_mask(0.5, 0.1));
+                ViewEvidence {
+                    frame: v.rgb.clone(),
+                    mask,
+                    image_landmarks: p.landmarks.image,
+                    world_landmarks: p.landmarks.world,
+                }
+            }))
+        })
+        .collect()
 }
 
 /// One input view of the bag: its name, image and person mask (when the bag has one).
@@ -335,9 +386,14 @@ pub fn evaluate_bag(
     view_counts: &[usize],
     crop: InputCrop,
     shape: ShapeSource,
+    colours: ColourSource,
 ) -> Result<Vec<EvalRow>, EvalError> {
     let bag = BagReader::open(path)?;
     let gt = read_ground_truth(&bag)?;
+    let evidence = match colours {
+        ColourSource::Network => Vec::new(),
+        ColourSource::Views => perceive_inputs(path, &gt.inputs)?,
+    };
     let mut recon = Reconstructor::new(model, gt.inputs.len())?;
     // Reconstruct on the person's body shape, as the node does when a shape topic is set.
     let makehuman = |s: crate::body::MakeHumanShape| BodyShape {
@@ -400,7 +456,14 @@ pub fn evaluate_bag(
             .into_iter()
             .map(|i| (i as u64 + 1, &images[i]))
             .collect();
-        let avatar = recon.reconstruct(&views)?;
+        let mut avatar = recon.reconstruct(&views)?;
+        if colours == ColourSource::Views {
+            let chosen: Vec<&ViewEvidence> = spread(images.len(), k)
+                .into_iter()
+                .filter_map(|i| evidence[i].as_ref())
+                .collect();
+            colour_from_evidence(&mut avatar, recon.template(), &chosen);
+        }
         let posed = avatar.animate(&matrices);
         let mut first_render = None;
         let per_view = gt

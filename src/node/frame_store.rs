@@ -4,11 +4,12 @@
 //! (cosine similarity above a threshold) to a held view from the same camera is a duplicate:
 //! it is dropped, or replaces the older view, by [`DuplicatePolicy`]. When the set is full, the
 //! view that is most redundant is evicted so the set stays diverse: of the most similar pair
-//! (new view included), the older one goes. Memory is bounded by `max_views` × the largest
-//! preprocessed image the caller inserts.
+//! (new view included), the older one goes. Memory is bounded by `max_views` × (the largest
+//! preprocessed image the caller inserts + a frame of at most 640 pixels on its long side).
 //!
 //! Every change of a person's set bumps its `version`, which the scheduler watches.
 
+use crate::reconstruct::photo_colours::ViewEvidence;
 use crate::reconstruct::preprocess::Preprocessed;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -29,6 +30,9 @@ pub struct View {
     pub image: Arc<Preprocessed>,
     /// Small descriptor for similarity (e.g. mean image token or a thumbnail).
     pub embedding: Vec<f32>,
+    /// What perception saw of the person in the original frame (`None`: masked by a topic or
+    /// whole frames).
+    pub evidence: Option<Arc<ViewEvidence>>,
 }
 
 /// What to do with a near-duplicate of a held view from the same camera.
@@ -251,12 +255,18 @@ impl FrameStore {
         self.persons.remove(person).is_some()
     }
 
-    /// Bytes held by images and embeddings across all persons.
+    /// Bytes held by images, embeddings and evidence frames across all persons.
     pub fn memory_bytes(&self) -> usize {
         self.persons
             .values()
             .flat_map(|p| &p.views)
-            .map(|v| v.image.byte_size() + v.embedding.len() * std::mem::size_of::<f32>())
+            .map(|v| {
+                v.image.byte_size()
+                    + v.embedding.len() * std::mem::size_of::<f32>()
+                    + v.evidence
+                        .as_ref()
+                        .map_or(0, |e| e.frame.len() + e.mask.len())
+            })
             .sum()
     }
 }
@@ -331,6 +341,7 @@ mod tests {
             arrival: Duration::from_millis(id * 10),
             image: image(),
             embedding,
+            evidence: None,
         }
     }
 

@@ -15,8 +15,8 @@
 
 use crate::avatar::Avatar;
 use crate::body::{BodyTemplate, Pose};
-use crate::perception::pose::template_landmarks;
-use crate::perception::{LandmarkId, BODY_LANDMARKS};
+use crate::perception::pose::{template_landmarks, PoseEstimator, PoseEstimatorConfig};
+use crate::perception::{Landmark, LandmarkId, BODY_LANDMARKS};
 use crate::splat::{rgb_to_sh_dc, sh_dc_to_rgb};
 use glam::{Mat4, Vec2, Vec3, Vec4};
 use image::{GrayImage, RgbImage};
@@ -56,7 +56,7 @@ pub struct PhotoSample<'a> {
     /// The person's mask on it (255 = person).
     pub mask: &'a GrayImage,
     /// Perception's image landmarks (pixels).
-    pub landmarks: &'a [crate::perception::Landmark; BODY_LANDMARKS],
+    pub landmarks: &'a [Landmark; BODY_LANDMARKS],
     /// The pose solved for the photo.
     pub pose: &'a Pose,
 }
@@ -324,6 +324,106 @@ pub fn colour_from_photos(
         };
         g.sh[i * k] = rgb_to_sh_dc(rgb.clamp(Vec3::ZERO, Vec3::ONE));
     }
+    report
+}
+
+/// A view's original frame as perception saw the person in it, kept (at most
+/// [`ViewEvidence::MAX_SIDE`] pixels on its long side) so the avatar can take its colours from
+/// it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewEvidence {
+    /// The frame, scaled down.
+    pub frame: RgbImage,
+    /// The person's mask on it.
+    pub mask: GrayImage,
+    /// Image landmarks in the scaled frame's pixels.
+    pub image_landmarks: [Landmark; BODY_LANDMARKS],
+    /// World landmarks (metres, hip-centred, the camera's axes).
+    pub world_landmarks: [Landmark; BODY_LANDMARKS],
+}
+
+impl ViewEvidence {
+    /// Longest side kept.
+    pub const MAX_SIDE: u32 = 640;
+
+    /// The evidence of a frame, scaled down to [`Self::MAX_SIDE`] when larger.
+    pub fn new(
+        frame: &RgbImage,
+        mask: &GrayImage,
+        image_landmarks: &[Landmark; BODY_LANDMARKS],
+        world_landmarks: &[Landmark; BODY_LANDMARKS],
+    ) -> Self {
+        let (w, h) = frame.dimensions();
+        let scale = (Self::MAX_SIDE as f32 / w.max(h) as f32).min(1.0);
+        let mut image_landmarks = *image_landmarks;
+        if scale >= 1.0 {
+            return Self {
+                frame: frame.clone(),
+                mask: mask.clone(),
+                image_landmarks,
+                world_landmarks: *world_landmarks,
+            };
+        }
+        let (sw, sh) = (
+            ((w as f32 * scale).round() as u32).max(1),
+            ((h as f32 * scale).round() as u32).max(1),
+        );
+        let filter = image::imageops::FilterType::Triangle;
+        for l in &mut image_landmarks {
+            l.position.x *= sw as f32 / w as f32;
+            l.position.y *= sh as f32 / h as f32;
+        }
+        Self {
+            frame: image::imageops::resize(frame, sw, sh, filter),
+            mask: image::imageops::resize(mask, sw, sh, filter),
+            image_landmarks,
+            world_landmarks: *world_landmarks,
+        }
+    }
+}
+
+/// Recolours `avatar` from the views perception saw the person in (each view's pose solved from
+/// its world landmarks on `template`); nothing without such views.
+pub fn colour_from_evidence(
+    avatar: &mut Avatar,
+    template: &BodyTemplate,
+    seen: &[&ViewEvidence],
+) -> PhotoColourReport {
+    if seen.is_empty() {
+        return PhotoColourReport::default();
+    }
+    let config = PoseEstimatorConfig {
+        filter: None,
+        ..PoseEstimatorConfig::default()
+    };
+    let Ok(mut solver) = PoseEstimator::new(template, config) else {
+        return PhotoColourReport::default();
+    };
+    let poses: Vec<Pose> = seen
+        .iter()
+        .map(|e| {
+            solver.reset();
+            solver.update(0.0, &e.world_landmarks)
+        })
+        .collect();
+    let samples: Vec<PhotoSample<'_>> = seen
+        .iter()
+        .zip(&poses)
+        .map(|(e, pose)| PhotoSample {
+            image: &e.frame,
+            mask: &e.mask,
+            landmarks: &e.image_landmarks,
+            pose,
+        })
+        .collect();
+    let report = colour_from_photos(avatar, template, &samples, &PhotoColourConfig::default());
+    tracing::debug!(
+        views = report.photos_used,
+        seen = report.seen,
+        mapped = report.mapped,
+        skipped = report.skipped.len(),
+        "colours from the views"
+    );
     report
 }
 

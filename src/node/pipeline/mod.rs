@@ -27,6 +27,7 @@ use crate::perception::PeopleConfig;
 use crate::perception::{
     Landmark, LandmarkModel, PerceptionError, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
 };
+use crate::reconstruct::photo_colours::{colour_from_evidence, ViewEvidence};
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::shape::AcceptedShape;
 use crate::reconstruct::{shape, ReconstructError, Reconstructor};
@@ -162,6 +163,8 @@ pub struct Pipeline {
     /// When the pipeline next looks for perception results.
     perception_due: Duration,
     publish_masks: bool,
+    /// Recolour avatars from the perceived views (`perception.colours_from_views`).
+    colours_from_views: bool,
     animation: AnimationSetup,
     /// Camera calibration (and the shape reader).
     calibration: Calibration,
@@ -333,6 +336,7 @@ impl Pipeline {
             perception,
             perception_due: Duration::ZERO,
             publish_masks: config.outputs.masks,
+            colours_from_views: config.perception.colours_from_views,
             animation: AnimationSetup {
                 source: config.inputs.pose_source,
                 estimator,
@@ -710,7 +714,7 @@ impl Pipeline {
             (MaskRoute::Perception, Some(perception)) => perception.submit(frame, camera),
             (MaskRoute::Perception, None) => {
                 let person = self.default_person.clone();
-                self.on_frame(frame, None, &person, now)
+                self.on_frame(frame, None, None, &person, now)
             }
             (MaskRoute::Topic | MaskRoute::Whole, perception) => {
                 if let (PoseSource::Camera, Some(p)) = (self.animation.source, perception) {
@@ -721,7 +725,7 @@ impl Pipeline {
                     self.admit(ready, now);
                 } else {
                     let person = self.default_person.clone();
-                    self.on_frame(frame, None, &person, now);
+                    self.on_frame(frame, None, None, &person, now);
                 }
             }
         }
@@ -779,7 +783,15 @@ impl Pipeline {
             }
             if to_store {
                 self.stats.perception_masked += 1;
-                self.on_frame(frame.clone(), Some(seen.mask), &person, now);
+                let evidence = self.colours_from_views.then(|| {
+                    Arc::new(ViewEvidence::new(
+                        &frame.image,
+                        &seen.mask,
+                        &seen.image,
+                        &seen.world,
+                    ))
+                });
+                self.on_frame(frame.clone(), Some(seen.mask), evidence, &person, now);
             }
         }
     }
@@ -868,15 +880,17 @@ impl Pipeline {
         let person = self.default_person.clone();
         for (frame, mask) in ready {
             self.stats.masked += u64::from(mask.is_some());
-            self.on_frame(frame, mask, &person, now);
+            self.on_frame(frame, mask, None, &person, now);
         }
     }
 
-    /// A frame of `person` (cropped by `mask`, else whole) into their frame store.
+    /// A frame of `person` (cropped by `mask`, else whole; with what perception saw of them)
+    /// into their frame store.
     fn on_frame(
         &mut self,
         frame: CameraFrame,
         mask: Option<Arc<GrayImage>>,
+        evidence: Option<Arc<ViewEvidence>>,
         person: &str,
         now: Duration,
     ) {
@@ -900,6 +914,7 @@ impl Pipeline {
             arrival: frame.arrival,
             embedding: thumbnail_embedding(&image, EMBEDDING_GRID),
             image,
+            evidence,
         };
         let outcome = self.store.insert(person, view);
         match outcome {
@@ -1111,7 +1126,15 @@ impl Pipeline {
             .use_shape(shape)
             .and_then(|_| self.recon.reconstruct(&views));
         match result {
-            Ok(avatar) => {
+            Ok(mut avatar) => {
+                if self.colours_from_views {
+                    let seen: Vec<&ViewEvidence> = set
+                        .views
+                        .iter()
+                        .filter_map(|v| v.evidence.as_deref())
+                        .collect();
+                    colour_from_evidence(&mut avatar, self.recon.template(), &seen);
+                }
                 let stamp = set.views.iter().map(|v| v.stamp_ns).max().unwrap_or(0);
                 self.publish_avatar(&job, &avatar, set.views.len(), stamp);
                 let skeleton = self.recon.template().skeleton.clone();
