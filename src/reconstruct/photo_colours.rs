@@ -42,7 +42,7 @@ impl Default for PhotoColourConfig {
         Self {
             min_visibility: 0.5,
             max_fit_error: 0.06,
-            depth_tolerance: 0.05,
+            depth_tolerance: 0.03,
             min_mask: 200,
             ridge: 0.05,
         }
