@@ -5,7 +5,8 @@
 //! scores its CIEDE2000; and planted failures score large: shirt and trouser colours
 //! swapped, and an avatar that renders nothing (scored against the white background). The
 //! command runs end to end on a folder of renders and on a two-view manifest, and each
-//! person's avatar comes from their own photos only.
+//! person's avatar comes from their own photos only. Colours taken from the photos carry over
+//! to a view the avatar never saw.
 
 use glam::Vec3;
 use lhmpp::body::Pose;
@@ -357,4 +358,77 @@ fn a_missing_avatar_scores_against_the_background() {
 
 fn delta_any(v: &ViewPicture, region: Region) -> f64 {
     v.regions[region.index()].delta_e.unwrap()
+}
+
+/// A photo with the colour channels rotated (skin blue, and so on): far from the synthetic
+/// people the default was trained on.
+fn rotated(p: &Photo) -> image::RgbImage {
+    let mut image = p.image.clone();
+    for px in image.pixels_mut() {
+        px.0 = [px.0[2], px.0[0], px.0[1]];
+    }
+    image
+}
+
+/// Mean ΔE00 over the regions scored in every view of `score`.
+fn mean_delta(score: &lhmpp::eval::photos::PersonScore) -> f64 {
+    let d: Vec<f64> = score
+        .views
+        .iter()
+        .flat_map(|v| v.regions.iter().filter_map(|r| r.delta_e))
+        .collect();
+    assert!(d.len() >= 4, "{score:?}");
+    d.iter().sum::<f64>() / d.len() as f64
+}
+
+#[test]
+fn colours_from_the_photos_carry_over_to_a_held_out_view() {
+    // The avatar is made from the front photo and scored on a side photo it never saw, both
+    // in an unusual palette: taking the colours from the front photo must bring the side view
+    // far closer than the network's own colours.
+    use lhmpp::eval::photos::manifest::{ManifestPerson, ManifestView};
+    use lhmpp::eval::photos::{score_person, EvalPhotosConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let front_photo = front();
+    let side_photo = photo(0.6);
+    let (front_path, side_path) = (dir.path().join("front.png"), dir.path().join("side.png"));
+    let mask_path = dir.path().join("front_mask.png");
+    rotated(front_photo).save(&front_path).unwrap();
+    front_photo.mask.save(&mask_path).unwrap();
+    rotated(&side_photo).save(&side_path).unwrap();
+    let person = ManifestPerson {
+        name: "rotated".into(),
+        note: String::new(),
+        views: vec![
+            ManifestView {
+                photo: front_path,
+                mask: Some(mask_path),
+                person: None,
+                heldout: false,
+            },
+            ManifestView {
+                photo: side_path,
+                mask: None,
+                person: None,
+                heldout: true,
+            },
+        ],
+    };
+    let mut recon = Reconstructor::new(&ModelConfig::default(), 2).unwrap();
+    let mut score = |photo_colours| {
+        let config = EvalPhotosConfig {
+            photo_colours,
+            ..EvalPhotosConfig::default()
+        };
+        let (score, _) = score_person(&mut recon, &networks(), &person, &config).unwrap();
+        assert_eq!(score.views.len(), 1, "only the held-out view is scored");
+        mean_delta(&score)
+    };
+    let network = score(None);
+    let from_photos = score(EvalPhotosConfig::default().photo_colours);
+    eprintln!("held-out ΔE00: network {network:.1}, from the photos {from_photos:.1}");
+    assert!(
+        from_photos < 12.0 && from_photos < 0.6 * network,
+        "held-out ΔE00: colours from the photos {from_photos:.1}, network colours {network:.1}"
+    );
 }
