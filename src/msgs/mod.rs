@@ -30,5 +30,5 @@ pub use geometry::{GeometryPose, Point, Quaternion, Transform, TransformStamped,
 pub use message::{dds_type_name, RosMessage, CDR_LE_HEADER};
 pub use reconstruction_status::{ReconstructionState, ReconstructionStatus};
 pub use sensor::{CameraInfo, CompressedImage, Image, PointCloud2, PointField, RegionOfInterest};
-pub use std_msgs::Header;
+pub use std_msgs::{Header, StdString};
 pub use tf2::TFMessage;

@@ -12,6 +12,7 @@ pub const SCHEMA_SEPARATOR: &str =
 pub const DEFINITIONS: &[(&str, &str)] = &[
     (Time::TYPE_NAME, Time::DEFINITION),
     (Header::TYPE_NAME, Header::DEFINITION),
+    (StdString::TYPE_NAME, StdString::DEFINITION),
     (Vector3::TYPE_NAME, Vector3::DEFINITION),
     (Point::TYPE_NAME, Point::DEFINITION),
     (Quaternion::TYPE_NAME, Quaternion::DEFINITION),

@@ -1,4 +1,5 @@
-//! `std_msgs/msg/Header`: time stamp and coordinate frame of stamped data.
+//! `std_msgs/msg/Header` (time stamp and coordinate frame of stamped data) and
+//! `std_msgs/msg/String` (the cluster members' heartbeats).
 
 use super::message::ros_message;
 use super::Time;
@@ -17,6 +18,19 @@ ros_message!(
     "std_msgs",
     "Header",
     include_str!("defs/std_msgs/Header.msg")
+);
+
+/// `std_msgs/msg/String`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct StdString {
+    /// The text.
+    pub data: String,
+}
+ros_message!(
+    StdString,
+    "std_msgs",
+    "String",
+    include_str!("defs/std_msgs/String.msg")
 );
 
 impl Header {

@@ -77,6 +77,15 @@ pub enum InputEvent {
         /// The transforms.
         transforms: Vec<TransformStamped>,
     },
+    /// Another cluster member is alive (`cluster`, its heartbeat).
+    ClusterHeartbeat {
+        /// Its `cluster.index`.
+        index: u32,
+        /// Its `cluster.members`.
+        members: u32,
+        /// Node clock at arrival.
+        arrival: Duration,
+    },
     /// A body shape (checked by the pipeline, which knows the body model in use).
     BodyShape {
         /// Resolved topic.

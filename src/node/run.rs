@@ -4,6 +4,7 @@
 //! and the signal handlers.
 
 use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs};
+use super::pipeline::membership::HEARTBEAT_PERIOD;
 use super::pipeline::{Pipeline, PipelineError, PipelineStats};
 use super::replay::{BagReplay, Replayed};
 use super::ros::{LiveInputs, ResolvedTopics, RosError, RosNode, RosNodeOptions};
@@ -142,6 +143,11 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         tracing::info!(domain = node.domain_id(), topics = ?node.topics(), "ROS 2 endpoint up");
         if live {
             inputs = Some(queue);
+            if config.tracking.enabled && config.cluster.members > 1 {
+                // Live: the members hear each other's heartbeats, and a silent one's persons
+                // go to the others.
+                pipeline.expect_heartbeats(started.elapsed());
+            }
         }
         Some(Arc::new(node))
     } else {
@@ -232,12 +238,20 @@ fn run_live(
             pipeline.set_input_rejections(node.input_stats().rejections);
         }
     };
+    let mut next_heartbeat = Duration::ZERO;
     while !stop.load(Ordering::SeqCst) {
         sync(pipeline);
         let now = clock();
+        if let (Some(node), Some(_), true) = (inputs, pipeline.heartbeat(), now >= next_heartbeat) {
+            if let Err(e) = node.publish_heartbeat() {
+                tracing::warn!("cluster heartbeat: {e}");
+            }
+            next_heartbeat = now + HEARTBEAT_PERIOD;
+        }
         let wait = pipeline
             .next_deadline()
-            .map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT));
+            .map_or(IDLE_WAIT, |d| d.saturating_sub(now).min(IDLE_WAIT))
+            .min(HEARTBEAT_PERIOD);
         match events.as_deref_mut() {
             Some(queue) if !(queue.is_closed() && queue.is_empty()) => {
                 if let Some(event) = queue.recv_timeout(wait) {

@@ -6,6 +6,7 @@
 
 pub mod calibration;
 pub mod masks;
+pub mod membership;
 pub mod neural_frames;
 pub mod perceive;
 mod person;
@@ -13,7 +14,7 @@ pub mod render;
 
 use crate::avatar::Avatar;
 use crate::body::Pose;
-use crate::config::{ClusterConfig, LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
+use crate::config::{LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
 use crate::msgs::{BodyPose, BodyShape, Header, ReconstructionStatus, Time};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::inputs::{CameraFrame, InputEvent};
@@ -34,6 +35,7 @@ use crate::reconstruct::{shape, ReconstructError, Reconstructor};
 use calibration::Calibration;
 use image::GrayImage;
 use masks::{MaskPairing, Paired};
+use membership::Membership;
 use neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
 use perceive::{Finders, MaskSettings, PerceivedFrame, Perception};
 use person::{Animation, CameraPose, Current, PersonState};
@@ -148,7 +150,8 @@ pub struct Pipeline {
     default_person: String,
     /// Persons come from the tracker (`tracking.enabled`).
     tracking: bool,
-    cluster: ClusterConfig,
+    /// Which persons this node reconstructs (`cluster`).
+    membership: Membership,
     persons: BTreeMap<String, PersonState>,
     recon: Reconstructor,
     store: FrameStore,
@@ -318,7 +321,7 @@ impl Pipeline {
         Ok(Self {
             default_person: config.person_id.clone(),
             tracking: config.tracking.enabled,
-            cluster: config.cluster.clone(),
+            membership: Membership::new(&config.cluster),
             persons: BTreeMap::new(),
             recon,
             store: FrameStore::new((&config.frame_store).into()),
@@ -525,6 +528,52 @@ impl Pipeline {
                 arrival,
                 shape,
             } => self.on_shape(&topic, &shape, arrival, now),
+            InputEvent::ClusterHeartbeat {
+                index,
+                members,
+                arrival,
+            } => self.membership.heartbeat(index, members, arrival),
+        }
+    }
+
+    /// Live cluster membership from `now` on: members whose heartbeat stops for 2 s hand
+    /// their persons to the others (the node calls this once its ROS 2 endpoint is up).
+    pub fn expect_heartbeats(&mut self, now: Duration) {
+        self.membership.expect_heartbeats(now);
+    }
+
+    /// This node's `(cluster.index, cluster.members)`, when heartbeats are expected.
+    pub fn heartbeat(&self) -> Option<(u32, u32)> {
+        self.membership.live().then(|| self.membership.me())
+    }
+
+    /// After a change of the alive members: persons handed to this node are scheduled (their
+    /// views are already held), persons handed away stop being reconstructed here.
+    fn reassign(&mut self, now: Duration) {
+        let changes: Vec<(String, bool)> = self
+            .persons
+            .iter()
+            .filter(|(id, p)| p.owned != self.membership.owns(id))
+            .map(|(id, p)| (id.clone(), !p.owned))
+            .collect();
+        for (person, owned) in changes {
+            self.persons.get_mut(&person).expect("listed above").owned = owned;
+            if owned {
+                tracing::info!(person, "person handed to this node");
+                if self.store.len(&person) > 0 {
+                    let version = self.input_version(&person);
+                    let arrival = self
+                        .store
+                        .snapshot(&person)
+                        .and_then(|s| s.last_arrival())
+                        .unwrap_or(now);
+                    self.scheduler
+                        .view_set_changed(&person, version, arrival, now);
+                }
+            } else {
+                tracing::info!(person, "person handed to another cluster member");
+                self.scheduler.forget(&person);
+            }
         }
     }
 
@@ -590,7 +639,7 @@ impl Pipeline {
     /// when `cluster` gives them to it.
     fn person_mut(&mut self, person: &str) -> &mut PersonState {
         if !self.persons.contains_key(person) {
-            let owned = !self.tracking || self.cluster.owns(person);
+            let owned = !self.tracking || self.membership.owns(person);
             let animation = Animation::new(self.animation.source, self.animation.estimator.clone());
             self.stats.persons_started += 1;
             if self.tracking {
@@ -679,7 +728,7 @@ impl Pipeline {
             shape_params = ?self.persons[person].shape.as_ref().map(AcceptedShape::params),
             "body shape applied"
         );
-        if self.store.len(person) > 0 {
+        if self.store.len(person) > 0 && self.persons[person].owned {
             let version = self.input_version(person);
             self.scheduler
                 .view_set_changed(person, version, arrival, now);
@@ -769,10 +818,10 @@ impl Pipeline {
             tracing::debug!(topic = %frame.topic, "no person in the frame: not stored");
         }
         for seen in people {
+            // Persons another cluster member reconstructs are followed too (views, pose,
+            // height), so that they can be handed over at once.
             let person = seen.id.unwrap_or_else(|| self.default_person.clone());
-            if !self.person_mut(&person).owned {
-                continue;
-            }
+            self.person_mut(&person);
             self.on_camera_landmarks(&person, &frame, &seen.world, now);
             let state = self.persons.get_mut(&person).expect("made above");
             if let Some(height) =
@@ -923,7 +972,7 @@ impl Pipeline {
             InsertOutcome::Replaced { replaced, .. } => self.recon.forget(replaced),
             InsertOutcome::Added => {}
         }
-        if outcome.changed() {
+        if outcome.changed() && self.persons[person].owned {
             let version = self.input_version(person);
             self.scheduler
                 .view_set_changed(person, version, frame.arrival, now);
@@ -943,6 +992,9 @@ impl Pipeline {
         // After the mask waits: perceiving on this thread (replay) takes time that must not
         // count against a frame waiting for its mask.
         self.take_perceived(now);
+        if self.tracking && self.membership.refresh(now) {
+            self.reassign(now);
+        }
         for job in self.scheduler.poll(now) {
             self.run_job(job, &clock);
         }

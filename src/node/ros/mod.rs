@@ -33,7 +33,7 @@ pub use sink::InputStats;
 use crate::config::{FrameQos, ImageQos, NodeConfig, PoseSource};
 use crate::msgs::{
     BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, PointCloud2,
-    ReconstructionStatus, RosMessage, TFMessage,
+    ReconstructionStatus, RosMessage, StdString, TFMessage,
 };
 use crate::node::input_queue::{bounded, OverflowPolicy};
 use crate::node::inputs::{EncodedImage, ImageMessage, Incoming, InputEvent};
@@ -122,6 +122,9 @@ pub struct RosNodeOptions {
     /// their first frame), keeping this many persons' publishers; `None`: one person, on
     /// `outputs.frames`.
     pub person_frames: Option<usize>,
+    /// Cluster heartbeats on `cluster/heartbeat` (std_msgs/String): this node's `(index,
+    /// members)`; `None` without a cluster.
+    pub cluster: Option<(u32, u32)>,
     /// TF frame of the preview cloud and its parent on `/tf`; `None` disables both.
     pub preview_frames: Option<(String, String)>,
     /// Publish each camera's person mask on its `person_mask` topic.
@@ -174,6 +177,8 @@ impl RosNodeOptions {
             outputs: OutputTopics::for_virtual_cameras(cfg.outputs.virtual_cameras),
             frame_qos: cfg.outputs.frame_qos,
             person_frames: cfg.tracking.enabled.then_some(2 * cfg.tracking.max_persons),
+            cluster: (cfg.tracking.enabled && cfg.cluster.members > 1)
+                .then_some((cfg.cluster.index, cfg.cluster.members)),
             preview_frames: (cfg.outputs.preview_rate_hz > 0.0).then(|| {
                 (
                     cfg.outputs.preview_frame.clone(),
@@ -299,6 +304,8 @@ pub struct RosNode {
     status: LatchedPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
     person_frames: Option<PersonFramePorts>,
+    /// The cluster heartbeat publisher and this node's `(index, members)`.
+    heartbeat: Option<(OutputPort<StdString>, u32, u32)>,
     preview: Option<Preview>,
     /// Person-mask publishers by camera topic.
     masks: BTreeMap<String, OutputPort<Image>>,
@@ -432,6 +439,28 @@ impl RosNode {
                 None => sink.spawn(topic.clone(), sub, convert),
             });
         }
+        let heartbeat = match opts.cluster {
+            Some((index, members)) => {
+                let topic = names.resolve(HEARTBEAT_TOPIC)?;
+                let port = advertise::<StdString>(&mut node, &topic, reliable_input_qos())?;
+                let sub = subscribe::<StdString>(&mut node, &topic, reliable_input_qos())?;
+                tasks.push(sink.spawn_from_others(
+                    topic.clone(),
+                    sub,
+                    port.publisher.gid(),
+                    |_, msg: StdString, arrival| {
+                        let (index, members) = parse_heartbeat(&msg.data)?;
+                        Ok(Incoming::Event(InputEvent::ClusterHeartbeat {
+                            index,
+                            members,
+                            arrival,
+                        }))
+                    },
+                ));
+                Some((port, index, members))
+            }
+            None => None,
+        };
         for topic in &topics.tf_inputs {
             // `/tf_static` is latched: a transient-local reader gets the transforms sent before
             // it started.
@@ -533,6 +562,7 @@ impl RosNode {
                 status,
                 frames,
                 person_frames,
+                heartbeat,
                 preview,
                 masks,
                 pose: pose_out,
@@ -573,6 +603,16 @@ impl RosNode {
     /// Publishes a ReconstructionStatus (reliable, transient-local).
     pub fn publish_status(&self, msg: ReconstructionStatus) -> Result<PublishOutcome, RosError> {
         self.status.publish(msg)
+    }
+
+    /// Says this cluster member is alive (nothing without a cluster).
+    pub fn publish_heartbeat(&self) -> Result<(), RosError> {
+        if let Some((port, index, members)) = &self.heartbeat {
+            port.publish(StdString {
+                data: heartbeat_text(*index, *members),
+            })?;
+        }
+        Ok(())
     }
 
     /// Publishes a rendered frame of `person` from virtual camera `camera` (`outputs.frame_qos`):
@@ -759,6 +799,29 @@ fn subscribe<M: RosMessage + DeserializeOwned + 'static>(
         .map_err(|e| RosError::Create(format!("topic {topic}: {e}")))?;
     node.create_subscription::<M>(&t, Some(qos))
         .map_err(|e| RosError::Create(format!("subscription to {topic}: {e}")))
+}
+
+/// The cluster members' heartbeat topic (std_msgs/String), relative to the namespace.
+pub const HEARTBEAT_TOPIC: &str = "cluster/heartbeat";
+
+/// A heartbeat's text: `lhmpp cluster member <index> of <members>`.
+pub fn heartbeat_text(index: u32, members: u32) -> String {
+    format!("lhmpp cluster member {index} of {members}")
+}
+
+/// `(index, members)` of a heartbeat's text.
+pub fn parse_heartbeat(text: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("`{text}` is not `lhmpp cluster member <index> of <members>`");
+    let rest = text.strip_prefix("lhmpp cluster member ").ok_or_else(bad)?;
+    let (index, members) = rest.split_once(" of ").ok_or_else(bad)?;
+    let (index, members): (u32, u32) = (
+        index.trim().parse().map_err(|_| bad())?,
+        members.trim().parse().map_err(|_| bad())?,
+    );
+    if index >= members {
+        return Err(bad());
+    }
+    Ok((index, members))
 }
 
 fn advertise<M: RosMessage + Serialize>(
