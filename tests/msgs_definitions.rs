@@ -89,6 +89,7 @@ fn every_rust_message_matches_its_msg_definition_field_by_field() {
     let checked = check_types!(
         Time,
         Header,
+        StdString,
         Vector3,
         Point,
         Quaternion,

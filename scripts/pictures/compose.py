@@ -157,6 +157,28 @@ def people(out, target):
     ).save(target)
 
 
+def tracked(out, target):
+    """Two synthetic people tracked by the node (launch_configs/people.yaml): a camera frame
+    with each person's mask tinted by the id the tracker gave it, and each person's avatar from
+    the front and the back."""
+    out = Path(out)
+    frames = sorted((out / "tracked_frames").glob("*_cam0.png"))
+    overlay = Image.open(frames[len(frames) // 5])  # before they cross
+    overlay = overlay.crop((0, 0, overlay.width // 2, overlay.height))
+    tiles = [tile(overlay, "camera frame: tracked ids")]
+    for person in ["person_0", "person_1"]:
+        renders = out / "tracked" / f"render_{person}"
+        for view, side in [("f0000_v00.png", "front"), ("f0000_v02.png", "back")]:
+            tiles.append(tile(crop_to_content(Image.open(renders / view)), f"{person}, {side}"))
+    column([row(tiles)], title="several people: one avatar per tracked person").save(target)
+
+
 if __name__ == "__main__":
     kind, out, target = sys.argv[1:4]
-    {"perception": perception, "live-pose": live_pose, "overview": overview, "people": people}[kind](out, target)
+    {
+        "perception": perception,
+        "live-pose": live_pose,
+        "overview": overview,
+        "people": people,
+        "tracked": tracked,
+    }[kind](out, target)

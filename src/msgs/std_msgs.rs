@@ -20,8 +20,9 @@ ros_message!(
     include_str!("defs/std_msgs/Header.msg")
 );
 
-/// `std_msgs/msg/String`.
+/// `std_msgs/msg/String` (named so that it does not shadow Rust's `String`).
 #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename = "String")]
 pub struct StdString {
     /// The text.
     pub data: String,
