@@ -227,3 +227,23 @@ fn a_silent_member_hands_its_persons_over() {
         "handed over after {handed:?}"
     );
 }
+
+#[test]
+fn past_max_persons_the_node_holds_no_more_persons() {
+    // Two people, room for one: the tracker drops the least recently seen, and the node lets
+    // go of whoever the tracker no longer holds, so memory stays bounded.
+    let dir = tempfile::tempdir().unwrap();
+    let extra = ["tracking.max_persons=1".to_string()];
+    let summary = run(
+        &people_config(&dir.path().join("out"), scene(), &extra),
+        BTreeMap::new(),
+    )
+    .unwrap();
+    assert!(summary.persons.len() <= 1, "{:?}", summary.persons);
+    let dropped = summary.tracking.unwrap().persons_dropped;
+    assert!(dropped >= 1, "the tracker dropped nobody");
+    assert_eq!(
+        summary.stats.persons_started,
+        summary.stats.persons_released + summary.persons.len() as u64
+    );
+}

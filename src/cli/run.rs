@@ -78,11 +78,15 @@ pub fn run(args: RunArgs) -> Result<()> {
         );
     }
     if config.tracking.enabled {
+        let t = summary.tracking.unwrap_or_default();
         println!(
-            "persons: {} tracked at the end, {} started, {} released",
+            "persons: {} tracked at the end, {} started, {} released (tracker: {} forgotten \
+             after tracking.forget_after, {} dropped past tracking.max_persons)",
             summary.persons.len(),
             s.persons_started,
-            s.persons_released
+            s.persons_released,
+            t.persons_forgotten,
+            t.persons_dropped
         );
         for p in &summary.persons {
             match p.reconstructed_here {

@@ -71,6 +71,8 @@ pub struct RunSummary {
     pub animation_frames: usize,
     /// Every person followed at the end (one without tracking).
     pub persons: Vec<PersonSummary>,
+    /// The person tracker's counters (`tracking.enabled` only).
+    pub tracking: Option<crate::tracking::TrackingStats>,
     /// Wall time.
     pub wall: Duration,
 }
@@ -211,6 +213,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
                 id,
             })
             .collect(),
+        tracking: pipeline.tracking_stats(),
         wall: started.elapsed(),
     };
     drop(pipeline);

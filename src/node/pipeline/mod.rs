@@ -419,6 +419,14 @@ impl Pipeline {
         self.avatar_of(&self.default_person)
     }
 
+    /// The person tracker's counters (`tracking.enabled` only): persons started, forgotten
+    /// after `forget_after`, dropped past `max_persons`.
+    pub fn tracking_stats(&self) -> Option<crate::tracking::TrackingStats> {
+        self.perception
+            .as_ref()
+            .and_then(Perception::tracking_stats)
+    }
+
     /// The persons followed now (the configured one without tracking, once seen), by id.
     pub fn persons(&self) -> Vec<String> {
         self.persons.keys().cloned().collect()
@@ -821,6 +829,10 @@ impl Pipeline {
             // Persons another cluster member reconstructs are followed too (views, pose,
             // height), so that they can be handed over at once.
             let person = seen.id.unwrap_or_else(|| self.default_person.clone());
+            if self.tracking && !tracked.contains(&person) {
+                // Dropped by the tracker in this very frame (past tracking.max_persons).
+                continue;
+            }
             self.person_mut(&person);
             self.on_camera_landmarks(&person, &frame, &seen.world, now);
             let state = self.persons.get_mut(&person).expect("made above");
@@ -1078,8 +1090,10 @@ impl Pipeline {
     fn send_status(&mut self, msg: ReconstructionStatus) {
         if self.outputs.live() {
             self.outputs.status(msg.clone());
-            let person = msg.person_id.clone();
-            self.person_mut(&person).last_status = Some(msg);
+            // A released person's last status is not kept (nor are they made again).
+            if let Some(state) = self.persons.get_mut(&msg.person_id) {
+                state.last_status = Some(msg);
+            }
         }
     }
 
@@ -1190,11 +1204,13 @@ impl Pipeline {
                 let stamp = set.views.iter().map(|v| v.stamp_ns).max().unwrap_or(0);
                 self.publish_avatar(&job, &avatar, set.views.len(), stamp);
                 let skeleton = self.recon.template().skeleton.clone();
-                self.person_mut(&person).current = Some(Current {
-                    revision: job.revision,
-                    avatar,
-                    skeleton,
-                });
+                if let Some(state) = self.persons.get_mut(&person) {
+                    state.current = Some(Current {
+                        revision: job.revision,
+                        avatar,
+                        skeleton,
+                    });
+                }
                 match self.scheduler.finished(&person, job.revision, clock()) {
                     Ok(done) => {
                         let latency = done.latency.as_secs_f64() * 1e3;
