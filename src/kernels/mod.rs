@@ -13,6 +13,7 @@
 //! mostly-zero weights ([`sparse_pointwise`]), depthwise convolution
 //! ([`depthwise`]) and the small NHWC operations ([`nhwc`]).
 
+pub mod bf16;
 pub mod conv2d;
 pub mod conv_nhwc;
 pub mod conv_transpose;
