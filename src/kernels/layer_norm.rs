@@ -59,6 +59,18 @@ impl Module for LayerNorm {
                 None => x.apply_op1_no_bwd(&op),
             };
         }
+        if x.device().is_cpu() && x.dtype() == DType::BF16 {
+            // bf16 activations: normalised in f32 by the same kernel, rounded back once.
+            let xf = x.to_dtype(DType::F32)?.contiguous()?;
+            let y = match &self.affine {
+                Some((w, b)) => {
+                    let f = |t: &Tensor| t.to_dtype(DType::F32)?.contiguous();
+                    xf.apply_op3_no_bwd(&f(w)?, &f(b)?, &op)?
+                }
+                None => xf.apply_op1_no_bwd(&op)?,
+            };
+            return y.to_dtype(DType::BF16);
+        }
         reference(x, self.affine.as_ref(), self.eps)
     }
 }
@@ -226,5 +238,31 @@ mod tests {
         let var_err = (var - 1.0).unwrap().abs().unwrap().max_all().unwrap();
         assert!(mean.to_scalar::<f32>().unwrap() < 1e-5);
         assert!(var_err.to_scalar::<f32>().unwrap() < 1e-4);
+    }
+
+    #[test]
+    fn bf16_input_is_normalised_in_f32_and_rounded_once() {
+        let dev = Device::Cpu;
+        let x = Tensor::randn(2f32, 3.0, (37, 384), &dev)
+            .unwrap()
+            .to_dtype(DType::BF16)
+            .unwrap();
+        let w = Tensor::randn(1f32, 0.5, 384, &dev)
+            .unwrap()
+            .to_dtype(DType::BF16)
+            .unwrap();
+        let b = Tensor::randn(0f32, 0.5, 384, &dev)
+            .unwrap()
+            .to_dtype(DType::BF16)
+            .unwrap();
+        let affine = (w.clone(), b.clone());
+        let got = LayerNorm::new(w, b, 1e-6).forward(&x).unwrap();
+        assert_eq!(got.dtype(), DType::BF16);
+        let want = reference(&x.to_dtype(DType::F32).unwrap(), Some(&affine), 1e-6).unwrap();
+        // One bf16 rounding of values up to ~5: 2^-8 relative.
+        assert!(max_abs_diff(&got, &want) < 0.04);
+        let got = LayerNorm::plain(1e-6).forward(&x).unwrap();
+        let want = reference(&x.to_dtype(DType::F32).unwrap(), None, 1e-6).unwrap();
+        assert!(max_abs_diff(&got, &want) < 0.04);
     }
 }

@@ -11,6 +11,7 @@
 //! bf16-rounded values accumulated in f32 — with plain loops. [`Kernel::detect`] picks one at
 //! run time; [`gemm`] runs the blocked product ([`gemm::gemm_with`] with an explicit kernel).
 
+pub mod attention;
 #[cfg(target_arch = "x86_64")]
 pub mod avx512;
 pub mod gemm;
