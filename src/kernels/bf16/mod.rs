@@ -30,7 +30,7 @@ pub const MR: usize = 6;
 /// stays in the L1 cache while the rows of a block stream past it.
 pub const KC_PAIRS: usize = 128;
 /// Rows per block of the left operand converted to bf16 at a time.
-pub const MC: usize = 96;
+pub const MC: usize = 384;
 
 /// Which micro-kernel runs the products.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
