@@ -14,6 +14,8 @@ use super::{portable, Kernel, KC_PAIRS, MC, MR, NR};
 
 /// Products smaller than this many multiply-adds run on one thread (as `linear`).
 const PARALLEL_MIN_MACS: usize = 1 << 18;
+/// Tasks per thread a parallel product aims for (load balance against re-converting rows).
+const TASKS_PER_THREAD: usize = 8;
 
 /// The left operand: `m` rows of `k` values, row `i` from `i·ld`.
 #[derive(Debug, Clone, Copy)]
@@ -174,9 +176,12 @@ pub fn gemm_with(
     let row_blocks = m.div_ceil(MC);
     let threads = rayon::current_num_threads();
     let parallel = parallel && threads > 1 && m * n * k >= PARALLEL_MIN_MACS;
+    // Tasks of equal size: row blocks of at most MC rows (multiples of MR), and tiles
+    // split so that there are at least TASKS_PER_THREAD tasks per thread when the size allows.
     let (row_block, tiles_per_task) = if parallel {
-        let col_tasks = (4 * threads).div_ceil(row_blocks).min(tiles);
-        (MC, tiles.div_ceil(col_tasks))
+        let row_block = m.div_ceil(row_blocks).next_multiple_of(MR);
+        let col_tasks = (TASKS_PER_THREAD * threads).div_ceil(row_blocks).min(tiles);
+        (row_block, tiles.div_ceil(col_tasks))
     } else {
         (m, tiles)
     };

@@ -29,7 +29,8 @@ pub const MR: usize = 6;
 /// Pairs of `k` per block: one packed tile of that depth (`NR × 2·KC_PAIRS` bf16, 32 KiB)
 /// stays in the L1 cache while the rows of a block stream past it.
 pub const KC_PAIRS: usize = 128;
-/// Rows per block of the left operand converted to bf16 at a time.
+/// Rows per block of the left operand converted to bf16 at a time (`MC × 2·KC_PAIRS` bf16,
+/// 192 KiB, stays in the L2 cache while the tiles of the right operand pass).
 pub const MC: usize = 384;
 
 /// Which micro-kernel runs the products.

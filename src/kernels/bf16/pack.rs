@@ -73,13 +73,17 @@ impl PackedRhs {
         let mut data = vec![0u16; tiles * pairs * NR * 2];
         if pairs > 0 {
             let tile_len = pairs * NR * 2;
+            // Pair by pair, so that the writes are sequential and the lines read (one per
+            // column, or per pair of `k`) stay in the L1 cache while they are used.
             let fill = |(tile, dst): (usize, &mut [u16])| {
                 let cols = NR.min(n - tile * NR);
-                for c in 0..cols {
-                    let j = tile * NR + c;
-                    for t in 0..k {
-                        dst[(t / 2) * NR * 2 + c * 2 + (t & 1)] =
-                            src.data[j * src.col_stride + t * src.k_stride].bf16_bits();
+                for (p, pair) in dst.chunks_exact_mut(NR * 2).enumerate() {
+                    for (c, out) in pair[..cols * 2].chunks_exact_mut(2).enumerate() {
+                        let base = (tile * NR + c) * src.col_stride + 2 * p * src.k_stride;
+                        out[0] = src.data[base].bf16_bits();
+                        if 2 * p + 1 < k {
+                            out[1] = src.data[base + src.k_stride].bf16_bits();
+                        }
                     }
                 }
             };
