@@ -1,5 +1,9 @@
 //! The AVX512-BF16 micro-kernel and row conversion. Every `unsafe fn` here needs a CPU with
 //! `avx512f` and `avx512bf16`: callers check [`available`] first.
+//!
+//! The intrinsics are stable since Rust 1.89, newer than the crate's minimum: the module is
+//! compiled only when the build script found such a compiler (`lhmpp_bf16_intrinsics`).
+#![allow(clippy::incompatible_msrv)]
 
 use std::arch::x86_64::*;
 

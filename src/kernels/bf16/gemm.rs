@@ -230,7 +230,7 @@ fn pack_lhs(
                 let src = &data[i * ld + t0..i * ld + t1];
                 match kernel {
                     // SAFETY: `gemm_with` checked that the CPU has AVX512-BF16.
-                    #[cfg(target_arch = "x86_64")]
+                    #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
                     Kernel::Avx512Bf16 => unsafe { super::avx512::convert(src, dst) },
                     _ => convert_portable(src, dst),
                 }
@@ -272,7 +272,7 @@ unsafe fn run_task(
                     let a = &buf[ir * kc..];
                     let c = out.0.add((ic + ir) * ldc + col);
                     match kernel {
-                        #[cfg(target_arch = "x86_64")]
+                        #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
                         Kernel::Avx512Bf16 => {
                             debug_assert!(a.len() >= (r - 1) * kc + kc && b.len() >= kc * NR * 2);
                             super::avx512::tile(r, kc, a.as_ptr(), kc, b.as_ptr(), c, ldc, cols)

@@ -12,7 +12,7 @@
 //! run time; [`gemm`] runs the blocked product ([`gemm::gemm_with`] with an explicit kernel).
 
 pub mod attention;
-#[cfg(target_arch = "x86_64")]
+#[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
 pub mod avx512;
 pub mod gemm;
 pub mod linear;
@@ -56,9 +56,9 @@ impl Kernel {
     }
 }
 
-#[cfg(not(target_arch = "x86_64"))]
+#[cfg(not(all(target_arch = "x86_64", lhmpp_bf16_intrinsics)))]
 mod avx512 {
-    /// No AVX-512 off x86-64.
+    /// No AVX512-BF16 kernel in this build (not x86-64, or a compiler older than Rust 1.89).
     pub fn available() -> bool {
         false
     }
