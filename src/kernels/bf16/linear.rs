@@ -50,39 +50,80 @@ fn lhs<'a>(s: &'a CpuStorage, l: &Layout, k: usize) -> Result<Lhs<'a>> {
     })
 }
 
-/// A contiguous CPU operand's values as f32 (the residual).
-fn f32_values(s: &CpuStorage, l: &Layout) -> Result<Vec<f32>> {
-    let Some((a, b)) = l.contiguous_offsets() else {
-        candle_core::bail!("bf16 linear: residual is not contiguous");
-    };
-    Ok(match s {
-        CpuStorage::BF16(d) => d[a..b].par_iter().map(|v| v.to_f32()).collect(),
-        CpuStorage::F32(d) => d[a..b].to_vec(),
-        other => candle_core::bail!(
-            "bf16 linear: residual is {:?}, expected bf16 or f32",
-            other.dtype()
-        ),
-    })
+/// The residual operand, read row chunk by row chunk in the epilogue.
+#[derive(Clone, Copy)]
+enum Residual<'a> {
+    Bf16(&'a [half::bf16]),
+    F32(&'a [f32]),
 }
 
-/// `values` as a storage of `dtype` (bf16 rounded to nearest even).
-fn to_storage(values: Vec<f32>, dtype: DType) -> CpuStorage {
-    if dtype == DType::BF16 {
-        let mut out = vec![half::bf16::ZERO; values.len()];
-        out.par_chunks_mut(1 << 14)
-            .zip(values.par_chunks(1 << 14))
-            .for_each(|(o, v)| {
-                for (o, &v) in o.iter_mut().zip(v) {
-                    *o = half::bf16::from_bits(f32_to_bf16_bits(v));
-                }
-            });
-        CpuStorage::BF16(out)
-    } else {
-        CpuStorage::F32(values)
+impl<'a> Residual<'a> {
+    /// A contiguous CPU operand.
+    fn of(s: &'a CpuStorage, l: &Layout) -> Result<Self> {
+        let Some((a, b)) = l.contiguous_offsets() else {
+            candle_core::bail!("bf16 linear: residual is not contiguous");
+        };
+        Ok(match s {
+            CpuStorage::BF16(d) => Residual::Bf16(&d[a..b]),
+            CpuStorage::F32(d) => Residual::F32(&d[a..b]),
+            other => candle_core::bail!(
+                "bf16 linear: residual is {:?}, expected bf16 or f32",
+                other.dtype()
+            ),
+        })
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Residual::Bf16(d) => d.len(),
+            Residual::F32(d) => d.len(),
+        }
+    }
+
+    /// Element `i` as f32.
+    #[inline(always)]
+    fn get(&self, i: usize) -> f32 {
+        match self {
+            Residual::Bf16(d) => d[i].to_f32(),
+            Residual::F32(d) => d[i],
+        }
     }
 }
 
 impl PackedLinear<'_> {
+    /// The f32 epilogue of rows `first_row..` held in `acc` (whole rows of `n`): bias, then the
+    /// activation, or `r + g ⊙ y` with the residual.
+    fn epilogue(&self, acc: &mut [f32], first_row: usize, n: usize, residual: Option<Residual>) {
+        if let Some(b) = self.bias {
+            for row in acc.chunks_exact_mut(n) {
+                row.iter_mut().zip(b).for_each(|(o, b)| *o += b);
+            }
+        }
+        match residual {
+            Some(r) => {
+                for (i, row) in acc.chunks_exact_mut(n).enumerate() {
+                    let base = (first_row + i) * n;
+                    match self.gate {
+                        Some(g) => row
+                            .iter_mut()
+                            .zip(g)
+                            .enumerate()
+                            .for_each(|(j, (o, g))| *o = r.get(base + j) + g * *o),
+                        None => row
+                            .iter_mut()
+                            .enumerate()
+                            .for_each(|(j, o)| *o += r.get(base + j)),
+                    }
+                }
+            }
+            None => match self.act {
+                Activation::Identity => {}
+                Activation::GeluErf => gelu_in_place(acc),
+                Activation::GeluTanh => gelu_tanh_in_place(acc),
+            },
+        }
+    }
+
     fn run(
         &self,
         x: (&CpuStorage, &Layout),
@@ -106,7 +147,7 @@ impl PackedLinear<'_> {
         let a = lhs(x.0, x.1, k)?;
         let residual = match residual {
             Some((s, l)) => {
-                let r = f32_values(s, l)?;
+                let r = Residual::of(s, l)?;
                 if r.len() != m * n {
                     candle_core::bail!(
                         "bf16 linear: residual has {} values, expected {m}×{n}",
@@ -117,48 +158,30 @@ impl PackedLinear<'_> {
             }
             None => None,
         };
-        let bias_rows = |mut out: Vec<f32>| {
-            if let (Some(b), true) = (self.bias, n > 0) {
-                out.par_chunks_mut(EPILOGUE_ROWS * n).for_each(|rows| {
-                    for row in rows.chunks_exact_mut(n) {
-                        row.iter_mut().zip(b).for_each(|(o, b)| *o += b);
+        let mut acc = vec![0f32; m * n];
+        gemm(a, m, self.weight.view(), &mut acc, n, true)?;
+        let chunk = EPILOGUE_ROWS * n.max(1);
+        // One pass over the product: the epilogue in f32 on a few rows while they are in the
+        // cache, then (bf16 input) their rounding into the output.
+        let storage = if x.0.dtype() == DType::BF16 {
+            let mut out = vec![half::bf16::ZERO; m * n];
+            out.par_chunks_mut(chunk)
+                .zip(acc.par_chunks_mut(chunk))
+                .enumerate()
+                .for_each(|(c, (o, a))| {
+                    self.epilogue(a, c * EPILOGUE_ROWS, n, residual);
+                    for (o, &v) in o.iter_mut().zip(a.iter()) {
+                        *o = half::bf16::from_bits(f32_to_bf16_bits(v));
                     }
                 });
-            }
-            out
+            CpuStorage::BF16(out)
+        } else {
+            acc.par_chunks_mut(chunk)
+                .enumerate()
+                .for_each(|(c, a)| self.epilogue(a, c * EPILOGUE_ROWS, n, residual));
+            CpuStorage::F32(acc)
         };
-        // The product accumulates onto bias (+ residual when no gate scales the product).
-        let (init, gated) = match (residual, self.gate) {
-            (Some(r), None) => (bias_rows(r), None),
-            (Some(r), Some(g)) => (bias_rows(vec![0f32; m * n]), Some((r, g))),
-            (None, _) => (bias_rows(vec![0f32; m * n]), None),
-        };
-        let mut out = init;
-        gemm(a, m, self.weight.view(), &mut out, n, true)?;
-        if n > 0 {
-            if let Some((r, g)) = gated {
-                out.par_chunks_mut(EPILOGUE_ROWS * n)
-                    .zip(r.par_chunks(EPILOGUE_ROWS * n))
-                    .for_each(|(o, r)| {
-                        for (orow, rrow) in o.chunks_exact_mut(n).zip(r.chunks_exact(n)) {
-                            for ((o, &r), &g) in orow.iter_mut().zip(rrow).zip(g) {
-                                *o = r + g * *o;
-                            }
-                        }
-                    });
-            } else {
-                match self.act {
-                    Activation::Identity => {}
-                    Activation::GeluErf => out
-                        .par_chunks_mut(EPILOGUE_ROWS * n)
-                        .for_each(gelu_in_place),
-                    Activation::GeluTanh => out
-                        .par_chunks_mut(EPILOGUE_ROWS * n)
-                        .for_each(gelu_tanh_in_place),
-                }
-            }
-        }
-        Ok((to_storage(out, x.0.dtype()), Shape::from((m, n))))
+        Ok((storage, Shape::from((m, n))))
     }
 }
 
