@@ -254,14 +254,25 @@ unsafe fn run_task(
     ldc: usize,
 ) {
     let pairs = rhs.k.div_ceil(2);
-    let mut buf = vec![0u32; MC.min(rows.len()) * KC_PAIRS.min(pairs)];
+    let direct = direct_pairs(lhs, rhs.k);
+    let mut buf = match direct {
+        Some(_) => Vec::new(),
+        None => vec![0u32; MC.min(rows.len()) * KC_PAIRS.min(pairs)],
+    };
     let mut pc = 0;
     while pc < pairs {
         let kc = KC_PAIRS.min(pairs - pc);
         let mut ic = rows.start;
         while ic < rows.end {
             let mc = MC.min(rows.end - ic);
-            pack_lhs(kernel, lhs, ic..ic + mc, pc..pc + kc, rhs.k, &mut buf);
+            // Row `ir` of the block: its pairs from `pc` on, rows `lda` pairs apart.
+            let (block, lda): (&[u32], usize) = match direct {
+                Some((pairs_in_place, lda)) => (&pairs_in_place[ic * lda + pc..], lda),
+                None => {
+                    pack_lhs(kernel, lhs, ic..ic + mc, pc..pc + kc, rhs.k, &mut buf);
+                    (&buf, kc)
+                }
+            };
             for t in tiles.clone() {
                 let b = rhs.tile(t, pc);
                 let col = t * NR;
@@ -269,15 +280,15 @@ unsafe fn run_task(
                 let mut ir = 0;
                 while ir < mc {
                     let r = MR.min(mc - ir);
-                    let a = &buf[ir * kc..];
+                    let a = &block[ir * lda..];
                     let c = out.0.add((ic + ir) * ldc + col);
                     match kernel {
                         #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
                         Kernel::Avx512Bf16 => {
-                            debug_assert!(a.len() >= (r - 1) * kc + kc && b.len() >= kc * NR * 2);
-                            super::avx512::tile(r, kc, a.as_ptr(), kc, b.as_ptr(), c, ldc, cols)
+                            assert!(a.len() >= (r - 1) * lda + kc && b.len() >= kc * NR * 2);
+                            super::avx512::tile(r, kc, a.as_ptr(), lda, b.as_ptr(), c, ldc, cols)
                         }
-                        _ => portable::tile(r, kc, a, kc, b, c, ldc, cols),
+                        _ => portable::tile(r, kc, a, lda, b, c, ldc, cols),
                     }
                     ir += r;
                 }
@@ -286,6 +297,22 @@ unsafe fn run_task(
         }
         pc += kc;
     }
+}
+
+/// A bf16 left operand as pairs the micro-kernel reads in place, with the distance between
+/// rows in pairs: when `k` and the row distance are even and the values are 4-byte aligned
+/// (otherwise its rows are copied into a buffer, the last pair of an odd `k` padded with zero).
+fn direct_pairs(lhs: Lhs<'_>, k: usize) -> Option<(&[u32], usize)> {
+    let Lhs::Bf16 { data, ld } = lhs else {
+        return None;
+    };
+    if ld % 2 != 0 || k % 2 != 0 {
+        return None;
+    }
+    let even = data.len() & !1;
+    bytemuck::try_cast_slice::<half::bf16, u32>(&data[..even])
+        .ok()
+        .map(|pairs| (pairs, ld / 2))
 }
 
 #[cfg(test)]
@@ -493,5 +520,48 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("bf16 gemm"), "{e}");
+    }
+
+    #[test]
+    fn bf16_rows_read_in_place_equal_rows_copied() {
+        let (m, n, k) = (23, 70, 64);
+        let a: Vec<half::bf16> = values(m * k, 8)
+            .into_iter()
+            .map(half::bf16::from_f32)
+            .collect();
+        let w = values(n * k, 9);
+        let packed = PackedRhs::from_rows(&w, n, k).unwrap();
+        // The same values one element further: misaligned for pairs, so they are copied.
+        let mut shifted = vec![half::bf16::ZERO; m * k + 1];
+        shifted[1..].copy_from_slice(&a);
+        assert!(direct_pairs(Lhs::Bf16 { data: &a, ld: k }, k).is_some());
+        assert!(direct_pairs(
+            Lhs::Bf16 {
+                data: &shifted[1..],
+                ld: k
+            },
+            k
+        )
+        .is_none());
+        for kernel in kernels() {
+            let mut in_place = vec![0f32; m * n];
+            let mut copied = vec![0f32; m * n];
+            gemm_with(
+                kernel,
+                Lhs::Bf16 { data: &a, ld: k },
+                m,
+                packed.view(),
+                &mut in_place,
+                n,
+                false,
+            )
+            .unwrap();
+            let lhs = Lhs::Bf16 {
+                data: &shifted[1..],
+                ld: k,
+            };
+            gemm_with(kernel, lhs, m, packed.view(), &mut copied, n, false).unwrap();
+            assert_eq!(in_place, copied, "{kernel:?}");
+        }
     }
 }
