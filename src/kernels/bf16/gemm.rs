@@ -140,6 +140,11 @@ struct OutPtr(*mut f32);
 unsafe impl Send for OutPtr {}
 unsafe impl Sync for OutPtr {}
 
+/// Work on finished output, `f(row, first_column, values)`: called once for every row segment
+/// of a task's rectangle as soon as its products are complete (still in the cache), with the
+/// values of that row from `first_column` on, which it may change in place.
+pub type RowEpilogue<'a> = &'a (dyn Fn(usize, usize, &mut [f32]) + Sync);
+
 /// [`gemm`] with an explicit micro-kernel (errors if the CPU lacks it).
 pub fn gemm_with(
     kernel: Kernel,
@@ -149,6 +154,22 @@ pub fn gemm_with(
     out: &mut [f32],
     ldc: usize,
     parallel: bool,
+) -> candle_core::Result<()> {
+    gemm_with_epilogue(kernel, lhs, m, rhs, out, ldc, parallel, None)
+}
+
+/// [`gemm_with`] followed, task by task, by `epilogue` on every output row segment (each
+/// `(row, column)` of the `m × rhs.n()` output is passed exactly once).
+#[allow(clippy::too_many_arguments)]
+pub fn gemm_with_epilogue(
+    kernel: Kernel,
+    lhs: Lhs,
+    m: usize,
+    rhs: RhsView,
+    out: &mut [f32],
+    ldc: usize,
+    parallel: bool,
+    epilogue: Option<RowEpilogue>,
 ) -> candle_core::Result<()> {
     let (n, k) = (rhs.n, rhs.k);
     if kernel == Kernel::Avx512Bf16 && !super::avx512::available() {
@@ -169,13 +190,10 @@ pub fn gemm_with(
             out.len()
         );
     }
-    if k == 0 {
-        return Ok(());
-    }
     let tiles = n.div_ceil(NR);
     let row_blocks = m.div_ceil(MC);
     let threads = rayon::current_num_threads();
-    let parallel = parallel && threads > 1 && m * n * k >= PARALLEL_MIN_MACS;
+    let parallel = parallel && threads > 1 && m * n * k.max(1) >= PARALLEL_MIN_MACS;
     // Tasks of equal size: row blocks of at most MC rows (multiples of MR), and tiles
     // split so that there are at least TASKS_PER_THREAD tasks per thread when the size allows.
     let (row_block, tiles_per_task) = if parallel {
@@ -192,9 +210,24 @@ pub fn gemm_with(
         let (rt, ct) = (i / col_tasks, i % col_tasks);
         let rows = rt * row_block..m.min((rt + 1) * row_block);
         let tiles = ct * tiles_per_task..tiles.min((ct + 1) * tiles_per_task);
-        // SAFETY: rows < m and the tiles' columns < n lie inside `out` (checked above), and the
-        // (rows × tiles) rectangles of different `i` are disjoint.
-        unsafe { run_task(kernel, lhs, rows, rhs, tiles, ptr, ldc) };
+        let columns = tiles.start * NR..n.min(tiles.end * NR);
+        if k > 0 {
+            // SAFETY: rows < m and the tiles' columns < n lie inside `out` (checked above), and
+            // the (rows × tiles) rectangles of different `i` are disjoint.
+            unsafe { run_task(kernel, lhs, rows.clone(), rhs, tiles, ptr, ldc) };
+        }
+        if let Some(epilogue) = epilogue {
+            for row in rows {
+                // SAFETY: as above; this task alone touches these values.
+                let values = unsafe {
+                    std::slice::from_raw_parts_mut(
+                        ptr.0.add(row * ldc + columns.start),
+                        columns.len(),
+                    )
+                };
+                epilogue(row, columns.start, values);
+            }
+        }
     };
     if parallel && row_tasks * col_tasks > 1 {
         (0..row_tasks * col_tasks).into_par_iter().for_each(task);
@@ -562,6 +595,49 @@ mod tests {
             };
             gemm_with(kernel, lhs, m, packed.view(), &mut copied, n, false).unwrap();
             assert_eq!(in_place, copied, "{kernel:?}");
+        }
+    }
+
+    #[test]
+    fn the_epilogue_sees_every_output_once_after_its_product() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        for &(m, n, k) in &[(700, 300, 130), (5, 70, 0), (1, 1, 3)] {
+            let a = values(m * k, 3);
+            let w = values(n * k, 4);
+            let packed = PackedRhs::from_rows(&w, n, k).unwrap();
+            let mut plain = vec![0f32; m * n];
+            let lhs = Lhs::F32 { data: &a, ld: k };
+            gemm(lhs, m, packed.view(), &mut plain, n, true).unwrap();
+            let seen: Vec<AtomicUsize> = (0..m * n).map(|_| AtomicUsize::new(0)).collect();
+            let epilogue = |row: usize, col: usize, v: &mut [f32]| {
+                for (j, x) in v.iter_mut().enumerate() {
+                    assert_eq!(
+                        *x,
+                        plain[row * n + col + j],
+                        "epilogue before the product ended"
+                    );
+                    seen[row * n + col + j].fetch_add(1, Ordering::Relaxed);
+                    *x = -1.0;
+                }
+            };
+            let mut out = vec![0f32; m * n];
+            let kernel = Kernel::detect();
+            gemm_with_epilogue(
+                kernel,
+                lhs,
+                m,
+                packed.view(),
+                &mut out,
+                n,
+                true,
+                Some(&epilogue),
+            )
+            .unwrap();
+            assert!(
+                seen.iter().all(|c| c.load(Ordering::Relaxed) == 1),
+                "{m}×{n}×{k}"
+            );
+            assert!(out.iter().all(|&x| x == -1.0));
         }
     }
 }

@@ -5,15 +5,12 @@
 
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape};
-use rayon::prelude::*;
 
-use super::gemm::{gemm, Lhs};
+use super::gemm::{gemm_with_epilogue, Lhs};
+use super::Kernel;
 use super::{f32_to_bf16_bits, PackedRhs};
 use crate::kernels::gelu::{gelu_in_place, gelu_tanh_in_place};
 use crate::kernels::linear::Activation;
-
-/// Rows per rayon task of the epilogues and conversions.
-const EPILOGUE_ROWS: usize = 16;
 
 /// The candle op: `act(x Wᵀ + b)` of `x [M, K]` (one operand) or `R + g ⊙ (x Wᵀ + b)` with
 /// the residual `R [M, N]` as second operand.
@@ -50,7 +47,21 @@ fn lhs<'a>(s: &'a CpuStorage, l: &Layout, k: usize) -> Result<Lhs<'a>> {
     })
 }
 
-/// The residual operand, read row chunk by row chunk in the epilogue.
+/// The bf16 output shared by the epilogue calls, which write disjoint values.
+#[derive(Clone, Copy)]
+struct Bf16Ptr(*mut half::bf16);
+// SAFETY: each (row, column) of the output is written by one epilogue call only (see `run`).
+unsafe impl Send for Bf16Ptr {}
+unsafe impl Sync for Bf16Ptr {}
+
+impl Bf16Ptr {
+    /// The pointer (a method, so that closures capture the whole `Sync` wrapper).
+    fn get(self) -> *mut half::bf16 {
+        self.0
+    }
+}
+
+/// The residual operand, read row segment by row segment in the epilogue.
 #[derive(Clone, Copy)]
 enum Residual<'a> {
     Bf16(&'a [half::bf16]),
@@ -91,35 +102,42 @@ impl<'a> Residual<'a> {
 }
 
 impl PackedLinear<'_> {
-    /// The f32 epilogue of rows `first_row..` held in `acc` (whole rows of `n`): bias, then the
-    /// activation, or `r + g ⊙ y` with the residual.
-    fn epilogue(&self, acc: &mut [f32], first_row: usize, n: usize, residual: Option<Residual>) {
+    /// The f32 epilogue of `values`, columns `col..` of output row `row` (rows `n` wide): bias,
+    /// then the activation, or `r + g ⊙ y` with the residual.
+    fn epilogue(
+        &self,
+        values: &mut [f32],
+        row: usize,
+        col: usize,
+        n: usize,
+        residual: Option<Residual>,
+    ) {
+        let cols = col..col + values.len();
         if let Some(b) = self.bias {
-            for row in acc.chunks_exact_mut(n) {
-                row.iter_mut().zip(b).for_each(|(o, b)| *o += b);
-            }
+            values
+                .iter_mut()
+                .zip(&b[cols.clone()])
+                .for_each(|(o, b)| *o += b);
         }
         match residual {
             Some(r) => {
-                for (i, row) in acc.chunks_exact_mut(n).enumerate() {
-                    let base = (first_row + i) * n;
-                    match self.gate {
-                        Some(g) => row
-                            .iter_mut()
-                            .zip(g)
-                            .enumerate()
-                            .for_each(|(j, (o, g))| *o = r.get(base + j) + g * *o),
-                        None => row
-                            .iter_mut()
-                            .enumerate()
-                            .for_each(|(j, o)| *o += r.get(base + j)),
-                    }
+                let base = row * n + col;
+                match self.gate {
+                    Some(g) => values
+                        .iter_mut()
+                        .zip(&g[cols])
+                        .enumerate()
+                        .for_each(|(j, (o, g))| *o = r.get(base + j) + g * *o),
+                    None => values
+                        .iter_mut()
+                        .enumerate()
+                        .for_each(|(j, o)| *o += r.get(base + j)),
                 }
             }
             None => match self.act {
                 Activation::Identity => {}
-                Activation::GeluErf => gelu_in_place(acc),
-                Activation::GeluTanh => gelu_tanh_in_place(acc),
+                Activation::GeluErf => gelu_in_place(values),
+                Activation::GeluTanh => gelu_tanh_in_place(values),
             },
         }
     }
@@ -159,26 +177,48 @@ impl PackedLinear<'_> {
             None => None,
         };
         let mut acc = vec![0f32; m * n];
-        gemm(a, m, self.weight.view(), &mut acc, n, true)?;
-        let chunk = EPILOGUE_ROWS * n.max(1);
-        // One pass over the product: the epilogue in f32 on a few rows while they are in the
-        // cache, then (bf16 input) their rounding into the output.
+        // The epilogue runs on each row segment of a task as soon as its products are done,
+        // while the values are in the cache: f32 bias, activation or gated residual, then (bf16
+        // input) the rounding into the output.
         let storage = if x.0.dtype() == DType::BF16 {
             let mut out = vec![half::bf16::ZERO; m * n];
-            out.par_chunks_mut(chunk)
-                .zip(acc.par_chunks_mut(chunk))
-                .enumerate()
-                .for_each(|(c, (o, a))| {
-                    self.epilogue(a, c * EPILOGUE_ROWS, n, residual);
-                    for (o, &v) in o.iter_mut().zip(a.iter()) {
-                        *o = half::bf16::from_bits(f32_to_bf16_bits(v));
-                    }
-                });
+            let dst = Bf16Ptr(out.as_mut_ptr());
+            let epilogue = |row: usize, col: usize, values: &mut [f32]| {
+                self.epilogue(values, row, col, n, residual);
+                // SAFETY: `out` holds `m × n` values; the gemm passes each (row, column) once,
+                // so no two calls write the same output values.
+                let o = unsafe {
+                    std::slice::from_raw_parts_mut(dst.get().add(row * n + col), values.len())
+                };
+                for (o, &v) in o.iter_mut().zip(values.iter()) {
+                    *o = half::bf16::from_bits(f32_to_bf16_bits(v));
+                }
+            };
+            gemm_with_epilogue(
+                Kernel::detect(),
+                a,
+                m,
+                self.weight.view(),
+                &mut acc,
+                n,
+                true,
+                Some(&epilogue),
+            )?;
             CpuStorage::BF16(out)
         } else {
-            acc.par_chunks_mut(chunk)
-                .enumerate()
-                .for_each(|(c, a)| self.epilogue(a, c * EPILOGUE_ROWS, n, residual));
+            let epilogue = |row: usize, col: usize, values: &mut [f32]| {
+                self.epilogue(values, row, col, n, residual)
+            };
+            gemm_with_epilogue(
+                Kernel::detect(),
+                a,
+                m,
+                self.weight.view(),
+                &mut acc,
+                n,
+                true,
+                Some(&epilogue),
+            )?;
             CpuStorage::F32(acc)
         };
         Ok((storage, Shape::from((m, n))))
