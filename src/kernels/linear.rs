@@ -4,8 +4,10 @@
 //! call (candle runs one small product per batch item), the bias is written into the output
 //! before the product accumulates onto it (no separate broadcast add and no second buffer),
 //! and the GELU is applied in place by [`super::gelu`] while the rows are still in cache.
-//! Other devices and dtypes use the plain candle ops. Weight names and initialisation hints
-//! are those of `candle_nn::linear` (`weight [out, in]`, `bias [out]`).
+//! A bf16 weight on the CPU is packed once for the bf16 product of [`super::bf16`]
+//! ([`super::bf16::linear`]: bf16 or f32 input, f32 accumulation and epilogue, output in the
+//! input's dtype). Other devices and dtypes use the plain candle ops. Weight names and
+//! initialisation hints are those of `candle_nn::linear` (`weight [out, in]`, `bias [out]`).
 
 use std::sync::Arc;
 
