@@ -59,6 +59,18 @@ impl Module for LayerNorm {
                 None => x.apply_op1_no_bwd(&op),
             };
         }
+        if x.device().is_cpu() && x.dtype() == DType::BF16 {
+            // bf16 activations: each row widened to f32, normalised by the same kernel and
+            // rounded back once.
+            let x = x.contiguous()?;
+            return match &self.affine {
+                Some((w, b)) => {
+                    let f = |t: &Tensor| t.to_dtype(DType::F32)?.contiguous();
+                    x.apply_op3_no_bwd(&f(w)?, &f(b)?, &op)
+                }
+                None => x.apply_op1_no_bwd(&op),
+            };
+        }
         reference(x, self.affine.as_ref(), self.eps)
     }
 }
@@ -91,7 +103,53 @@ fn f32_data<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> 
     super::contiguous_f32(s, l, "layer norm", what)
 }
 
+/// The bf16 data of a contiguous bf16 input (`None` for other dtypes).
+fn bf16_data<'a>(s: &'a CpuStorage, l: &Layout) -> Result<Option<&'a [half::bf16]>> {
+    let CpuStorage::BF16(data) = s else {
+        return Ok(None);
+    };
+    match l.contiguous_offsets() {
+        Some((a, b)) => Ok(Some(&data[a..b])),
+        None => candle_core::bail!("layer norm: input is not contiguous"),
+    }
+}
+
 impl LayerNormOp {
+    /// The bf16 form of [`Self::run`]: rows widened to f32 in a small buffer.
+    fn run_bf16(
+        &self,
+        x: &[half::bf16],
+        shape: &Shape,
+        affine: Option<(&[f32], &[f32])>,
+    ) -> Result<(CpuStorage, Shape)> {
+        let c = shape.dims().last().copied().unwrap_or(0);
+        if let Some((w, b)) = affine {
+            if w.len() != c || b.len() != c {
+                candle_core::bail!(
+                    "layer norm: {c} channels but weight has {} and bias {}",
+                    w.len(),
+                    b.len()
+                );
+            }
+        }
+        let mut out = vec![half::bf16::ZERO; x.len()];
+        if c > 0 {
+            out.par_chunks_mut(ROWS_PER_TASK * c)
+                .zip(x.par_chunks(ROWS_PER_TASK * c))
+                .for_each(|(o, xi)| {
+                    let (mut xf, mut yf) = (vec![0f32; c], vec![0f32; c]);
+                    for (orow, xrow) in o.chunks_exact_mut(c).zip(xi.chunks_exact(c)) {
+                        xf.iter_mut().zip(xrow).for_each(|(f, v)| *f = v.to_f32());
+                        normalise_row(&xf, &mut yf, self.eps, affine);
+                        orow.iter_mut().zip(&yf).for_each(|(o, &v)| {
+                            *o = half::bf16::from_bits(super::bf16::f32_to_bf16_bits(v))
+                        });
+                    }
+                });
+        }
+        Ok((CpuStorage::BF16(out), shape.clone()))
+    }
+
     fn run(
         &self,
         x: &[f32],
@@ -163,6 +221,9 @@ impl CustomOp1 for LayerNormOp {
     }
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        if let Some(x) = bf16_data(s, l)? {
+            return self.run_bf16(x, l.shape(), None);
+        }
         self.run(f32_data(s, l, "input")?, l.shape(), None)
     }
 }
@@ -183,6 +244,9 @@ impl CustomOp3 for LayerNormOp {
     ) -> Result<(CpuStorage, Shape)> {
         let w = f32_data(s2, l2, "weight")?;
         let b = f32_data(s3, l3, "bias")?;
+        if let Some(x) = bf16_data(s1, l1)? {
+            return self.run_bf16(x, l1.shape(), Some((w, b)));
+        }
         self.run(f32_data(s1, l1, "input")?, l1.shape(), Some((w, b)))
     }
 }
@@ -226,5 +290,31 @@ mod tests {
         let var_err = (var - 1.0).unwrap().abs().unwrap().max_all().unwrap();
         assert!(mean.to_scalar::<f32>().unwrap() < 1e-5);
         assert!(var_err.to_scalar::<f32>().unwrap() < 1e-4);
+    }
+
+    #[test]
+    fn bf16_input_is_normalised_in_f32_and_rounded_once() {
+        let dev = Device::Cpu;
+        let x = Tensor::randn(2f32, 3.0, (37, 384), &dev)
+            .unwrap()
+            .to_dtype(DType::BF16)
+            .unwrap();
+        let w = Tensor::randn(1f32, 0.5, 384, &dev)
+            .unwrap()
+            .to_dtype(DType::BF16)
+            .unwrap();
+        let b = Tensor::randn(0f32, 0.5, 384, &dev)
+            .unwrap()
+            .to_dtype(DType::BF16)
+            .unwrap();
+        let affine = (w.clone(), b.clone());
+        let got = LayerNorm::new(w, b, 1e-6).forward(&x).unwrap();
+        assert_eq!(got.dtype(), DType::BF16);
+        let want = reference(&x.to_dtype(DType::F32).unwrap(), Some(&affine), 1e-6).unwrap();
+        // One bf16 rounding of values up to ~5: 2^-8 relative.
+        assert!(max_abs_diff(&got, &want) < 0.04);
+        let got = LayerNorm::plain(1e-6).forward(&x).unwrap();
+        let want = reference(&x.to_dtype(DType::F32).unwrap(), None, 1e-6).unwrap();
+        assert!(max_abs_diff(&got, &want) < 0.04);
     }
 }

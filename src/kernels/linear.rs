@@ -4,8 +4,10 @@
 //! call (candle runs one small product per batch item), the bias is written into the output
 //! before the product accumulates onto it (no separate broadcast add and no second buffer),
 //! and the GELU is applied in place by [`super::gelu`] while the rows are still in cache.
-//! Other devices and dtypes use the plain candle ops. Weight names and initialisation hints
-//! are those of `candle_nn::linear` (`weight [out, in]`, `bias [out]`).
+//! A bf16 weight on the CPU is packed once for the bf16 product of [`super::bf16`]
+//! ([`super::bf16::linear`]: bf16 or f32 input, f32 accumulation and epilogue, output in the
+//! input's dtype). Other devices and dtypes use the plain candle ops. Weight names and
+//! initialisation hints are those of `candle_nn::linear` (`weight [out, in]`, `bias [out]`).
 
 use std::sync::Arc;
 
@@ -15,6 +17,8 @@ use candle_nn::VarBuilder;
 use gemm::Parallelism;
 use rayon::prelude::*;
 
+use super::bf16::linear::PackedLinear;
+use super::bf16::PackedRhs;
 use super::gelu::{gelu_in_place, gelu_tanh_in_place};
 use super::matmul::{matmul_into, MatRef};
 
@@ -41,6 +45,8 @@ pub struct Linear {
     bias: Option<Tensor>,
     /// The bias as host f32 values, kept when the layer runs the fused CPU path.
     cpu_bias: Option<Arc<Vec<f32>>>,
+    /// A bf16 CPU weight packed for the bf16 product ([`super::bf16::linear`]).
+    packed: Option<Arc<PackedRhs>>,
 }
 
 /// Loads `weight [out, in]` and `bias [out]` under `vb` (as `candle_nn::linear`).
@@ -71,16 +77,35 @@ impl Linear {
         } else {
             weight
         };
+        let packed = pack_bf16(&weight).map(Arc::new);
         let cpu_bias = bias
             .as_ref()
-            .filter(|b| b.device().is_cpu() && b.dtype() == DType::F32)
-            .and_then(|b| b.flatten_all().and_then(|b| b.to_vec1::<f32>()).ok())
+            .filter(|b| {
+                b.device().is_cpu()
+                    && (b.dtype() == DType::F32 || (b.dtype() == DType::BF16 && packed.is_some()))
+            })
+            .and_then(|b| {
+                b.flatten_all()
+                    .and_then(|b| b.to_dtype(DType::F32))
+                    .and_then(|b| b.to_vec1::<f32>())
+                    .ok()
+            })
             .map(Arc::new);
         Self {
             weight,
             bias,
             cpu_bias,
+            packed,
         }
+    }
+
+    /// The packed bf16 weight when `x` (bf16 or f32 on the CPU) can take the bf16 product.
+    fn bf16_path(&self, x: &Tensor) -> Option<&PackedRhs> {
+        let packed = self.packed.as_deref()?;
+        (x.device().is_cpu()
+            && matches!(x.dtype(), DType::BF16 | DType::F32)
+            && self.bias.is_some() == self.cpu_bias.is_some())
+        .then_some(packed)
     }
 
     /// Whether `x` can take the fused CPU path.
@@ -104,6 +129,15 @@ impl Linear {
 
     /// `act(x Wᵀ + b)` for `x [..., in]` → `[..., out]`.
     pub fn forward_act(&self, x: &Tensor, act: Activation) -> Result<Tensor> {
+        if let Some(weight) = self.bf16_path(x) {
+            let op = PackedLinear {
+                weight,
+                bias: self.cpu_bias.as_deref().map(Vec::as_slice),
+                gate: None,
+                act,
+            };
+            return self.fused_bf16(x, &op, None);
+        }
         if self.fused_path(x) {
             let op = FusedLinear {
                 act,
@@ -128,6 +162,19 @@ impl Linear {
         residual: &Tensor,
         gate: Option<&Tensor>,
     ) -> Result<Tensor> {
+        if let Some(weight) = self.bf16_path(x).filter(|_| residual.device().is_cpu()) {
+            let gate_values = match gate {
+                Some(g) => Some(g.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?),
+                None => None,
+            };
+            let op = PackedLinear {
+                weight,
+                bias: self.cpu_bias.as_deref().map(Vec::as_slice),
+                gate: gate_values.as_deref(),
+                act: Activation::Identity,
+            };
+            return self.fused_bf16(x, &op, Some(residual));
+        }
         if self.fused_path(x) && residual.dtype() == DType::F32 && residual.device().is_cpu() {
             let gate_values = match gate {
                 Some(g) => Some(g.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?),
@@ -178,6 +225,32 @@ impl Linear {
         y.reshape(out_dims)
     }
 
+    /// Runs the bf16 op on `x` folded to contiguous rows (and the residual, reshaped alike).
+    fn fused_bf16(
+        &self,
+        x: &Tensor,
+        op: &PackedLinear,
+        residual: Option<&Tensor>,
+    ) -> Result<Tensor> {
+        let dims = x.dims().to_vec();
+        let k = *dims.last().unwrap_or(&0);
+        let n = op.weight.n();
+        let rows = x.elem_count() / k.max(1);
+        let x2 = x.reshape((rows, k))?.contiguous()?;
+        let y = match residual {
+            Some(r) => {
+                let r2 = r.reshape((rows, n))?.contiguous()?;
+                x2.apply_op2_no_bwd(&r2, op)?
+            }
+            None => x2.apply_op1_no_bwd(op)?,
+        };
+        let mut out_dims = dims;
+        if let Some(last) = out_dims.last_mut() {
+            *last = n;
+        }
+        y.reshape(out_dims)
+    }
+
     /// `gelu_erf(x Wᵀ + b)`.
     pub fn forward_gelu(&self, x: &Tensor) -> Result<Tensor> {
         self.forward_act(x, Activation::GeluErf)
@@ -188,6 +261,19 @@ impl Module for Linear {
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         self.forward_act(x, Activation::Identity)
     }
+}
+
+/// A bf16 `[out, in]` CPU weight packed for the bf16 product, or `None` for other weights.
+fn pack_bf16(weight: &Tensor) -> Option<PackedRhs> {
+    if !(weight.device().is_cpu() && weight.dtype() == DType::BF16) {
+        return None;
+    }
+    let (n, k) = weight.dims2().ok()?;
+    let values = weight
+        .flatten_all()
+        .and_then(|w| w.to_vec1::<half::bf16>())
+        .ok()?;
+    PackedRhs::from_rows(&values, n, k).ok()
 }
 
 /// The candle op: `act(x Wᵀ + b)` with `x [M, K]`, `W [N, K]` (two operands), or
@@ -539,5 +625,104 @@ mod tests {
             .unwrap();
         let want = reference(&x, &w, Some(&b), Activation::GeluErf);
         assert!(max_abs_diff(&got, &want) < 1e-5);
+    }
+
+    /// `t` rounded to bf16 and back to f32.
+    fn bf16_rounded(t: &Tensor) -> Tensor {
+        t.to_dtype(DType::BF16)
+            .unwrap()
+            .to_dtype(DType::F32)
+            .unwrap()
+    }
+
+    #[test]
+    fn bf16_weights_take_the_packed_product_and_match_f32_on_rounded_values() {
+        let dev = Device::Cpu;
+        for &(lead, k, n) in &[
+            (&[1usize][..], 1usize, 1usize),
+            (&[7], 13, 5),
+            (&[2, 37], 64, 96),
+            (&[261], 385, 130),
+        ] {
+            let mut xs = lead.to_vec();
+            xs.push(k);
+            let x = bf16_rounded(&Tensor::randn(0f32, 1.0, xs, &dev).unwrap());
+            let w = bf16_rounded(&Tensor::randn(0f32, 0.2, (n, k), &dev).unwrap());
+            let b = bf16_rounded(&Tensor::randn(0f32, 1.0, n, &dev).unwrap());
+            let l = Linear::new(
+                w.to_dtype(DType::BF16).unwrap(),
+                Some(b.to_dtype(DType::BF16).unwrap()),
+            );
+            assert!(l.packed.is_some());
+            for act in [
+                Activation::Identity,
+                Activation::GeluErf,
+                Activation::GeluTanh,
+            ] {
+                let want = reference(&x, &w, Some(&b), act);
+                // f32 input: f32 output, only the accumulation order differs.
+                let got = l.forward_act(&x, act).unwrap();
+                assert_eq!(got.dtype(), DType::F32);
+                let d = max_abs_diff(&got, &want);
+                assert!(d < 1e-4, "{lead:?} k={k} n={n} {act:?}: {d}");
+                // bf16 input: bf16 output, one more rounding (2^-8 relative).
+                let got = l
+                    .forward_act(&x.to_dtype(DType::BF16).unwrap(), act)
+                    .unwrap();
+                assert_eq!(got.dtype(), DType::BF16);
+                assert_eq!(got.dims(), want.dims());
+                let scale = want
+                    .abs()
+                    .unwrap()
+                    .max_keepdim(0)
+                    .unwrap()
+                    .max_keepdim(1)
+                    .unwrap();
+                let scale = scale
+                    .flatten_all()
+                    .unwrap()
+                    .max(0)
+                    .unwrap()
+                    .to_scalar::<f32>()
+                    .unwrap();
+                let d = max_abs_diff(&got, &want);
+                assert!(
+                    d <= scale / 128.0 + 1e-6,
+                    "{lead:?} k={k} n={n} {act:?}: {d} of {scale}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn bf16_residual_form_equals_residual_plus_gated_linear() {
+        let dev = Device::Cpu;
+        let x = bf16_rounded(&Tensor::randn(0f32, 1.0, (2, 37, 48), &dev).unwrap());
+        let r = bf16_rounded(&Tensor::randn(0f32, 1.0, (2, 37, 24), &dev).unwrap());
+        let w = bf16_rounded(&Tensor::randn(0f32, 0.2, (24, 48), &dev).unwrap());
+        let b = bf16_rounded(&Tensor::randn(0f32, 1.0, 24, &dev).unwrap());
+        let g = Tensor::randn(0f32, 1.0, (1, 24), &dev).unwrap();
+        let bf = |t: &Tensor| t.to_dtype(DType::BF16).unwrap();
+        let l = Linear::new(bf(&w), Some(bf(&b)));
+        let lin = reference(&x, &w, Some(&b), Activation::Identity);
+        for gate in [Some(&g), None] {
+            let want = match gate {
+                Some(g) => (&r + lin.broadcast_mul(g).unwrap()).unwrap(),
+                None => (&r + &lin).unwrap(),
+            };
+            let got = l.forward_residual(&x, &r, gate).unwrap();
+            assert!(
+                max_abs_diff(&got, &want) < 1e-4,
+                "f32 in, gate {}",
+                gate.is_some()
+            );
+            let got = l.forward_residual(&bf(&x), &bf(&r), gate).unwrap();
+            assert_eq!(got.dtype(), DType::BF16);
+            assert!(
+                max_abs_diff(&got, &want) < 0.1,
+                "bf16 in, gate {}",
+                gate.is_some()
+            );
+        }
     }
 }

@@ -2,10 +2,12 @@
 //! PTv3 patch attention all call [`attention`]).
 //!
 //! Layout `[B, H, L, D]`, scale `1/sqrt(D)`, softmax in f32. On the CPU without a mask it runs
-//! the fused tiled kernel of [`crate::kernels::fused_attention`]; elsewhere (other devices,
+//! the fused tiled kernel of [`crate::kernels::fused_attention`] (bf16 queries: that of
+//! [`crate::kernels::bf16::attention`], bf16 products with f32 accumulation); elsewhere (other devices,
 //! masks) it runs [`attention_reference`], plain candle ops with queries processed in chunks so
 //! the score matrix never exceeds [`SCORE_BUDGET_BYTES`].
 
+use crate::kernels::bf16::attention::bf16_attention;
 use crate::kernels::fused_attention::fused_attention;
 use candle_core::{DType, Result, Tensor};
 
@@ -17,6 +19,14 @@ pub const SCORE_BUDGET_BYTES: usize = 256 << 20;
 /// `mask` is an additive f32 tensor broadcastable to `[B,H,Lq,Lk]` (rank 4). The output has
 /// the dtype of `q`.
 pub fn attention(q: &Tensor, k: &Tensor, v: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
+    if mask.is_none() && q.device().is_cpu() && q.dtype() == DType::BF16 {
+        let bf16_contiguous = |t: &Tensor| t.to_dtype(DType::BF16)?.contiguous();
+        return bf16_attention(
+            &bf16_contiguous(q)?,
+            &bf16_contiguous(k)?,
+            &bf16_contiguous(v)?,
+        );
+    }
     if mask.is_none() && q.device().is_cpu() {
         let in_dtype = q.dtype();
         let f32_contiguous = |t: &Tensor| t.to_dtype(DType::F32)?.contiguous();

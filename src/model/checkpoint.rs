@@ -125,6 +125,8 @@ fn init_values(seed: u64, name: &str, shape: &Shape, hint: Init) -> Vec<f32> {
 /// Backend that creates seeded tensors on request.
 struct SeededInit {
     seed: u64,
+    /// Round every value to bf16 first (then convert to the requested dtype).
+    bf16_values: bool,
 }
 
 impl SimpleBackend for SeededInit {
@@ -137,9 +139,13 @@ impl SimpleBackend for SeededInit {
         dev: &Device,
     ) -> candle_core::Result<Tensor> {
         let v = init_values(self.seed, name, &s, h);
-        Tensor::from_vec(v, s, &Device::Cpu)?
-            .to_dtype(dtype)?
-            .to_device(dev)
+        let t = Tensor::from_vec(v, s, &Device::Cpu)?;
+        let t = if self.bf16_values {
+            t.to_dtype(DType::BF16)?
+        } else {
+            t
+        };
+        t.to_dtype(dtype)?.to_device(dev)
     }
 
     fn get_unchecked(&self, name: &str, _: DType, _: &Device) -> candle_core::Result<Tensor> {
@@ -199,7 +205,32 @@ fn record(cfg: &LhmppConfig) -> Result<Recorded, CheckpointError> {
 
 /// A `VarBuilder` whose tensors are seeded random values (see the module doc).
 pub fn seeded_var_builder(seed: u64, dtype: DType, dev: &Device) -> VarBuilder<'static> {
-    VarBuilder::from_backend(Box::new(SeededInit { seed }), dtype, dev.clone())
+    VarBuilder::from_backend(
+        Box::new(SeededInit {
+            seed,
+            bf16_values: false,
+        }),
+        dtype,
+        dev.clone(),
+    )
+}
+
+/// [`seeded_var_builder`] with every value rounded to bf16 before it is converted to `dtype`:
+/// an f32 network with exactly the weights of the bf16 one (for comparing the two dtypes'
+/// arithmetic alone).
+pub fn seeded_bf16_valued_var_builder(
+    seed: u64,
+    dtype: DType,
+    dev: &Device,
+) -> VarBuilder<'static> {
+    VarBuilder::from_backend(
+        Box::new(SeededInit {
+            seed,
+            bf16_values: true,
+        }),
+        dtype,
+        dev.clone(),
+    )
 }
 
 /// Every tensor name and shape the network for `cfg` expects, sorted by name.

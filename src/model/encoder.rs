@@ -157,6 +157,9 @@ pub struct DinoEncoder {
     pos_embed: Tensor,
     register_tokens: Tensor,
     patch_embed: Conv2d,
+    /// The patch embedding as a linear layer over flattened `3·p·p` patches, for bf16 weights
+    /// on the CPU (candle has no bf16 CPU convolution; the packed bf16 product runs it).
+    patch_linear: Option<Linear>,
     blocks: Vec<EncoderBlock>,
     norm: LayerNorm,
     pos_cache: Mutex<HashMap<(usize, usize), Tensor>>,
@@ -177,6 +180,20 @@ impl DinoEncoder {
         let blocks = (0..cfg.depth)
             .map(|i| EncoderBlock::new(cfg, vb.pp("blocks").pp(i)))
             .collect::<Result<Vec<_>>>()?;
+        let patch_embed = candle_nn::conv2d(
+            3,
+            c,
+            cfg.patch_size,
+            conv_cfg,
+            vb.pp("patch_embed").pp("proj"),
+        )?;
+        let w = patch_embed.weight();
+        let patch_linear = if w.device().is_cpu() && w.dtype() == candle_core::DType::BF16 {
+            let flat = w.reshape((c, 3 * cfg.patch_size * cfg.patch_size))?;
+            Some(Linear::new(flat, patch_embed.bias().cloned()))
+        } else {
+            None
+        };
         Ok(Self {
             cfg: cfg.clone(),
             cls_token: vb.get_with_hints((1, 1, c), "cls_token", randn)?,
@@ -190,13 +207,8 @@ impl DinoEncoder {
                 "register_tokens",
                 randn,
             )?,
-            patch_embed: candle_nn::conv2d(
-                3,
-                c,
-                cfg.patch_size,
-                conv_cfg,
-                vb.pp("patch_embed").pp("proj"),
-            )?,
+            patch_embed,
+            patch_linear,
             blocks,
             norm: layer_norm(c, cfg.layer_norm_eps, vb.pp("norm"))?,
             pos_cache: Mutex::new(HashMap::new()),
@@ -243,11 +255,22 @@ impl DinoEncoder {
         let (h, w) = (hh / p, ww / p);
         let c = self.cfg.embed_dim;
         let images = images.to_dtype(self.cls_token.dtype())?;
-        let x = self
-            .patch_embed
-            .forward(&images)?
-            .flatten_from(2)?
-            .transpose(1, 2)?;
+        let x = match &self.patch_linear {
+            Some(l) if images.device().is_cpu() => {
+                // `[B, 3, h·p, w·p]` → patches `[B, h·w, 3·p·p]` in the weight's (c, y, x) order.
+                let patches = images
+                    .reshape((b, 3, h, p, w, p))?
+                    .permute((0, 2, 4, 1, 3, 5))?
+                    .contiguous()?
+                    .reshape((b, h * w, 3 * p * p))?;
+                l.forward(&patches)?
+            }
+            _ => self
+                .patch_embed
+                .forward(&images)?
+                .flatten_from(2)?
+                .transpose(1, 2)?,
+        };
         let x = x.broadcast_add(&self.patch_pos_embed(h, w)?)?;
         let cls = (&self.cls_token + self.pos_embed.narrow(1, 0, 1)?)?.broadcast_as((b, 1, c))?;
         let regs = self

@@ -49,6 +49,10 @@ pub struct CpuPeerArgs {
     /// Smallest config of each piece only, 2 timed runs (smoke test).
     #[arg(long)]
     quick: bool,
+    /// Weights and activations in `f32` or `bf16` (matmul, vit, joint, attn; bf16 products
+    /// with f32 accumulation, as PyTorch's bf16 CPU kernels).
+    #[arg(long, default_value = "f32", value_parser = ["f32", "bf16"])]
+    dtype: String,
 }
 
 /// One timed config: median and minimum milliseconds over `runs`.
@@ -316,23 +320,42 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
     let runs = if a.quick { a.runs.min(2) } else { a.runs };
     let dev = Device::Cpu;
     let has = |p: &str| a.only.iter().any(|o| o == p);
+    let dtype = if a.dtype == "bf16" {
+        DType::BF16
+    } else {
+        DType::F32
+    };
+    if dtype != DType::F32 && ["dpt", "dpt-candle", "conv3x3"].iter().any(|p| has(p)) {
+        anyhow::bail!("bench cpu-peer: the dpt and conv3x3 pieces run in f32 only");
+    }
     println!(
-        "# lhmpp bench cpu-peer: candle 0.11.1, f32, random weights, {} rayon threads, gemm avx512 kernels {}",
+        "# lhmpp bench cpu-peer: candle 0.11.1, {}, random weights, {} rayon threads, gemm avx512 kernels {}, bf16 kernel {:?}",
+        a.dtype,
         rayon::current_num_threads(),
-        if cfg!(feature = "avx512") { "compiled in" } else { "not compiled" }
+        if cfg!(feature = "avx512") { "compiled in" } else { "not compiled" },
+        lhmpp::kernels::bf16::Kernel::detect()
     );
     let mut table = Table { rows: Vec::new() };
     if has("matmul") {
         let n = 1024;
-        let x = Tensor::randn(0f32, 1.0, (n, n), &dev)?;
-        let y = Tensor::randn(0f32, 1.0, (n, n), &dev)?;
-        let t = time_runs(runs.max(5), || Ok(x.matmul(&y).map(|_| ())?))?;
-        table.report(
-            "matmul",
-            format!("{n}x{n}x{n} f32"),
-            2.0 * (n as f64).powi(3) / 1e9,
-            t,
-        );
+        let x = Tensor::randn(0f32, 1.0, (n, n), &dev)?.to_dtype(dtype)?;
+        let y = Tensor::randn(0f32, 1.0, (n, n), &dev)?.to_dtype(dtype)?;
+        let gflop = 2.0 * (n as f64).powi(3) / 1e9;
+        if dtype == DType::F32 {
+            let t = time_runs(runs.max(5), || Ok(x.matmul(&y).map(|_| ())?))?;
+            table.report("matmul", format!("{n}x{n}x{n} f32"), gflop, t);
+        } else {
+            // Our bf16 product takes its right operand packed: a linear layer packs its weight
+            // once; `matmul-pack` times the packing inside the loop as well.
+            let layer = Linear::new(y.t()?.contiguous()?, None);
+            let t = time_runs(runs.max(5), || Ok(layer.forward(&x).map(|_| ())?))?;
+            table.report("matmul", format!("{n}x{n}x{n} bf16"), gflop, t);
+            let t = time_runs(runs.max(5), || {
+                let layer = Linear::new(y.t()?.contiguous()?, None);
+                Ok(layer.forward(&x).map(|_| ())?)
+            })?;
+            table.report("matmul-pack", format!("{n}x{n}x{n} bf16"), gflop, t);
+        }
     }
     if has("vit") {
         let (sizes, views): (&[usize], &[usize]) = if a.quick {
@@ -341,11 +364,8 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
             (&[224, 518], &[1, 4])
         };
         for (name, dim, heads) in [("ViT-S/14+reg4", 384, 6), ("ViT-B/14+reg4", 768, 12)] {
-            let enc = DinoEncoder::new(
-                &vit_config(dim, heads),
-                seeded_var_builder(3, DType::F32, &dev),
-            )
-            .with_context(|| format!("building {name}"))?;
+            let enc = DinoEncoder::new(&vit_config(dim, heads), seeded_var_builder(3, dtype, &dev))
+                .with_context(|| format!("building {name}"))?;
             for &res in sizes {
                 let patches = (res / 14) * (res / 14);
                 for &v in views {
@@ -363,14 +383,14 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
     }
     if has("joint") {
         let (d, heads, p) = (384usize, 6usize, 4096usize);
-        let vb = seeded_var_builder(5, DType::F32, &dev);
+        let vb = seeded_var_builder(5, dtype, &dev);
         let pt = Modality::new(d, vb.pp("pt"))?;
         let im = Modality::new(d, vb.pp("im"))?;
         let views: &[usize] = if a.quick { &[1] } else { &[1, 4, 8] };
         for &v in views {
             let i = 256 * v;
-            let xp = Tensor::randn(0f32, 1.0, (1, p, d), &dev)?;
-            let xi = Tensor::randn(0f32, 1.0, (1, i, d), &dev)?;
+            let xp = Tensor::randn(0f32, 1.0, (1, p, d), &dev)?.to_dtype(dtype)?;
+            let xi = Tensor::randn(0f32, 1.0, (1, i, d), &dev)?.to_dtype(dtype)?;
             let t = time_runs(runs, || {
                 Ok(joint_forward(&pt, &im, &xp, &xi, heads).map(|_| ())?)
             })?;
@@ -388,9 +408,9 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
         let views: &[usize] = if a.quick { &[1] } else { &[1, 4, 8] };
         for &v in views {
             let l = 4096 + 256 * v;
-            let q = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
-            let k = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
-            let w = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?;
+            let q = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?.to_dtype(dtype)?;
+            let k = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?.to_dtype(dtype)?;
+            let w = Tensor::randn(0f32, 1.0, (1, 6, l, 64), &dev)?.to_dtype(dtype)?;
             let gflop = 4.0 * 6.0 * (l * l * 64) as f64 / 1e9;
             let t = time_runs(runs, || Ok(attention(&q, &k, &w, None).map(|_| ())?))?;
             table.report("attn-fused", format!("B=1 H=6 L={l} D=64"), gflop, t);

@@ -31,6 +31,10 @@ pub struct ModelBenchArgs {
     /// Timed runs per measurement (the median is printed); one warm-up run precedes them.
     #[arg(long, default_value_t = 3)]
     runs: usize,
+    /// Weights and activations: `f32` or `bf16` (on the CPU: bf16 products with f32
+    /// accumulation, norms and softmax in f32).
+    #[arg(long, default_value = "f32", value_parser = ["f32", "bf16"])]
+    dtype: String,
 }
 
 fn median_ms(runs: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::Result<f64> {
@@ -80,12 +84,18 @@ pub fn run(a: ModelBenchArgs) -> anyhow::Result<()> {
         other => anyhow::bail!("unknown device `{other}` (cpu or cuda)"),
     };
     let cfg = LhmppConfig::preset(&a.config)?;
-    let model = Lhmpp::new(&cfg, seeded_var_builder(1, DType::F32, &dev))?;
+    let dtype = if a.dtype == "bf16" {
+        DType::BF16
+    } else {
+        DType::F32
+    };
+    let model = Lhmpp::new(&cfg, seeded_var_builder(1, dtype, &dev))?;
     let (anchors, normals) = synthetic_points(a.points, &dev)?;
     let image = || Tensor::rand(0f32, 1.0, (3, cfg.image_height, cfg.image_width), &dev);
     println!(
-        "preset {} | {}x{} images | {} points | device {} | threads {} | median of {} runs (ms)",
+        "preset {} | {} | {}x{} images | {} points | device {} | threads {} | median of {} runs (ms)",
         cfg.preset,
+        a.dtype,
         cfg.image_height,
         cfg.image_width,
         a.points,

@@ -1,0 +1,252 @@
+//! The bf16 path of [`crate::kernels::linear::Linear`]: `act(x Wᵀ + b)` or
+//! `r + g ⊙ (x Wᵀ + b)` with the weight packed once ([`PackedRhs`]), the product in bf16 with
+//! f32 accumulation ([`super::gemm`]) and the bias, GELU, gate and residual applied in f32.
+//! The output has the dtype of the input (bf16 or f32).
+
+use candle_core::backend::BackendStorage;
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape};
+
+use super::gemm::{gemm_with_epilogue, Lhs};
+use super::Kernel;
+use super::{f32_to_bf16_bits, PackedRhs};
+use crate::kernels::gelu::{gelu_in_place, gelu_tanh_in_place};
+use crate::kernels::linear::Activation;
+
+/// The candle op: `act(x Wᵀ + b)` of `x [M, K]` (one operand) or `R + g ⊙ (x Wᵀ + b)` with
+/// the residual `R [M, N]` as second operand.
+#[derive(Debug, Clone, Copy)]
+pub struct PackedLinear<'a> {
+    /// The packed weight `[N, K]`.
+    pub weight: &'a PackedRhs,
+    /// The bias `[N]` in f32.
+    pub bias: Option<&'a [f32]>,
+    /// The gate `[N]` of the residual form.
+    pub gate: Option<&'a [f32]>,
+    /// What follows the affine map (the plain form only).
+    pub act: Activation,
+}
+
+/// A contiguous CPU operand as the left operand of the product.
+fn lhs<'a>(s: &'a CpuStorage, l: &Layout, k: usize) -> Result<Lhs<'a>> {
+    let Some((a, b)) = l.contiguous_offsets() else {
+        candle_core::bail!("bf16 linear: input is not contiguous");
+    };
+    Ok(match s {
+        CpuStorage::BF16(d) => Lhs::Bf16 {
+            data: &d[a..b],
+            ld: k,
+        },
+        CpuStorage::F32(d) => Lhs::F32 {
+            data: &d[a..b],
+            ld: k,
+        },
+        other => candle_core::bail!(
+            "bf16 linear: input is {:?}, expected bf16 or f32",
+            other.dtype()
+        ),
+    })
+}
+
+/// The bf16 output shared by the epilogue calls, which write disjoint values.
+#[derive(Clone, Copy)]
+struct Bf16Ptr(*mut half::bf16);
+// SAFETY: each (row, column) of the output is written by one epilogue call only (see `run`).
+unsafe impl Send for Bf16Ptr {}
+unsafe impl Sync for Bf16Ptr {}
+
+impl Bf16Ptr {
+    /// The pointer (a method, so that closures capture the whole `Sync` wrapper).
+    fn get(self) -> *mut half::bf16 {
+        self.0
+    }
+}
+
+/// The residual operand, read row segment by row segment in the epilogue.
+#[derive(Clone, Copy)]
+enum Residual<'a> {
+    Bf16(&'a [half::bf16]),
+    F32(&'a [f32]),
+}
+
+impl<'a> Residual<'a> {
+    /// A contiguous CPU operand.
+    fn of(s: &'a CpuStorage, l: &Layout) -> Result<Self> {
+        let Some((a, b)) = l.contiguous_offsets() else {
+            candle_core::bail!("bf16 linear: residual is not contiguous");
+        };
+        Ok(match s {
+            CpuStorage::BF16(d) => Residual::Bf16(&d[a..b]),
+            CpuStorage::F32(d) => Residual::F32(&d[a..b]),
+            other => candle_core::bail!(
+                "bf16 linear: residual is {:?}, expected bf16 or f32",
+                other.dtype()
+            ),
+        })
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Residual::Bf16(d) => d.len(),
+            Residual::F32(d) => d.len(),
+        }
+    }
+
+    /// Element `i` as f32.
+    #[inline(always)]
+    fn get(&self, i: usize) -> f32 {
+        match self {
+            Residual::Bf16(d) => d[i].to_f32(),
+            Residual::F32(d) => d[i],
+        }
+    }
+}
+
+impl PackedLinear<'_> {
+    /// The f32 epilogue of `values`, columns `col..` of output row `row` (rows `n` wide): bias,
+    /// then the activation, or `r + g ⊙ y` with the residual.
+    fn epilogue(
+        &self,
+        values: &mut [f32],
+        row: usize,
+        col: usize,
+        n: usize,
+        residual: Option<Residual>,
+    ) {
+        let cols = col..col + values.len();
+        if let Some(b) = self.bias {
+            values
+                .iter_mut()
+                .zip(&b[cols.clone()])
+                .for_each(|(o, b)| *o += b);
+        }
+        match residual {
+            Some(r) => {
+                let base = row * n + col;
+                match self.gate {
+                    Some(g) => values
+                        .iter_mut()
+                        .zip(&g[cols])
+                        .enumerate()
+                        .for_each(|(j, (o, g))| *o = r.get(base + j) + g * *o),
+                    None => values
+                        .iter_mut()
+                        .enumerate()
+                        .for_each(|(j, o)| *o += r.get(base + j)),
+                }
+            }
+            None => match self.act {
+                Activation::Identity => {}
+                Activation::GeluErf => gelu_in_place(values),
+                Activation::GeluTanh => gelu_tanh_in_place(values),
+            },
+        }
+    }
+
+    fn run(
+        &self,
+        x: (&CpuStorage, &Layout),
+        residual: Option<(&CpuStorage, &Layout)>,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (m, k) = x.1.shape().dims2()?;
+        let n = self.weight.n();
+        if self.weight.k() != k {
+            candle_core::bail!(
+                "bf16 linear: input has {k} features, weight expects {}",
+                self.weight.k()
+            );
+        }
+        for (what, v) in [("bias", self.bias), ("gate", self.gate)] {
+            if let Some(v) = v {
+                if v.len() != n {
+                    candle_core::bail!("bf16 linear: {what} has {} values, expected {n}", v.len());
+                }
+            }
+        }
+        let a = lhs(x.0, x.1, k)?;
+        let residual = match residual {
+            Some((s, l)) => {
+                let r = Residual::of(s, l)?;
+                if r.len() != m * n {
+                    candle_core::bail!(
+                        "bf16 linear: residual has {} values, expected {m}×{n}",
+                        r.len()
+                    );
+                }
+                Some(r)
+            }
+            None => None,
+        };
+        let mut acc = vec![0f32; m * n];
+        // The epilogue runs on each row segment of a task as soon as its products are done,
+        // while the values are in the cache: f32 bias, activation or gated residual, then (bf16
+        // input) the rounding into the output.
+        let storage = if x.0.dtype() == DType::BF16 {
+            let mut out = vec![half::bf16::ZERO; m * n];
+            let dst = Bf16Ptr(out.as_mut_ptr());
+            let epilogue = |row: usize, col: usize, values: &mut [f32]| {
+                self.epilogue(values, row, col, n, residual);
+                // SAFETY: `out` holds `m × n` values; the gemm passes each (row, column) once,
+                // so no two calls write the same output values.
+                let o = unsafe {
+                    std::slice::from_raw_parts_mut(dst.get().add(row * n + col), values.len())
+                };
+                for (o, &v) in o.iter_mut().zip(values.iter()) {
+                    *o = half::bf16::from_bits(f32_to_bf16_bits(v));
+                }
+            };
+            gemm_with_epilogue(
+                Kernel::detect(),
+                a,
+                m,
+                self.weight.view(),
+                &mut acc,
+                n,
+                true,
+                Some(&epilogue),
+            )?;
+            CpuStorage::BF16(out)
+        } else {
+            let epilogue = |row: usize, col: usize, values: &mut [f32]| {
+                self.epilogue(values, row, col, n, residual)
+            };
+            gemm_with_epilogue(
+                Kernel::detect(),
+                a,
+                m,
+                self.weight.view(),
+                &mut acc,
+                n,
+                true,
+                Some(&epilogue),
+            )?;
+            CpuStorage::F32(acc)
+        };
+        Ok((storage, Shape::from((m, n))))
+    }
+}
+
+impl CustomOp1 for PackedLinear<'_> {
+    fn name(&self) -> &'static str {
+        "bf16-linear"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        self.run((s, l), None)
+    }
+}
+
+impl CustomOp2 for PackedLinear<'_> {
+    fn name(&self) -> &'static str {
+        "bf16-linear-residual"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        self.run((s1, l1), Some((s2, l2)))
+    }
+}
