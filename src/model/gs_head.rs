@@ -202,7 +202,13 @@ impl GsHead {
 
     /// `features [N, q]`, `anchors [N, 3]` → Gaussians.
     pub fn forward(&self, features: &Tensor, anchors: &Tensor) -> Result<GaussianOutput> {
-        let mut x = features.clone();
+        // On the CPU the head's activations stay f32 between its layers (bf16 weights still
+        // run the bf16 kernel, which rounds each layer's input): the attributes are not rounded
+        // to bf16 on their way, which the rotations' normalisation would amplify.
+        let mut x = match features.device() {
+            candle_core::Device::Cpu => features.to_dtype(DType::F32)?,
+            _ => features.clone(),
+        };
         let last = self.mlp.len() - 1;
         for (i, l) in self.mlp.iter().enumerate() {
             x = l.forward(&x)?;
