@@ -114,6 +114,21 @@ fn bf16_data<'a>(s: &'a CpuStorage, l: &Layout) -> Result<Option<&'a [half::bf16
     }
 }
 
+/// The channel count of `shape` (its last dimension), checked against the affine parameters.
+fn channels(shape: &Shape, affine: Option<(&[f32], &[f32])>) -> Result<usize> {
+    let c = shape.dims().last().copied().unwrap_or(0);
+    if let Some((w, b)) = affine {
+        if w.len() != c || b.len() != c {
+            candle_core::bail!(
+                "layer norm: {c} channels but weight has {} and bias {}",
+                w.len(),
+                b.len()
+            );
+        }
+    }
+    Ok(c)
+}
+
 impl LayerNormOp {
     /// The bf16 form of [`Self::run`]: rows widened to f32 in a small buffer.
     fn run_bf16(
@@ -122,16 +137,7 @@ impl LayerNormOp {
         shape: &Shape,
         affine: Option<(&[f32], &[f32])>,
     ) -> Result<(CpuStorage, Shape)> {
-        let c = shape.dims().last().copied().unwrap_or(0);
-        if let Some((w, b)) = affine {
-            if w.len() != c || b.len() != c {
-                candle_core::bail!(
-                    "layer norm: {c} channels but weight has {} and bias {}",
-                    w.len(),
-                    b.len()
-                );
-            }
-        }
+        let c = channels(shape, affine)?;
         let mut out = vec![half::bf16::ZERO; x.len()];
         if c > 0 {
             out.par_chunks_mut(ROWS_PER_TASK * c)
@@ -156,16 +162,7 @@ impl LayerNormOp {
         shape: &Shape,
         affine: Option<(&[f32], &[f32])>,
     ) -> Result<(CpuStorage, Shape)> {
-        let c = shape.dims().last().copied().unwrap_or(0);
-        if let Some((w, b)) = affine {
-            if w.len() != c || b.len() != c {
-                candle_core::bail!(
-                    "layer norm: {c} channels but weight has {} and bias {}",
-                    w.len(),
-                    b.len()
-                );
-            }
-        }
+        let c = channels(shape, affine)?;
         let mut out = vec![0f32; x.len()];
         if c > 0 {
             out.par_chunks_mut(ROWS_PER_TASK * c)

@@ -315,17 +315,7 @@ impl Reconstructor {
         match (&shape, &self.base_template) {
             (AcceptedShape::MakeHuman(s), Some(base)) => {
                 let template = s.shaped(base);
-                let anchors = template.sample_anchors(self.num_points, self.seed);
-                let (p, n) = anchor_tensors(
-                    &anchors.positions,
-                    &anchors.normals,
-                    self.anchor_positions.dtype(),
-                    &self.device,
-                )?;
-                self.anchor_positions = p;
-                self.anchor_normals = n;
-                self.skin = anchors.skin;
-                self.template = template;
+                self.use_template(template)?;
             }
             (AcceptedShape::SmplxBetas(_), None) => {
                 if !self.betas_noted {
@@ -356,18 +346,8 @@ impl Reconstructor {
             Some(shape) => self.set_shape(shape),
             None if self.shape.is_none() => Ok(false),
             None => {
-                if let Some(base) = &self.base_template {
-                    let anchors = base.sample_anchors(self.num_points, self.seed);
-                    let (p, n) = anchor_tensors(
-                        &anchors.positions,
-                        &anchors.normals,
-                        self.anchor_positions.dtype(),
-                        &self.device,
-                    )?;
-                    self.anchor_positions = p;
-                    self.anchor_normals = n;
-                    self.skin = anchors.skin;
-                    self.template = base.clone();
+                if let Some(base) = self.base_template.clone() {
+                    self.use_template(base)?;
                 }
                 self.shape = None;
                 Ok(true)
@@ -375,9 +355,20 @@ impl Reconstructor {
         }
     }
 
-    /// The shape given by [`Self::set_shape`] or [`Self::use_shape`] (not the predicted one).
-    pub fn given_shape(&self) -> Option<&AcceptedShape> {
-        self.shape.as_ref()
+    /// Reconstructs on `template` from now on: the anchors resampled on it with the same seed.
+    fn use_template(&mut self, template: BodyTemplate) -> Result<(), ReconstructError> {
+        let anchors = template.sample_anchors(self.num_points, self.seed);
+        let (p, n) = anchor_tensors(
+            &anchors.positions,
+            &anchors.normals,
+            self.anchor_positions.dtype(),
+            &self.device,
+        )?;
+        self.anchor_positions = p;
+        self.anchor_normals = n;
+        self.skin = anchors.skin;
+        self.template = template;
+        Ok(())
     }
 
     /// Anchor positions in the canonical frame (metres), as the network receives them.
