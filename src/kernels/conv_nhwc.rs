@@ -114,6 +114,27 @@ impl ConvNhwc {
             return;
         }
         let n = self.gemm.n();
+        #[cfg(target_arch = "x86_64")]
+        if self.rows.is_some()
+            && self.c_in % 8 == 0
+            && self.kernel.0 == self.kernel.1
+            && self.stride.0 == self.stride.1
+            && matches!((self.kernel.0, self.stride.0), (3, 1) | (3, 2))
+            && super::gemm_avx2::available()
+        {
+            let macs = m * n * self.gemm.k();
+            let per = parallel::items_per_task(os.height, macs, 1 << 18, 1);
+            parallel::for_each_chunk(out, per * os.width * n, |t, chunk| {
+                // SAFETY: the CPU has AVX2 and FMA (checked above).
+                unsafe {
+                    match self.stride.0 {
+                        1 => self.few_out_rows::<3, 1>(input, shape, pad, os, t * per, epi, chunk),
+                        _ => self.few_out_rows::<3, 2>(input, shape, pad, os, t * per, epi, chunk),
+                    }
+                }
+            });
+            return;
+        }
         let rows = rows_per_task(m, m * n * self.gemm.k());
         #[cfg(target_arch = "x86_64")]
         if super::gemm_avx2::available() {
@@ -230,6 +251,106 @@ impl ConvNhwc {
             }
         }
         debug_assert!(input.len() >= shape.len());
+    }
+
+    /// Few output channels, a square `K×K` kernel with stride `S` and `C_in` a multiple of 8
+    /// (BlazePose's segmentation head, 8 → 1 at 256×256): output rows `first_row..` of
+    /// `chunk`, [`super::gemm_avx2::ROW_PIXELS`] pixels of a row at a time. Vectorised over
+    /// pixels rather than output channels: per output channel, eight accumulators (one per
+    /// pixel, lanes = 8 input channels) take each kernel row through
+    /// [`super::gemm_avx2::row_taps`] (each input column loaded once for all its taps), then
+    /// are summed across lanes into the eight pixels' values.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn few_out_rows<const K: usize, const S: usize>(
+        &self,
+        input: &[f32],
+        shape: Shape,
+        pad: Padding,
+        os: Shape,
+        first_row: usize,
+        epi: Epilogue,
+        chunk: &mut [f32],
+    ) {
+        use super::gemm_avx2::{hsum8, row_taps, ROW_PIXELS};
+        use std::arch::x86_64::*;
+        const P: usize = ROW_PIXELS;
+        let weight = self
+            .rows
+            .as_deref()
+            .expect("dot layers keep their weight rows");
+        let (c, n) = (self.c_in, self.gemm.n());
+        let (h, w, ow) = (shape.height, shape.width, os.width);
+        assert!(self.kernel == (K, K) && self.stride == (S, S) && c % 8 == 0);
+        assert!(input.len() >= h * w * c && weight.len() >= n * K * K * c);
+        assert!(chunk.len() % (ow * n) == 0 && (first_row + chunk.len() / (ow * n)) <= os.height);
+        if let Some(r) = epi.residual {
+            assert!(r.len() >= os.len());
+        }
+        let (lo1, hi1) = epi.pre.bounds();
+        let (lo2, hi2) = epi.post.bounds();
+        let zero = [0.0f32; 8];
+        let left = pad.left as isize;
+        for r in 0..chunk.len() / (ow * n) {
+            let oy = first_row + r;
+            let y0 = (oy * S) as isize - pad.top as isize;
+            let ky_lo = (-y0).max(0) as usize;
+            let ky_hi = ((h as isize - y0).max(0) as usize).min(K);
+            let mut ox = 0;
+            while ox < ow {
+                let x0 = (ox * S) as isize - left;
+                let inside = x0 >= 0 && x0 as usize + (P - 1) * S + K <= w;
+                let count = P.min(ow - ox);
+                for o in 0..n {
+                    let mut acc = [_mm256_setzero_ps(); P];
+                    for ky in ky_lo..ky_hi {
+                        let line = input.as_ptr().add((y0 + ky as isize) as usize * w * c);
+                        let wrow = weight.as_ptr().add((o * K + ky) * K * c);
+                        for c0 in (0..c).step_by(8) {
+                            let wk: [__m256; K] =
+                                std::array::from_fn(|kx| _mm256_loadu_ps(wrow.add(kx * c + c0)));
+                            let line = line.add(c0);
+                            if inside {
+                                row_taps::<K, S, false>(
+                                    &mut acc,
+                                    &wk,
+                                    line,
+                                    x0,
+                                    w,
+                                    c,
+                                    zero.as_ptr(),
+                                );
+                            } else {
+                                row_taps::<K, S, true>(
+                                    &mut acc,
+                                    &wk,
+                                    line,
+                                    x0,
+                                    w,
+                                    c,
+                                    zero.as_ptr(),
+                                );
+                            }
+                        }
+                    }
+                    let mut sums = [0.0f32; P];
+                    _mm256_storeu_ps(sums.as_mut_ptr(), hsum8(&acc));
+                    for (p, &sum) in sums.iter().enumerate().take(count) {
+                        let q = oy * ow + ox + p;
+                        let mut y = (sum + self.bias[o]).max(lo1).min(hi1);
+                        if let Some(res) = epi.residual {
+                            y = (y + res[q * n + o]).max(lo2).min(hi2);
+                        }
+                        chunk[(r * ow + ox + p) * n + o] = y;
+                    }
+                }
+                ox += P;
+            }
+        }
     }
 
     /// Few output channels with `C_in` a multiple of 8: eight output pixels at a time, each
@@ -511,6 +632,21 @@ mod tests {
                 },
             ),
             (6, 5, 3, 30, (3, 3), (1, 1), Padding::uniform(1)),
+            (5, 27, 16, 2, (3, 3), (1, 1), Padding::uniform(1)),
+            (
+                9,
+                21,
+                8,
+                3,
+                (3, 3),
+                (2, 2),
+                Padding {
+                    top: 0,
+                    left: 1,
+                    bottom: 1,
+                    right: 0,
+                },
+            ),
         ];
         for (h, w, ci, co, k, st, pad) in cases {
             let s = Shape::new(h, w, ci);

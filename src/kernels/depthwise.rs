@@ -162,7 +162,15 @@ fn run_rows_fast(job: &Rows, epi: Epilogue, out: &mut [f32]) {
     if super::gemm_avx2::available() {
         let skip = job.dw.channels / 8 * 8;
         // SAFETY: the CPU has AVX2 and FMA (checked above).
-        unsafe { avx2::rows(job, epi, out) };
+        unsafe {
+            match (job.dw.kernel, job.dw.stride) {
+                ((3, 3), (1, 1)) => avx2::rows_k::<3, 1>(job, epi, out),
+                ((3, 3), (2, 2)) => avx2::rows_k::<3, 2>(job, epi, out),
+                ((5, 5), (1, 1)) => avx2::rows_k::<5, 1>(job, epi, out),
+                ((5, 5), (2, 2)) => avx2::rows_k::<5, 2>(job, epi, out),
+                _ => avx2::rows(job, epi, out),
+            }
+        }
         run_rows(job, epi, out, skip);
         return;
     }
@@ -354,6 +362,83 @@ mod avx2 {
     use std::arch::x86_64::*;
 
     use super::{Epilogue, Rows};
+    use crate::kernels::gemm_avx2::{row_taps, ROW_PIXELS};
+
+    /// Square `K×K` filters with stride `S` in both directions, channels `0..C / 8 · 8`: along
+    /// each output row [`ROW_PIXELS`] output pixels at a time, for each 8-channel block (so
+    /// that the cache lines under a group are used whole before moving on), each
+    /// kernel row through [`row_taps`] (every input column loaded once for all the taps that
+    /// read it). Groups whose columns lie inside the image skip the bounds checks; the others
+    /// read zeros for the padding columns, and rows off the image are skipped.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and FMA.
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn rows_k<const K: usize, const S: usize>(
+        job: &Rows,
+        epi: Epilogue,
+        out: &mut [f32],
+    ) {
+        const P: usize = ROW_PIXELS;
+        let dw = job.dw;
+        let c = dw.channels;
+        let (h, w) = (job.shape.height, job.shape.width);
+        let ow = job.out_shape.width;
+        let left = job.pad.left as isize;
+        assert!(dw.kernel == (K, K) && dw.stride == (S, S));
+        assert!(job.input.len() >= h * w * c && dw.weight.len() >= K * K * c);
+        assert!(dw.bias.len() >= c && out.len() % (ow * c) == 0);
+        assert!(epi.residual.is_none_or(|r| r.len() >= out.len()));
+        let rows = out.len() / (ow * c);
+        let (lo1, hi1) = epi.pre.bounds();
+        let (lo2, hi2) = epi.post.bounds();
+        let (lo1, hi1, lo2, hi2) = (
+            _mm256_set1_ps(lo1),
+            _mm256_set1_ps(hi1),
+            _mm256_set1_ps(lo2),
+            _mm256_set1_ps(hi2),
+        );
+        let zero = [0.0f32; 8];
+        let input = job.input.as_ptr();
+        for r in 0..rows {
+            let oy = job.first + r;
+            let y0 = (oy * S) as isize - job.pad.top as isize;
+            let ky_lo = (-y0).max(0) as usize;
+            let ky_hi = ((h as isize - y0).max(0) as usize).min(K);
+            let out_row = out.as_mut_ptr().add(r * ow * c);
+            let res_row = epi.residual.map(|x| x.as_ptr().add(r * ow * c));
+            let mut ox = 0;
+            while ox < ow {
+                let x0 = (ox * S) as isize - left;
+                let inside = x0 >= 0 && x0 as usize + (P - 1) * S + K <= w;
+                for c0 in (0..c / 8 * 8).step_by(8) {
+                    let bias = _mm256_loadu_ps(dw.bias.as_ptr().add(c0));
+                    let wts = dw.weight.as_ptr().add(c0);
+                    let mut acc = [bias; P];
+                    for ky in ky_lo..ky_hi {
+                        let line = input.add((y0 + ky as isize) as usize * w * c + c0);
+                        let wk: [__m256; K] =
+                            std::array::from_fn(|kx| _mm256_loadu_ps(wts.add((ky * K + kx) * c)));
+                        if inside {
+                            row_taps::<K, S, false>(&mut acc, &wk, line, x0, w, c, zero.as_ptr());
+                        } else {
+                            row_taps::<K, S, true>(&mut acc, &wk, line, x0, w, c, zero.as_ptr());
+                        }
+                    }
+                    for (p, &a) in acc.iter().enumerate().take(ow - ox) {
+                        let at = (ox + p) * c + c0;
+                        let mut v = _mm256_min_ps(_mm256_max_ps(a, lo1), hi1);
+                        if let Some(res) = res_row {
+                            v = _mm256_add_ps(v, _mm256_loadu_ps(res.add(at)));
+                            v = _mm256_min_ps(_mm256_max_ps(v, lo2), hi2);
+                        }
+                        _mm256_storeu_ps(out_row.add(at), v);
+                    }
+                }
+                ox += P;
+            }
+        }
+    }
 
     /// Every pixel of the job's rows, channels `0..C / 8 · 8`: windows inside the image eight
     /// pixels at a time, the others one at a time over their in-bounds taps.
@@ -524,6 +609,35 @@ mod tests {
             ),
             (2, 2, 16, (3, 3), (1, 1), Padding::uniform(1)),
             (64, 3, 8, (3, 3), (1, 1), Padding::uniform(1)),
+            (5, 37, 16, (5, 5), (2, 2), Padding::uniform(2)),
+            (
+                6,
+                29,
+                24,
+                (3, 3),
+                (1, 1),
+                Padding {
+                    top: 0,
+                    left: 1,
+                    bottom: 2,
+                    right: 1,
+                },
+            ),
+            (
+                9,
+                23,
+                16,
+                (3, 3),
+                (2, 2),
+                Padding {
+                    top: 0,
+                    left: 0,
+                    bottom: 1,
+                    right: 1,
+                },
+            ),
+            (11, 30, 8, (5, 5), (1, 1), Padding::uniform(2)),
+            (3, 7, 8, (5, 5), (1, 1), Padding::uniform(2)),
         ];
         for (h, w, c, k, st, pad) in cases {
             let s = Shape::new(h, w, c);

@@ -168,7 +168,62 @@ pub(crate) unsafe fn indirect_dot8(
             }
         }
     }
-    // eight horizontal sums into one vector
+    let mut sums = [0.0f32; 8];
+    _mm256_storeu_ps(sums.as_mut_ptr(), hsum8(&acc));
+    sums
+}
+
+/// Pixels of one output row that [`row_taps`] accumulates at a time.
+pub(crate) const ROW_PIXELS: usize = 8;
+
+/// One kernel row of a `K`-wide, stride-`S` convolution over [`ROW_PIXELS`] consecutive
+/// output pixels of 8 channels: `acc[p] += x[(p·S + kx)] · wk[kx]` for every `p` and `kx`,
+/// where `x[j]` is the 8 values at `line + (x0 + j)·c` (input column `x0 + j`). Each of the
+/// `7·S + K` input columns is loaded once and multiplied by every tap that reads it, so a
+/// 5×5 stride-1 row costs 12 loads for 40 multiply-adds. With `CHECKED`, columns outside
+/// `0..w` read the 8 zeros at `zero` instead (padding); without, all must lie inside.
+///
+/// Used by the depthwise kernel (one output per channel) and by the few-output convolution
+/// (whose lanes are input channels, summed afterwards).
+///
+/// # Safety
+/// The caller's function must enable AVX2 and FMA; every column read must hold 8 readable
+/// values (`zero` too).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn row_taps<const K: usize, const S: usize, const CHECKED: bool>(
+    acc: &mut [__m256; ROW_PIXELS],
+    wk: &[__m256; K],
+    line: *const f32,
+    x0: isize,
+    w: usize,
+    c: usize,
+    zero: *const f32,
+) {
+    for j in 0..(ROW_PIXELS - 1) * S + K {
+        let ix = x0 + j as isize;
+        let at = line.wrapping_offset(ix * c as isize);
+        let ptr = if !CHECKED || (ix as usize) < w {
+            at
+        } else {
+            zero
+        };
+        let x = _mm256_loadu_ps(ptr);
+        for (kx, wv) in wk.iter().enumerate() {
+            if j >= kx && (j - kx) % S == 0 && (j - kx) / S < ROW_PIXELS {
+                let p = (j - kx) / S;
+                acc[p] = _mm256_fmadd_ps(x, *wv, acc[p]);
+            }
+        }
+    }
+}
+
+/// The eight horizontal sums of `acc[0..8]`, as the lanes of one vector.
+///
+/// # Safety
+/// The caller's function must enable AVX2.
+#[inline(always)]
+pub(crate) unsafe fn hsum8(acc: &[__m256; 8]) -> __m256 {
     let s01 = _mm256_hadd_ps(acc[0], acc[1]);
     let s23 = _mm256_hadd_ps(acc[2], acc[3]);
     let s45 = _mm256_hadd_ps(acc[4], acc[5]);
@@ -177,9 +232,7 @@ pub(crate) unsafe fn indirect_dot8(
     let s4567 = _mm256_hadd_ps(s45, s67);
     let lo = _mm256_permute2f128_ps::<0x20>(s0123, s4567);
     let hi = _mm256_permute2f128_ps::<0x31>(s0123, s4567);
-    let mut sums = [0.0f32; 8];
-    _mm256_storeu_ps(sums.as_mut_ptr(), _mm256_add_ps(lo, hi));
-    sums
+    _mm256_add_ps(lo, hi)
 }
 
 /// The transpose of the 8 × 8 matrix whose rows are `r`.

@@ -2,10 +2,15 @@
 //! its 1×1 weights as zeros): only the non-zero weights are multiplied.
 //!
 //! The weights are kept per output channel as (input channel, value) lists. Pixels go in
-//! blocks of 16: the block's input rows are transposed so that each input channel's 16 values
-//! are two vectors, each output channel accumulates `value × vector` over its non-zero list
-//! (four partial sums, so that the multiply-adds do not wait on each other), and the 16 × n
-//! results are transposed back through the epilogue into the NHWC output rows.
+//! blocks: the block's input rows are transposed so that each input channel's values for the
+//! block's pixels are contiguous vectors, each output channel accumulates `value × vector` over
+//! its non-zero list, and the results are transposed back through the epilogue into the NHWC
+//! output rows. With AVX2/FMA the blocks are 32 pixels (a shorter last one of 8, 16 or 24),
+//! the transposed block is 64-byte aligned (one input channel = two cache lines), and the
+//! input channels are cut into k-blocks of at most [`KB_MAX`] so that the part of the
+//! transposed block that an output channel's entries read stays in the L1 cache while every
+//! output channel passes over it (the per-output sums carry over between k-blocks). Elsewhere
+//! a portable loop works on blocks of 16.
 
 use std::cell::RefCell;
 
@@ -13,8 +18,14 @@ use super::nhwc::Epilogue;
 use super::parallel;
 use super::pointwise::rows_per_task;
 
-/// Pixels per block.
+/// Pixels per block of the portable path.
 const BLOCK: usize = 16;
+
+/// Pixels per block of the AVX2 path (the row stride of its transposed block).
+const WIDE: usize = 32;
+
+/// Input channels per k-block of the AVX2 path (`KB_MAX · WIDE` floats: 16 KiB).
+const KB_MAX: usize = 128;
 
 thread_local! {
     /// Each thread's transposed input block and transposed results, kept between calls.
@@ -33,6 +44,15 @@ pub struct SparsePointwise {
     /// Value of each entry.
     values: Vec<f32>,
     bias: Vec<f32>,
+    /// The entries again for the AVX2 path, ordered by (k-block, output channel):
+    /// `kb_starts[b·n + o]..kb_starts[b·n + o + 1]` are output `o`'s entries in k-block `b`.
+    kb_starts: Vec<u32>,
+    /// Each entry's offset in the transposed block (input channel × [`WIDE`]).
+    kb_offsets: Vec<u32>,
+    /// Each entry's value.
+    kb_values: Vec<f32>,
+    /// Number of k-blocks.
+    kb_count: usize,
 }
 
 impl SparsePointwise {
@@ -53,6 +73,23 @@ impl SparsePointwise {
         }
         // the kernels index the transposed input block by these without bounds checks
         assert!(inputs.iter().all(|&i| (i as usize) < k));
+        let kb_count = k.div_ceil(KB_MAX).max(1);
+        let kb_len = k.div_ceil(kb_count).div_ceil(8) * 8;
+        let mut kb_starts = vec![0u32];
+        let (mut kb_offsets, mut kb_values) = (Vec::new(), Vec::new());
+        for b in 0..kb_count {
+            let range = b * kb_len..((b + 1) * kb_len).min(k);
+            for o in 0..n {
+                for e in starts[o]..starts[o + 1] {
+                    if range.contains(&(inputs[e] as usize)) {
+                        kb_offsets.push(inputs[e] * WIDE as u32);
+                        kb_values.push(values[e]);
+                    }
+                }
+                kb_starts.push(kb_values.len() as u32);
+            }
+        }
+        assert_eq!(kb_values.len(), values.len());
         Self {
             k,
             n,
@@ -60,6 +97,10 @@ impl SparsePointwise {
             inputs,
             values,
             bias: bias.to_vec(),
+            kb_starts,
+            kb_offsets,
+            kb_values,
+            kb_count,
         }
     }
 
@@ -89,6 +130,17 @@ impl SparsePointwise {
         if m == 0 {
             return;
         }
+        #[cfg(target_arch = "x86_64")]
+        if k % 8 == 0 && n % 8 == 0 && super::gemm_avx2::available() {
+            self.run_avx2(a, m, epi, out);
+            return;
+        }
+        self.run_portable(a, m, epi, out);
+    }
+
+    /// [`Self::run`] on plain loops, blocks of [`BLOCK`] pixels.
+    fn run_portable(&self, a: &[f32], m: usize, epi: Epilogue, out: &mut [f32]) {
+        let (k, n) = (self.k, self.n);
         let rows = rows_per_task(m, m * self.values.len()).div_ceil(BLOCK) * BLOCK;
         parallel::for_each_chunk(out, rows * n, |t, chunk| {
             SCRATCH.with(|s| {
@@ -100,13 +152,6 @@ impl SparsePointwise {
                 for b in (0..count).step_by(BLOCK) {
                     let p = BLOCK.min(count - b);
                     let r0 = first + b;
-                    #[cfg(target_arch = "x86_64")]
-                    if k % 8 == 0 && n % 8 == 0 && super::gemm_avx2::available() {
-                        let dst = &mut chunk[b * n..(b + p) * n];
-                        // SAFETY: the CPU has AVX2 and FMA (checked above).
-                        unsafe { self.block_avx2_nhwc(a, r0, p, epi, xt, yt, dst) };
-                        continue;
-                    }
                     // transpose the block's input rows: xt[i][j] = a[r0 + j][i]
                     for j in 0..BLOCK {
                         let row = r0 + j.min(p - 1);
@@ -114,7 +159,7 @@ impl SparsePointwise {
                             xt[i * BLOCK + j] = v;
                         }
                     }
-                    self.block(xt, yt);
+                    self.block_portable(xt, yt);
                     let (lo1, hi1) = epi.pre.bounds();
                     let (lo2, hi2) = epi.post.bounds();
                     for j in 0..p {
@@ -132,18 +177,8 @@ impl SparsePointwise {
         });
     }
 
-    /// `yt[o][j] = Σ value · xt[input][j]` over output channel `o`'s entries.
-    fn block(&self, xt: &[f32], yt: &mut [f32]) {
-        #[cfg(target_arch = "x86_64")]
-        if super::gemm_avx2::available() {
-            // SAFETY: the CPU has AVX2 and FMA (checked above).
-            unsafe { self.block_avx2(xt, yt) };
-            return;
-        }
-        self.block_portable(xt, yt);
-    }
-
-    /// [`Self::block`] on plain loops.
+    /// `yt[o][j] = Σ value · xt[input][j]` over output channel `o`'s entries (rows of
+    /// [`BLOCK`]).
     fn block_portable(&self, xt: &[f32], yt: &mut [f32]) {
         for o in 0..self.n {
             let mut acc = [0.0f32; BLOCK];
@@ -158,8 +193,45 @@ impl SparsePointwise {
         }
     }
 
-    /// One block of `p ≤ 16` pixels from row `r0` with AVX2/FMA, the transposes as 8 × 8
+    /// The AVX2 path of [`Self::run`] (`k`, `n` multiples of 8): pixels cut into one task per
+    /// thread (up to four per thread for large layers, each at least 64 pixels, in multiples
+    /// of 8 so that the tasks come out even), each task in blocks of [`WIDE`].
+    #[cfg(target_arch = "x86_64")]
+    fn run_avx2(&self, a: &[f32], m: usize, epi: Epilogue, out: &mut [f32]) {
+        let (k, n) = (self.k, self.n);
+        let threads = parallel::threads();
+        let cost = m * self.values.len();
+        let tasks = if threads == 1 || cost < (1 << 16) {
+            1
+        } else {
+            threads * (m / (threads * 64)).clamp(1, 4)
+        };
+        let per = m.div_ceil(tasks).div_ceil(8) * 8;
+        parallel::for_each_chunk(out, per * n, |t, chunk| {
+            SCRATCH.with(|s| {
+                let (xt, yt) = &mut *s.borrow_mut();
+                // room to start both on a 64-byte boundary
+                xt.resize(k * WIDE + 16, 0.0);
+                yt.resize(n * WIDE + 16, 0.0);
+                let xo = xt.as_ptr().align_offset(64).min(16);
+                let yo = yt.as_ptr().align_offset(64).min(16);
+                let xt = &mut xt[xo..xo + k * WIDE];
+                let yt = &mut yt[yo..yo + n * WIDE];
+                let first = t * per;
+                let count = chunk.len() / n;
+                for b in (0..count).step_by(WIDE) {
+                    let p = WIDE.min(count - b);
+                    let dst = &mut chunk[b * n..(b + p) * n];
+                    // SAFETY: the CPU has AVX2 and FMA (checked by the caller).
+                    unsafe { self.block_avx2_nhwc(a, first + b, p, epi, xt, yt, dst) };
+                }
+            });
+        });
+    }
+
+    /// One block of `p ≤ 32` pixels from row `r0` with AVX2/FMA, the transposes as 8 × 8
     /// register transposes (`k` and `n` multiples of 8); `dst` is the block's output rows.
+    /// Only `⌈p / 8⌉` vectors of each transposed row are computed.
     ///
     /// # Safety
     /// The CPU must have AVX2 and FMA.
@@ -179,21 +251,27 @@ impl SparsePointwise {
         use super::gemm_avx2::transpose8;
         use std::arch::x86_64::*;
         let (k, n) = (self.k, self.n);
-        assert!((1..=BLOCK).contains(&p) && (r0 + p) * k <= a.len() && dst.len() == p * n);
-        assert!(xt.len() >= k * BLOCK && yt.len() >= n * BLOCK);
+        assert!((1..=WIDE).contains(&p) && (r0 + p) * k <= a.len() && dst.len() == p * n);
+        assert!(xt.len() >= k * WIDE && yt.len() >= n * WIDE);
         assert!(epi.residual.is_none_or(|r| r.len() >= (r0 + p) * n));
+        let nv = p.div_ceil(8);
         // rows past `p` repeat the last one (their results are not stored)
         let row = |j: usize| a.as_ptr().add((r0 + j.min(p - 1)) * k);
-        for half in 0..2 {
-            let rows: [*const f32; 8] = std::array::from_fn(|q| row(half * 8 + q));
+        for g in 0..nv {
+            let rows: [*const f32; 8] = std::array::from_fn(|q| row(g * 8 + q));
             for i in (0..k).step_by(8) {
                 let v: [__m256; 8] = std::array::from_fn(|q| _mm256_loadu_ps(rows[q].add(i)));
                 for (q, t) in transpose8(v).iter().enumerate() {
-                    _mm256_storeu_ps(xt.as_mut_ptr().add((i + q) * BLOCK + half * 8), *t);
+                    _mm256_storeu_ps(xt.as_mut_ptr().add((i + q) * WIDE + g * 8), *t);
                 }
             }
         }
-        self.block_avx2(xt, yt);
+        match nv {
+            4 => self.spmm_avx2::<4>(xt, yt),
+            3 => self.spmm_avx2::<3>(xt, yt),
+            2 => self.spmm_avx2::<2>(xt, yt),
+            _ => self.spmm_avx2::<1>(xt, yt),
+        }
         let (lo1, hi1) = epi.pre.bounds();
         let (lo2, hi2) = epi.post.bounds();
         let (lo1, hi1, lo2, hi2) = (
@@ -204,12 +282,12 @@ impl SparsePointwise {
         );
         for o in (0..n).step_by(8) {
             let bias = _mm256_loadu_ps(self.bias.as_ptr().add(o));
-            for half in 0..2 {
+            for g in 0..nv {
                 let v: [__m256; 8] = std::array::from_fn(|q| {
-                    _mm256_loadu_ps(yt.as_ptr().add((o + q) * BLOCK + half * 8))
+                    _mm256_loadu_ps(yt.as_ptr().add((o + q) * WIDE + g * 8))
                 });
                 for (q, &t) in transpose8(v).iter().enumerate() {
-                    let j = half * 8 + q;
+                    let j = g * 8 + q;
                     if j >= p {
                         break;
                     }
@@ -224,41 +302,60 @@ impl SparsePointwise {
         }
     }
 
-    /// [`Self::block`] with AVX2/FMA: per entry one broadcast and two 8-lane multiply-adds,
-    /// into four partial sums.
+    /// `yt[o][0..8·NV] = Σ value · xt[input][0..8·NV]` over output channel `o`'s entries
+    /// (rows of both [`WIDE`] apart), k-block by k-block: per entry one broadcast and `NV`
+    /// 8-lane multiply-adds, alternate entries into two sets of sums.
     ///
     /// # Safety
-    /// The CPU must have AVX2 and FMA.
+    /// The caller's function must enable AVX2 and FMA.
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn block_avx2(&self, xt: &[f32], yt: &mut [f32]) {
+    #[inline(always)]
+    #[allow(clippy::needless_range_loop)]
+    unsafe fn spmm_avx2<const NV: usize>(&self, xt: &[f32], yt: &mut [f32]) {
         use std::arch::x86_64::*;
-        assert!(xt.len() >= self.k * BLOCK && yt.len() >= self.n * BLOCK);
-        let x = xt.as_ptr();
-        for o in 0..self.n {
-            let (s, e) = (self.starts[o], self.starts[o + 1]);
-            let mut acc = [_mm256_setzero_ps(); 8];
-            let mut j = s;
-            while j + 4 <= e {
-                for u in 0..4 {
-                    let w = _mm256_set1_ps(*self.values.get_unchecked(j + u));
-                    let xi = x.add(*self.inputs.get_unchecked(j + u) as usize * BLOCK);
-                    acc[2 * u] = _mm256_fmadd_ps(_mm256_loadu_ps(xi), w, acc[2 * u]);
-                    acc[2 * u + 1] = _mm256_fmadd_ps(_mm256_loadu_ps(xi.add(8)), w, acc[2 * u + 1]);
+        let n = self.n;
+        assert!(xt.len() >= self.k * WIDE && yt.len() >= n * WIDE && NV * 8 <= WIDE);
+        assert!(self.kb_starts.len() == self.kb_count * n + 1);
+        assert!(*self.kb_starts.last().unwrap() as usize <= self.kb_values.len());
+        assert!(self.kb_offsets.len() == self.kb_values.len());
+        // every offset is (input channel < k) · WIDE (see `new`)
+        let (x, y) = (xt.as_ptr(), yt.as_mut_ptr());
+        let (offs, vals) = (self.kb_offsets.as_ptr(), self.kb_values.as_ptr());
+        let starts = self.kb_starts.as_ptr();
+        for b in 0..self.kb_count {
+            for o in 0..n {
+                let s = *starts.add(b * n + o) as usize;
+                let e = *starts.add(b * n + o + 1) as usize;
+                let yo = y.add(o * WIDE);
+                let mut a0: [__m256; NV] = if b == 0 {
+                    [_mm256_setzero_ps(); NV]
+                } else {
+                    std::array::from_fn(|v| _mm256_loadu_ps(yo.add(v * 8)))
+                };
+                let mut a1 = [_mm256_setzero_ps(); NV];
+                let mut j = s;
+                while j + 2 <= e {
+                    let w0 = _mm256_broadcast_ss(&*vals.add(j));
+                    let w1 = _mm256_broadcast_ss(&*vals.add(j + 1));
+                    let x0 = x.add(*offs.add(j) as usize);
+                    let x1 = x.add(*offs.add(j + 1) as usize);
+                    for v in 0..NV {
+                        a0[v] = _mm256_fmadd_ps(_mm256_loadu_ps(x0.add(v * 8)), w0, a0[v]);
+                        a1[v] = _mm256_fmadd_ps(_mm256_loadu_ps(x1.add(v * 8)), w1, a1[v]);
+                    }
+                    j += 2;
                 }
-                j += 4;
+                if j < e {
+                    let w0 = _mm256_broadcast_ss(&*vals.add(j));
+                    let x0 = x.add(*offs.add(j) as usize);
+                    for v in 0..NV {
+                        a0[v] = _mm256_fmadd_ps(_mm256_loadu_ps(x0.add(v * 8)), w0, a0[v]);
+                    }
+                }
+                for v in 0..NV {
+                    _mm256_storeu_ps(yo.add(v * 8), _mm256_add_ps(a0[v], a1[v]));
+                }
             }
-            while j < e {
-                let w = _mm256_set1_ps(*self.values.get_unchecked(j));
-                let xi = x.add(*self.inputs.get_unchecked(j) as usize * BLOCK);
-                acc[0] = _mm256_fmadd_ps(_mm256_loadu_ps(xi), w, acc[0]);
-                acc[1] = _mm256_fmadd_ps(_mm256_loadu_ps(xi.add(8)), w, acc[1]);
-                j += 1;
-            }
-            let lo = _mm256_add_ps(_mm256_add_ps(acc[0], acc[2]), _mm256_add_ps(acc[4], acc[6]));
-            let hi = _mm256_add_ps(_mm256_add_ps(acc[1], acc[3]), _mm256_add_ps(acc[5], acc[7]));
-            _mm256_storeu_ps(yt.as_mut_ptr().add(o * BLOCK), lo);
-            _mm256_storeu_ps(yt.as_mut_ptr().add(o * BLOCK + 8), hi);
         }
     }
 }
@@ -277,6 +374,9 @@ mod tests {
             (16, 5, 1),
             (41, 48, 16),
             (7, 8, 8),
+            (49, 1152, 24),
+            (200, 272, 48),
+            (75, 136, 16),
         ] {
             let a: Vec<f32> = (0..m * k)
                 .map(|i| ((i * 7919 % 1013) as f32 / 506.5) - 1.0)
@@ -300,30 +400,26 @@ mod tests {
                 residual: Some(&res),
                 post: Activation::None,
             };
-            let xt: Vec<f32> = (0..k * BLOCK).map(|i| (i % 13) as f32 - 6.0).collect();
-            let (mut y1, mut y2) = (vec![0.0; n * BLOCK], vec![0.0; n * BLOCK]);
-            sp.block(&xt, &mut y1);
-            sp.block_portable(&xt, &mut y2);
-            for (u, v) in y1.iter().zip(&y2) {
-                assert!((u - v).abs() < 1e-3, "{u} vs {v}");
-            }
             let mut got = vec![f32::NAN; m * n];
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(2)
                 .build()
                 .unwrap();
             pool.install(|| sp.run(&a, m, epi, &mut got));
+            let mut portable = vec![f32::NAN; m * n];
+            sp.run_portable(&a, m, epi, &mut portable);
             for r in 0..m {
                 for o in 0..n {
                     let s: f64 = (0..k)
                         .map(|i| a[r * k + i] as f64 * w[o * k + i] as f64)
                         .sum();
                     let want = (s as f32 + bias[o]).clamp(0.0, 6.0) + res[r * n + o];
-                    let g = got[r * n + o];
-                    assert!(
-                        (g - want).abs() < 1e-4,
-                        "m{m} k{k} n{n} ({r}, {o}): {g} vs {want}"
-                    );
+                    for g in [got[r * n + o], portable[r * n + o]] {
+                        assert!(
+                            (g - want).abs() < 1e-4,
+                            "m{m} k{k} n{n} ({r}, {o}): {g} vs {want}"
+                        );
+                    }
                 }
             }
         }
