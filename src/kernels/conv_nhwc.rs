@@ -169,6 +169,26 @@ impl ConvNhwc {
             });
             return;
         }
+        #[cfg(target_arch = "x86_64")]
+        if self.rows.is_none()
+            && m <= 12
+            && parallel::threads() > 1
+            && self.gemm.panel_count() >= 2
+            && m * n * self.gemm.k() >= 1 << 16
+            && super::gemm_avx2::available()
+        {
+            // a few output pixels (a head's last layers): tasks split the column panels
+            let tasks = self.gemm.panel_count().min(2 * parallel::threads());
+            let (ptr, len) = (parallel::SendPtr(out.as_mut_ptr()), out.len());
+            parallel::for_each(tasks, |t| {
+                let out = super::gemm_avx2::OutPtr {
+                    ptr: ptr.get(),
+                    len,
+                };
+                self.run_indirect(input, shape, pad, os, 0, epi, out, Some((t, tasks)));
+            });
+            return;
+        }
         let rows = rows_per_task(m, m * n * self.gemm.k());
         #[cfg(target_arch = "x86_64")]
         if super::gemm_avx2::available() {
@@ -179,7 +199,8 @@ impl ConvNhwc {
                 } else if self.rows.is_some() {
                     self.run_dots(input, shape, pad, os, first, epi, chunk);
                 } else {
-                    self.run_indirect(input, shape, pad, os, first, epi, chunk);
+                    let out = super::gemm_avx2::OutPtr::new(chunk);
+                    self.run_indirect(input, shape, pad, os, first, epi, out, None);
                 }
             });
             return;
@@ -188,7 +209,8 @@ impl ConvNhwc {
     }
 
     /// The output pixels of `chunk` (from `first`) as products over input rows read in place
-    /// through a table of tap pointers (padding taps read a row of zeros).
+    /// through a table of tap pointers (padding taps read a row of zeros); with `task`, only
+    /// that task's column panels (tasks sharing `chunk` write disjoint columns).
     #[cfg(target_arch = "x86_64")]
     #[allow(clippy::too_many_arguments)]
     fn run_indirect(
@@ -199,12 +221,13 @@ impl ConvNhwc {
         os: Shape,
         first: usize,
         epi: Epilogue,
-        chunk: &mut [f32],
+        chunk: super::gemm_avx2::OutPtr,
+        task: Option<(usize, usize)>,
     ) {
         let (kh, kw) = self.kernel;
         let c = self.c_in;
         let n = self.gemm.n();
-        let count = chunk.len() / n;
+        let count = chunk.len / n;
         ZEROS.with(|z| {
             let mut z = z.borrow_mut();
             if z.len() < c {
@@ -223,10 +246,11 @@ impl ConvNhwc {
                     ..epi
                 };
                 // SAFETY: AVX2/FMA are present (checked by the caller); every table entry
-                // points at `c` values of `input` or of the zero row, both alive here.
+                // points at `c` values of `input` or of the zero row, both alive here; the
+                // chunk's rows `q..q + m` are this call's (its panels' columns, with `task`).
                 unsafe {
                     self.gemm
-                        .run_indirect(&taps, c, m, 0, e, &mut chunk[q * n..(q + m) * n]);
+                        .run_indirect(&taps, c, m, 0, e, chunk.skip(q * n), task);
                 }
                 q += m;
             }
@@ -787,6 +811,8 @@ mod tests {
             (8, 13, 3, 8, (5, 5), (1, 1), Padding::uniform(2)),
             (10, 9, 3, 32, (3, 3), (2, 2), Padding::uniform(1)),
             (7, 11, 3, 16, (2, 3), (1, 2), Padding::uniform(1)),
+            (2, 2, 288, 195, (2, 2), (1, 1), Padding::default()),
+            (3, 4, 40, 72, (2, 2), (1, 1), Padding::default()),
             (
                 9,
                 21,

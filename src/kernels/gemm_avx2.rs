@@ -15,6 +15,35 @@ pub(crate) fn available() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
+/// An output buffer written through a raw pointer, so that tasks storing disjoint column
+/// panels of the same rows can share it (a `&mut [f32]` each would alias).
+#[derive(Clone, Copy)]
+pub(crate) struct OutPtr {
+    /// The first value.
+    pub ptr: *mut f32,
+    /// Values writable from `ptr`.
+    pub len: usize,
+}
+
+impl OutPtr {
+    /// The whole of `out`.
+    pub(crate) fn new(out: &mut [f32]) -> Self {
+        Self {
+            ptr: out.as_mut_ptr(),
+            len: out.len(),
+        }
+    }
+
+    /// Values `at..` of this buffer (`at ≤ len`).
+    pub(crate) fn skip(self, at: usize) -> Self {
+        assert!(at <= self.len, "output pointer: offset past the end");
+        Self {
+            ptr: self.ptr.wrapping_add(at),
+            len: self.len - at,
+        }
+    }
+}
+
 /// Where a panel's results go: its columns `col..col + valid` of `n`-wide output rows.
 #[derive(Clone, Copy)]
 pub(crate) struct PanelOut<'a> {
@@ -42,7 +71,7 @@ pub(crate) unsafe fn panel16(
     m: usize,
     po: PanelOut,
     epi: Epilogue,
-    out: &mut [f32],
+    out: OutPtr,
 ) {
     rows::<6, 2>(panel, k, a, lda, m, po, epi, out)
 }
@@ -61,7 +90,7 @@ pub(crate) unsafe fn panel8(
     m: usize,
     po: PanelOut,
     epi: Epilogue,
-    out: &mut [f32],
+    out: OutPtr,
 ) {
     rows::<12, 1>(panel, k, a, lda, m, po, epi, out)
 }
@@ -83,9 +112,14 @@ pub(crate) unsafe fn indirect16(
     first: usize,
     po: PanelOut,
     epi: Epilogue,
-    out: &mut [f32],
+    out: OutPtr,
 ) {
-    indirect::<6, 2>(panel, taps, c, m, first, po, epi, out)
+    match m {
+        1 => indirect::<1, 2>(panel, taps, c, m, first, po, epi, out),
+        2 => indirect::<2, 2>(panel, taps, c, m, first, po, epi, out),
+        3 => indirect::<3, 2>(panel, taps, c, m, first, po, epi, out),
+        _ => indirect::<6, 2>(panel, taps, c, m, first, po, epi, out),
+    }
 }
 
 /// [`indirect16`] for an 8-wide panel and `m ≤ 12` pixels.
@@ -102,9 +136,14 @@ pub(crate) unsafe fn indirect8(
     first: usize,
     po: PanelOut,
     epi: Epilogue,
-    out: &mut [f32],
+    out: OutPtr,
 ) {
-    indirect::<12, 1>(panel, taps, c, m, first, po, epi, out)
+    match m {
+        1 => indirect::<1, 1>(panel, taps, c, m, first, po, epi, out),
+        2 => indirect::<2, 1>(panel, taps, c, m, first, po, epi, out),
+        3 | 4 => indirect::<4, 1>(panel, taps, c, m, first, po, epi, out),
+        _ => indirect::<12, 1>(panel, taps, c, m, first, po, epi, out),
+    }
 }
 
 #[inline(always)]
@@ -117,10 +156,11 @@ unsafe fn indirect<const M: usize, const NV: usize>(
     first: usize,
     po: PanelOut,
     epi: Epilogue,
-    out: &mut [f32],
+    out: OutPtr,
 ) {
     assert!(m <= M && panel.len() >= taps.len() * c * NV * 8);
-    assert!(out.len() >= (first + m) * po.n && po.col + po.valid <= po.n);
+    assert!(taps.iter().all(|t| t.len() >= M));
+    assert!(out.len >= (first + m) * po.n && po.col + po.valid <= po.n);
     if let Some(r) = epi.residual {
         assert!(r.len() >= (first + m) * po.n);
     }
@@ -316,14 +356,26 @@ unsafe fn rows<const M: usize, const NV: usize>(
     m: usize,
     po: PanelOut,
     epi: Epilogue,
-    out: &mut [f32],
+    out: OutPtr,
 ) {
     assert!(panel.len() >= k * NV * 8 && po.bias.len() >= NV * 8 && po.valid <= NV * 8);
-    assert!(out.len() >= m * po.n && po.col + po.valid <= po.n);
+    assert!(out.len >= m * po.n && po.col + po.valid <= po.n);
     if let Some(r) = epi.residual {
         assert!(r.len() >= m * po.n);
     }
     if m == 0 {
+        return;
+    }
+    if m < M && m <= 2 {
+        // a row or two (the last layers of a network, at 1×1 or 2×1 pixels): no padded copy
+        assert!(a.len() >= (m - 1) * lda + k);
+        if m == 1 {
+            let acc = block::<1, NV>(a.as_ptr(), lda, panel.as_ptr(), k);
+            store::<1, NV>(&acc, 0, 1, po, epi, out);
+        } else {
+            let acc = block::<2, NV>(a.as_ptr(), lda, panel.as_ptr(), k);
+            store::<2, NV>(&acc, 0, 2, po, epi, out);
+        }
         return;
     }
     if m < M {
@@ -384,7 +436,7 @@ unsafe fn store<const M: usize, const NV: usize>(
     rows: usize,
     po: PanelOut,
     epi: Epilogue,
-    out: &mut [f32],
+    out: OutPtr,
 ) {
     let (lo1, hi1) = epi.pre.bounds();
     let (lo2, hi2) = epi.post.bounds();
@@ -402,8 +454,9 @@ unsafe fn store<const M: usize, const NV: usize>(
             let b = _mm256_loadu_ps(po.bias.as_ptr().add(v * 8));
             *val = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(acc, b), lo1), hi1);
         }
+        assert!(at + po.valid <= out.len);
         if full {
-            let dst = out[at..at + NV * 8].as_mut_ptr();
+            let dst = out.ptr.add(at);
             match epi.residual {
                 Some(res) => {
                     let src = res[at..at + NV * 8].as_ptr();
@@ -423,7 +476,7 @@ unsafe fn store<const M: usize, const NV: usize>(
             for (v, &val) in vals.iter().enumerate() {
                 _mm256_storeu_ps(lanes.as_mut_ptr().add(v * 8), val);
             }
-            let dst = &mut out[at..at + po.valid];
+            let dst = std::slice::from_raw_parts_mut(out.ptr.add(at), po.valid);
             match epi.residual {
                 Some(res) => {
                     let (lo2, hi2) = epi.post.bounds();

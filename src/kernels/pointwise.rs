@@ -109,6 +109,20 @@ impl PackedGemm {
         if m == 0 {
             return;
         }
+        #[cfg(target_arch = "x86_64")]
+        if let Some(tasks) = self.column_tasks(m) {
+            let (ptr, len) = (parallel::SendPtr(out.as_mut_ptr()), out.len());
+            parallel::for_each(tasks, |t| {
+                let out = super::gemm_avx2::OutPtr {
+                    ptr: ptr.get(),
+                    len,
+                };
+                // SAFETY: the CPU has AVX2 and FMA (checked by `column_tasks`); task `t`
+                // writes only the columns of its own panels, and `out` outlives the loop.
+                unsafe { self.run_panels_avx2(a, lda, m, epi, out, self.panel_range(t, tasks)) };
+            });
+            return;
+        }
         let rows = rows_per_task(m, m * n * self.k);
         parallel::for_each_chunk(out, rows * n, |t, chunk| {
             let r0 = t * rows;
@@ -121,8 +135,87 @@ impl PackedGemm {
         });
     }
 
+    /// For products of few rows on several threads (with AVX2/FMA): the number of tasks that
+    /// split the column panels between them, every task taking all rows. Splitting rows
+    /// into multiples of 12 leaves such products uneven between the threads (64 rows: tasks
+    /// of 12, 12, 12 against 12, 12, 4) and has every task read the whole weight matrix,
+    /// which for the last layers of a network (a few pixels, 300 KB–1 MB of weights) is what
+    /// takes the time.
+    #[cfg(target_arch = "x86_64")]
+    fn column_tasks(&self, m: usize) -> Option<usize> {
+        let threads = parallel::threads();
+        let split = threads > 1
+            && m <= COLUMN_SPLIT_MAX_ROWS
+            && self.panels.len() >= 2
+            && m * self.n * self.k >= MIN_COLUMN_SPLIT_MACS
+            && super::gemm_avx2::available();
+        split.then(|| self.panels.len().min(2 * threads))
+    }
+
+    /// Panels of task `t` of `tasks` (consecutive, as even as the panel count allows).
+    fn panel_range(&self, t: usize, tasks: usize) -> std::ops::Range<usize> {
+        let p = self.panels.len();
+        t * p / tasks..(t + 1) * p / tasks
+    }
+
+    /// Rows `0..m` of the product for the panels `panels` only, in row blocks that stay in
+    /// the L2 cache, written through `out` (rows `n` apart).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and FMA; `out` must hold `m · n` writable values that no one
+    /// else writes in these panels' columns meanwhile.
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn run_panels_avx2(
+        &self,
+        a: &[f32],
+        lda: usize,
+        m: usize,
+        epi: Epilogue,
+        out: super::gemm_avx2::OutPtr,
+        panels: std::ops::Range<usize>,
+    ) {
+        use super::gemm_avx2::{panel16, panel8, PanelOut};
+        let n = self.n;
+        assert!(out.len >= m * n && (m == 0 || a.len() >= (m - 1) * lda + self.k));
+        let block = (BLOCK_FLOATS / self.k.max(1)).clamp(12, 240) / 12 * 12;
+        let mut r0 = 0;
+        while r0 < m {
+            let rm = block.min(m - r0);
+            let epi_block = Epilogue {
+                residual: epi.residual.map(|r| &r[r0 * n..(r0 + rm) * n]),
+                ..epi
+            };
+            let out_block = out.skip(r0 * n);
+            for p in &self.panels[panels.clone()] {
+                let po = PanelOut {
+                    n,
+                    col: p.col,
+                    valid: p.width.min(n - p.col),
+                    bias: &self.padded_bias[p.col..p.col + p.width],
+                };
+                let panel = &self.data[p.offset..p.offset + self.k * p.width];
+                let a_block = &a[r0 * lda..];
+                if p.width == 16 {
+                    panel16(panel, self.k, a_block, lda, rm, po, epi_block, out_block);
+                } else {
+                    panel8(panel, self.k, a_block, lda, rm, po, epi_block, out_block);
+                }
+            }
+            r0 += rm;
+        }
+    }
+
     /// [`Self::run`] on the calling thread.
     pub fn run_serial(&self, a: &[f32], lda: usize, m: usize, epi: Epilogue, out: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if super::gemm_avx2::available() {
+            assert!(out.len() >= m * self.n, "packed gemm: output length");
+            let out = super::gemm_avx2::OutPtr::new(out);
+            // SAFETY: the CPU has AVX2 and FMA (checked above); `out` is borrowed mutably.
+            unsafe { self.run_panels_avx2(a, lda, m, epi, out, 0..self.panels.len()) };
+            return;
+        }
         let block = (BLOCK_FLOATS / self.k.max(1)).clamp(12, 240) / 12 * 12;
         let mut r0 = 0;
         while r0 < m {
@@ -132,21 +225,28 @@ impl PackedGemm {
                 ..epi
             };
             let out_block = &mut out[r0 * self.n..(r0 + rm) * self.n];
-            gemm_block(self, &a[r0 * lda..], lda, rm, epi_block, out_block);
+            gemm_block_portable(self, &a[r0 * lda..], lda, rm, epi_block, out_block);
             r0 += rm;
         }
     }
 }
 
 impl PackedGemm {
+    /// The number of column panels.
+    pub(crate) fn panel_count(&self) -> usize {
+        self.panels.len()
+    }
+
     /// Output rows `first..first + m` (`m ≤ 12`) of a product whose input rows are read
     /// through `taps[t][r]`: `k` is `taps.len() · c`, tap `t` of row `r` is the `c` values at
-    /// `taps[t][r]`.
+    /// `taps[t][r]`; panels `panels` only (task `t` of `tasks`: [`Self::panel_range`]).
     ///
     /// # Safety
     /// The CPU must have AVX2 and FMA, and every pointer in `taps[..][..m]` must
-    /// point at `c` readable values.
+    /// point at `c` readable values; `out` must hold `(first + m) · n` writable values that no
+    /// one else writes in these panels' columns meanwhile.
     #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
     pub(crate) unsafe fn run_indirect(
         &self,
         taps: &[[*const f32; 12]],
@@ -154,15 +254,20 @@ impl PackedGemm {
         m: usize,
         first: usize,
         epi: Epilogue,
-        out: &mut [f32],
+        out: super::gemm_avx2::OutPtr,
+        task: Option<(usize, usize)>,
     ) {
         use super::gemm_avx2::{indirect16, indirect8, PanelOut};
         assert!(
             m <= 12 && taps.len() * c == self.k,
             "indirect product: shape"
         );
+        let panels = match task {
+            Some((t, tasks)) => self.panel_range(t, tasks),
+            None => 0..self.panels.len(),
+        };
         let mut upper: Vec<[*const f32; 12]> = Vec::new();
-        for p in &self.panels {
+        for p in &self.panels[panels] {
             let po = PanelOut {
                 n: self.n,
                 col: p.col,
@@ -192,40 +297,20 @@ impl PackedGemm {
     }
 }
 
+/// Rows up to which a product on several threads splits its column panels instead of its
+/// rows ([`PackedGemm::column_tasks`]).
+const COLUMN_SPLIT_MAX_ROWS: usize = 128;
+
+/// Multiply-adds below which a product of few rows runs as one task.
+const MIN_COLUMN_SPLIT_MACS: usize = 1 << 16;
+
 /// Rows per task ([`parallel::items_per_task`], rayon tasks of at least [`MIN_TASK_MACS`]), in
 /// multiples of 12 rows.
 pub(crate) fn rows_per_task(m: usize, macs: usize) -> usize {
     parallel::items_per_task(m, macs, MIN_TASK_MACS, 12)
 }
 
-/// All panels over rows `0..m` (one cache block): the AVX2/FMA micro-kernels where the CPU
-/// has them, else the portable loops.
-fn gemm_block(w: &PackedGemm, a: &[f32], lda: usize, m: usize, epi: Epilogue, out: &mut [f32]) {
-    #[cfg(target_arch = "x86_64")]
-    if super::gemm_avx2::available() {
-        for p in &w.panels {
-            let po = super::gemm_avx2::PanelOut {
-                n: w.n,
-                col: p.col,
-                valid: p.width.min(w.n - p.col),
-                bias: &w.padded_bias[p.col..p.col + p.width],
-            };
-            let panel = &w.data[p.offset..p.offset + w.k * p.width];
-            // SAFETY: the CPU has AVX2 and FMA (checked above).
-            unsafe {
-                if p.width == 16 {
-                    super::gemm_avx2::panel16(panel, w.k, a, lda, m, po, epi, out);
-                } else {
-                    super::gemm_avx2::panel8(panel, w.k, a, lda, m, po, epi, out);
-                }
-            }
-        }
-        return;
-    }
-    gemm_block_portable(w, a, lda, m, epi, out);
-}
-
-/// [`gemm_block`] on the portable loops.
+/// All panels over rows `0..m` (one cache block) on the portable loops.
 fn gemm_block_portable(
     w: &PackedGemm,
     a: &[f32],
@@ -484,6 +569,10 @@ mod tests {
             (6, 288, 195),
             (250, 144, 33),
             (700, 8, 8),
+            (1, 1152, 117),
+            (2, 300, 40),
+            (64, 864, 288),
+            (4, 288, 288),
         ] {
             check(m, k, n, k);
         }
