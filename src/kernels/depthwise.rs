@@ -15,6 +15,14 @@ use crate::simd::simd_dispatch;
 /// Multiply-adds below which a layer runs as one rayon task.
 const MIN_TASK_MACS: usize = 1 << 17;
 
+/// Output rows up to which a layer on several threads splits channels rather than rows.
+#[cfg(target_arch = "x86_64")]
+const CHANNEL_SPLIT_MAX_ROWS: usize = 8;
+
+/// Multiply-adds below which a layer of few rows runs as one task.
+#[cfg(target_arch = "x86_64")]
+const MIN_CHANNEL_SPLIT_MACS: usize = 1 << 16;
+
 /// A packed depthwise convolution.
 #[derive(Debug, Clone)]
 pub struct Depthwise {
@@ -101,6 +109,39 @@ impl Depthwise {
         }
         let row = os.width * os.channels;
         let macs = os.len() * self.kernel.0 * self.kernel.1;
+        #[cfg(target_arch = "x86_64")]
+        if self.channels % 8 == 0
+            && os.height <= CHANNEL_SPLIT_MAX_ROWS
+            && parallel::threads() > 1
+            && self.channels / 8 >= 2 * parallel::threads()
+            && macs >= MIN_CHANNEL_SPLIT_MACS
+            && avx2::square(self).is_some()
+            && super::gemm_avx2::available()
+        {
+            // few rows (7×7 and smaller maps): tasks split the 8-channel blocks instead
+            let tasks = 2 * parallel::threads();
+            let blocks = self.channels / 8;
+            let (ptr, len) = (parallel::SendPtr(out.as_mut_ptr()), out.len());
+            let job = Rows {
+                dw: self,
+                input,
+                shape,
+                pad,
+                out_shape: os,
+                first: 0,
+            };
+            parallel::for_each(tasks, |t| {
+                let channels = t * blocks / tasks * 8..(t + 1) * blocks / tasks * 8;
+                let out = super::gemm_avx2::OutPtr {
+                    ptr: ptr.get(),
+                    len,
+                };
+                // SAFETY: the CPU has AVX2 and FMA (checked above); this task alone writes
+                // `channels` of the output.
+                unsafe { avx2::rows_square(&job, epi, out, channels) };
+            });
+            return;
+        }
         let rows = parallel::items_per_task(os.height, macs, MIN_TASK_MACS, 1);
         parallel::for_each_chunk(out, rows * row, |t, chunk| {
             let first = t * rows;
@@ -163,12 +204,11 @@ fn run_rows_fast(job: &Rows, epi: Epilogue, out: &mut [f32]) {
         let skip = job.dw.channels / 8 * 8;
         // SAFETY: the CPU has AVX2 and FMA (checked above).
         unsafe {
-            match (job.dw.kernel, job.dw.stride) {
-                ((3, 3), (1, 1)) => avx2::rows_k::<3, 1>(job, epi, out),
-                ((3, 3), (2, 2)) => avx2::rows_k::<3, 2>(job, epi, out),
-                ((5, 5), (1, 1)) => avx2::rows_k::<5, 1>(job, epi, out),
-                ((5, 5), (2, 2)) => avx2::rows_k::<5, 2>(job, epi, out),
-                _ => avx2::rows(job, epi, out),
+            if avx2::square(job.dw).is_some() {
+                let out = super::gemm_avx2::OutPtr::new(out);
+                avx2::rows_square(job, epi, out, 0..skip);
+            } else {
+                avx2::rows(job, epi, out);
             }
         }
         run_rows(job, epi, out, skip);
@@ -362,9 +402,38 @@ mod avx2 {
     use std::arch::x86_64::*;
 
     use super::{Epilogue, Rows};
-    use crate::kernels::gemm_avx2::{row_taps, ROW_PIXELS};
+    use crate::kernels::gemm_avx2::{row_taps, OutPtr, ROW_PIXELS};
 
-    /// Square `K×K` filters with stride `S` in both directions, channels `0..C / 8 · 8`: along
+    /// The (kernel side, stride) of the filters [`rows_square`] takes: 3×3 and 5×5, stride 1
+    /// or 2 in both directions.
+    pub(super) fn square(dw: &super::Depthwise) -> Option<(usize, usize)> {
+        match (dw.kernel, dw.stride) {
+            ((k @ (3 | 5), kw), (s @ (1 | 2), sw)) if kw == k && sw == s => Some((k, s)),
+            _ => None,
+        }
+    }
+
+    /// [`rows_k`] for the job's filter ([`square`] must accept it).
+    ///
+    /// # Safety
+    /// As [`rows_k`].
+    pub(super) unsafe fn rows_square(
+        job: &Rows,
+        epi: Epilogue,
+        out: OutPtr,
+        channels: std::ops::Range<usize>,
+    ) {
+        match square(job.dw) {
+            Some((3, 1)) => rows_k::<3, 1>(job, epi, out, channels),
+            Some((3, 2)) => rows_k::<3, 2>(job, epi, out, channels),
+            Some((5, 1)) => rows_k::<5, 1>(job, epi, out, channels),
+            Some((5, 2)) => rows_k::<5, 2>(job, epi, out, channels),
+            _ => panic!("depthwise: no square kernel for this filter"),
+        }
+    }
+
+    /// Square `K×K` filters with stride `S` in both directions, channels `channels` (a range
+    /// of multiples of 8 below `C / 8 · 8`), written through `out` (the job's rows): along
     /// each output row [`ROW_PIXELS`] output pixels at a time, for each 8-channel block (so
     /// that the cache lines under a group are used whole before moving on), each
     /// kernel row through [`row_taps`] (every input column loaded once for all the taps that
@@ -372,12 +441,13 @@ mod avx2 {
     /// read zeros for the padding columns, and rows off the image are skipped.
     ///
     /// # Safety
-    /// The CPU must have AVX2 and FMA.
+    /// The CPU must have AVX2 and FMA; no one else may write `out`'s `channels` meanwhile.
     #[target_feature(enable = "avx2,fma")]
     pub(super) unsafe fn rows_k<const K: usize, const S: usize>(
         job: &Rows,
         epi: Epilogue,
-        out: &mut [f32],
+        out: OutPtr,
+        channels: std::ops::Range<usize>,
     ) {
         const P: usize = ROW_PIXELS;
         let dw = job.dw;
@@ -387,9 +457,10 @@ mod avx2 {
         let left = job.pad.left as isize;
         assert!(dw.kernel == (K, K) && dw.stride == (S, S));
         assert!(job.input.len() >= h * w * c && dw.weight.len() >= K * K * c);
-        assert!(dw.bias.len() >= c && out.len() % (ow * c) == 0);
-        assert!(epi.residual.is_none_or(|r| r.len() >= out.len()));
-        let rows = out.len() / (ow * c);
+        assert!(dw.bias.len() >= c && out.len % (ow * c) == 0);
+        assert!(channels.start % 8 == 0 && channels.end % 8 == 0 && channels.end <= c);
+        assert!(epi.residual.is_none_or(|r| r.len() >= out.len));
+        let rows = out.len / (ow * c);
         let (lo1, hi1) = epi.pre.bounds();
         let (lo2, hi2) = epi.post.bounds();
         let (lo1, hi1, lo2, hi2) = (
@@ -405,13 +476,13 @@ mod avx2 {
             let y0 = (oy * S) as isize - job.pad.top as isize;
             let ky_lo = (-y0).max(0) as usize;
             let ky_hi = ((h as isize - y0).max(0) as usize).min(K);
-            let out_row = out.as_mut_ptr().add(r * ow * c);
+            let out_row = out.ptr.add(r * ow * c);
             let res_row = epi.residual.map(|x| x.as_ptr().add(r * ow * c));
             let mut ox = 0;
             while ox < ow {
                 let x0 = (ox * S) as isize - left;
                 let inside = x0 >= 0 && x0 as usize + (P - 1) * S + K <= w;
-                for c0 in (0..c / 8 * 8).step_by(8) {
+                for c0 in channels.clone().step_by(8) {
                     let bias = _mm256_loadu_ps(dw.bias.as_ptr().add(c0));
                     let wts = dw.weight.as_ptr().add(c0);
                     let mut acc = [bias; P];
@@ -638,6 +709,20 @@ mod tests {
             ),
             (11, 30, 8, (5, 5), (1, 1), Padding::uniform(2)),
             (3, 7, 8, (5, 5), (1, 1), Padding::uniform(2)),
+            (7, 7, 1152, (5, 5), (1, 1), Padding::uniform(2)),
+            (
+                14,
+                14,
+                672,
+                (5, 5),
+                (2, 2),
+                Padding {
+                    top: 1,
+                    left: 1,
+                    bottom: 2,
+                    right: 2,
+                },
+            ),
         ];
         for (h, w, c, k, st, pad) in cases {
             let s = Shape::new(h, w, c);

@@ -226,16 +226,43 @@ const TEAM_MIN_TASK: usize = 1 << 15;
 /// Items per task of a loop over `items` items costing `cost` in all (multiply-adds or values
 /// moved): one task on one thread or below twice the minimum task, else up to four tasks per
 /// thread of at least the minimum each — on a team the minimum is [`TEAM_MIN_TASK`] (a claim
-/// costs one atomic add), on rayon `rayon_min` — in multiples of `align` items.
+/// costs one atomic add), on rayon `rayon_min` — in multiples of `align` items. Of four, two
+/// and one task per thread, the split whose busiest thread (tasks taken in turn) has the
+/// fewest items wins, ties going to more tasks: rounding to `align` can otherwise leave the
+/// threads uneven (14 rows in tasks of 2: 8 rows against 6, where tasks of 7 split evenly).
 pub fn items_per_task(items: usize, cost: usize, rayon_min: usize, align: usize) -> usize {
     let threads = threads();
     let min = if in_team() { TEAM_MIN_TASK } else { rayon_min };
     if threads == 1 || cost < 2 * min || items == 0 {
         return items.max(1);
     }
-    let tasks = (cost / min).clamp(1, 4 * threads);
+    let max_tasks = (cost / min).clamp(1, 4 * threads);
     let align = align.max(1);
-    (items.div_ceil(tasks).div_ceil(align) * align).max(1)
+    let mut best = (usize::MAX, items);
+    for per_thread in [4, 2, 1] {
+        let tasks = (threads * per_thread).min(max_tasks);
+        let per = (items.div_ceil(tasks).div_ceil(align) * align).max(1);
+        let busiest = busiest_share(items, per, threads);
+        if busiest < best.0 {
+            best = (busiest, per);
+        }
+    }
+    best.1
+}
+
+/// The most items one of `threads` threads gets when tasks of `per` items (the last one
+/// shorter) are taken in turn.
+fn busiest_share(items: usize, per: usize, threads: usize) -> usize {
+    let tasks = items.div_ceil(per);
+    (0..threads.min(tasks))
+        .map(|t| {
+            (t..tasks)
+                .step_by(threads)
+                .map(|i| per.min(items - i * per))
+                .sum::<usize>()
+        })
+        .max()
+        .unwrap_or(0)
 }
 
 /// A pointer that may cross threads (the caller guarantees disjoint use).
@@ -327,6 +354,29 @@ mod tests {
             });
             assert!(!in_team());
         });
+    }
+
+    #[test]
+    fn task_sizes_split_evenly_between_threads() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            with_team(|| {
+                // 14 rows: two tasks of 7 rather than seven of 2 (8 rows against 6)
+                assert_eq!(items_per_task(14, 1 << 22, 1, 1), 7);
+                // whole multiples of the alignment, every item covered
+                for (items, align) in [(196, 8), (64, 12), (1000, 16), (7, 1), (3, 4)] {
+                    let per = items_per_task(items, 1 << 24, 1, align);
+                    assert!(per % align == 0 || per == items, "{items} {align}: {per}");
+                    assert!(per * items.div_ceil(per) >= items);
+                }
+            });
+        });
+        assert_eq!(busiest_share(14, 2, 2), 8);
+        assert_eq!(busiest_share(14, 7, 2), 7);
+        assert_eq!(busiest_share(10, 4, 3), 4);
     }
 
     #[test]

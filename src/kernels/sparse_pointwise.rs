@@ -27,6 +27,26 @@ const WIDE: usize = 32;
 /// Input channels per k-block of the AVX2 path (`KB_MAX · WIDE` floats: 16 KiB).
 const KB_MAX: usize = 128;
 
+/// Pixels up to which the AVX2 path on several threads splits output channels, not pixels.
+#[cfg(target_arch = "x86_64")]
+const CHANNEL_SPLIT_MAX_PIXELS: usize = 256;
+
+/// This thread's scratch grown to a transposed block of `k` and of `n` rows, each starting
+/// on a 64-byte boundary.
+#[cfg(target_arch = "x86_64")]
+fn aligned_scratch<'a>(
+    xt: &'a mut Vec<f32>,
+    yt: &'a mut Vec<f32>,
+    k: usize,
+    n: usize,
+) -> (&'a mut [f32], &'a mut [f32]) {
+    xt.resize(k * WIDE + 16, 0.0);
+    yt.resize(n * WIDE + 16, 0.0);
+    let xo = xt.as_ptr().align_offset(64).min(16);
+    let yo = yt.as_ptr().align_offset(64).min(16);
+    (&mut xt[xo..xo + k * WIDE], &mut yt[yo..yo + n * WIDE])
+}
+
 thread_local! {
     /// Each thread's transposed input block and transposed results, kept between calls.
     static SCRATCH: RefCell<(Vec<f32>, Vec<f32>)> = const { RefCell::new((Vec::new(), Vec::new())) };
@@ -198,9 +218,37 @@ impl SparsePointwise {
     /// of 8 so that the tasks come out even), each task in blocks of [`WIDE`].
     #[cfg(target_arch = "x86_64")]
     fn run_avx2(&self, a: &[f32], m: usize, epi: Epilogue, out: &mut [f32]) {
+        use super::gemm_avx2::OutPtr;
         let (k, n) = (self.k, self.n);
         let threads = parallel::threads();
         let cost = m * self.values.len();
+        if threads > 1 && cost >= 1 << 16 && m <= CHANNEL_SPLIT_MAX_PIXELS && n >= 16 * threads {
+            // few pixels: one task per thread over all of them, the output channels split
+            // into ranges of about equal non-zero counts (tasks write disjoint columns)
+            let bounds = self.channel_bounds(threads);
+            let (ptr, len) = (parallel::SendPtr(out.as_mut_ptr()), out.len());
+            parallel::for_each(threads, |t| {
+                let channels = bounds[t]..bounds[t + 1];
+                SCRATCH.with(|s| {
+                    let (xt, yt) = &mut *s.borrow_mut();
+                    let (xt, yt) = aligned_scratch(xt, yt, k, n);
+                    for b in (0..m).step_by(WIDE) {
+                        let p = WIDE.min(m - b);
+                        let dst = OutPtr {
+                            ptr: ptr.get(),
+                            len,
+                        }
+                        .skip(b * n);
+                        // SAFETY: the CPU has AVX2 and FMA (checked by the caller); this
+                        // task alone writes `channels` of the output rows.
+                        unsafe {
+                            self.block_avx2_nhwc(a, b, p, epi, xt, yt, dst, channels.clone())
+                        };
+                    }
+                });
+            });
+            return;
+        }
         let tasks = if threads == 1 || cost < (1 << 16) {
             1
         } else {
@@ -210,31 +258,45 @@ impl SparsePointwise {
         parallel::for_each_chunk(out, per * n, |t, chunk| {
             SCRATCH.with(|s| {
                 let (xt, yt) = &mut *s.borrow_mut();
-                // room to start both on a 64-byte boundary
-                xt.resize(k * WIDE + 16, 0.0);
-                yt.resize(n * WIDE + 16, 0.0);
-                let xo = xt.as_ptr().align_offset(64).min(16);
-                let yo = yt.as_ptr().align_offset(64).min(16);
-                let xt = &mut xt[xo..xo + k * WIDE];
-                let yt = &mut yt[yo..yo + n * WIDE];
+                let (xt, yt) = aligned_scratch(xt, yt, k, n);
                 let first = t * per;
                 let count = chunk.len() / n;
                 for b in (0..count).step_by(WIDE) {
                     let p = WIDE.min(count - b);
-                    let dst = &mut chunk[b * n..(b + p) * n];
+                    let dst = OutPtr::new(&mut chunk[b * n..(b + p) * n]);
                     // SAFETY: the CPU has AVX2 and FMA (checked by the caller).
-                    unsafe { self.block_avx2_nhwc(a, first + b, p, epi, xt, yt, dst) };
+                    unsafe { self.block_avx2_nhwc(a, first + b, p, epi, xt, yt, dst, 0..n) };
                 }
             });
         });
     }
 
+    /// Output channel bounds (multiples of 8) that cut the channels into `tasks` ranges of
+    /// about equal non-zero counts.
+    #[cfg(target_arch = "x86_64")]
+    fn channel_bounds(&self, tasks: usize) -> Vec<usize> {
+        let groups = self.n / 8;
+        let total = self.values.len().max(1);
+        let mut bounds = vec![0];
+        let mut g = 0;
+        for t in 1..tasks {
+            let target = total * t / tasks;
+            while g < groups && self.starts[(g + 1) * 8] <= target {
+                g += 1;
+            }
+            bounds.push((g * 8).max(*bounds.last().unwrap()));
+        }
+        bounds.push(self.n);
+        bounds
+    }
+
     /// One block of `p ≤ 32` pixels from row `r0` with AVX2/FMA, the transposes as 8 × 8
-    /// register transposes (`k` and `n` multiples of 8); `dst` is the block's output rows.
-    /// Only `⌈p / 8⌉` vectors of each transposed row are computed.
+    /// register transposes (`k` and `n` multiples of 8), output channels `channels` only
+    /// (a range of multiples of 8); `dst` is the block's output rows (`n` apart). Only
+    /// `⌈p / 8⌉` vectors of each transposed row are computed.
     ///
     /// # Safety
-    /// The CPU must have AVX2 and FMA.
+    /// The CPU must have AVX2 and FMA, and no one else may write `dst`'s `channels` meanwhile.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::too_many_arguments)]
@@ -246,12 +308,14 @@ impl SparsePointwise {
         epi: Epilogue,
         xt: &mut [f32],
         yt: &mut [f32],
-        dst: &mut [f32],
+        dst: super::gemm_avx2::OutPtr,
+        channels: std::ops::Range<usize>,
     ) {
         use super::gemm_avx2::transpose8;
         use std::arch::x86_64::*;
         let (k, n) = (self.k, self.n);
-        assert!((1..=WIDE).contains(&p) && (r0 + p) * k <= a.len() && dst.len() == p * n);
+        assert!((1..=WIDE).contains(&p) && (r0 + p) * k <= a.len() && dst.len >= p * n);
+        assert!(channels.start % 8 == 0 && channels.end % 8 == 0 && channels.end <= n);
         assert!(xt.len() >= k * WIDE && yt.len() >= n * WIDE);
         assert!(epi.residual.is_none_or(|r| r.len() >= (r0 + p) * n));
         let nv = p.div_ceil(8);
@@ -266,11 +330,12 @@ impl SparsePointwise {
                 }
             }
         }
+        let ch = channels.clone();
         match nv {
-            4 => self.spmm_avx2::<4>(xt, yt),
-            3 => self.spmm_avx2::<3>(xt, yt),
-            2 => self.spmm_avx2::<2>(xt, yt),
-            _ => self.spmm_avx2::<1>(xt, yt),
+            4 => self.spmm_avx2::<4>(xt, yt, ch),
+            3 => self.spmm_avx2::<3>(xt, yt, ch),
+            2 => self.spmm_avx2::<2>(xt, yt, ch),
+            _ => self.spmm_avx2::<1>(xt, yt, ch),
         }
         let (lo1, hi1) = epi.pre.bounds();
         let (lo2, hi2) = epi.post.bounds();
@@ -280,7 +345,7 @@ impl SparsePointwise {
             _mm256_set1_ps(lo2),
             _mm256_set1_ps(hi2),
         );
-        for o in (0..n).step_by(8) {
+        for o in channels.step_by(8) {
             let bias = _mm256_loadu_ps(self.bias.as_ptr().add(o));
             for g in 0..nv {
                 let v: [__m256; 8] = std::array::from_fn(|q| {
@@ -296,7 +361,7 @@ impl SparsePointwise {
                         y = _mm256_add_ps(y, _mm256_loadu_ps(res.as_ptr().add((r0 + j) * n + o)));
                         y = _mm256_min_ps(_mm256_max_ps(y, lo2), hi2);
                     }
-                    _mm256_storeu_ps(dst.as_mut_ptr().add(j * n + o), y);
+                    _mm256_storeu_ps(dst.ptr.add(j * n + o), y);
                 }
             }
         }
@@ -311,10 +376,16 @@ impl SparsePointwise {
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     #[allow(clippy::needless_range_loop)]
-    unsafe fn spmm_avx2<const NV: usize>(&self, xt: &[f32], yt: &mut [f32]) {
+    unsafe fn spmm_avx2<const NV: usize>(
+        &self,
+        xt: &[f32],
+        yt: &mut [f32],
+        channels: std::ops::Range<usize>,
+    ) {
         use std::arch::x86_64::*;
         let n = self.n;
         assert!(xt.len() >= self.k * WIDE && yt.len() >= n * WIDE && NV * 8 <= WIDE);
+        assert!(channels.end <= n);
         assert!(self.kb_starts.len() == self.kb_count * n + 1);
         assert!(*self.kb_starts.last().unwrap() as usize <= self.kb_values.len());
         assert!(self.kb_offsets.len() == self.kb_values.len());
@@ -323,7 +394,7 @@ impl SparsePointwise {
         let (offs, vals) = (self.kb_offsets.as_ptr(), self.kb_values.as_ptr());
         let starts = self.kb_starts.as_ptr();
         for b in 0..self.kb_count {
-            for o in 0..n {
+            for o in channels.clone() {
                 let s = *starts.add(b * n + o) as usize;
                 let e = *starts.add(b * n + o + 1) as usize;
                 let yo = y.add(o * WIDE);
@@ -377,6 +448,8 @@ mod tests {
             (49, 1152, 24),
             (200, 272, 48),
             (75, 136, 16),
+            (196, 96, 72),
+            (49, 192, 1152),
         ] {
             let a: Vec<f32> = (0..m * k)
                 .map(|i| ((i * 7919 % 1013) as f32 / 506.5) - 1.0)
