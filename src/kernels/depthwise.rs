@@ -421,8 +421,27 @@ mod avx2 {
         job: &Rows,
         epi: Epilogue,
         out: OutPtr,
-        channels: std::ops::Range<usize>,
+        mut channels: std::ops::Range<usize>,
     ) {
+        #[cfg(lhmpp_bf16_intrinsics)]
+        if super::avx512::available() {
+            // whole 16-channel blocks with AVX-512, a last 8 with AVX2
+            let wide = channels.start..channels.start + channels.len() / 16 * 16;
+            if !wide.is_empty() {
+                let ch = wide.clone();
+                match square(job.dw) {
+                    Some((3, 1)) => super::avx512::rows_k::<3, 1>(job, epi, out, ch),
+                    Some((3, 2)) => super::avx512::rows_k::<3, 2>(job, epi, out, ch),
+                    Some((5, 1)) => super::avx512::rows_k::<5, 1>(job, epi, out, ch),
+                    Some((5, 2)) => super::avx512::rows_k::<5, 2>(job, epi, out, ch),
+                    _ => panic!("depthwise: no square kernel for this filter"),
+                }
+            }
+            channels = wide.end..channels.end;
+            if channels.is_empty() {
+                return;
+            }
+        }
         match square(job.dw) {
             Some((3, 1)) => rows_k::<3, 1>(job, epi, out, channels),
             Some((3, 2)) => rows_k::<3, 2>(job, epi, out, channels),
@@ -598,6 +617,125 @@ mod avx2 {
                     store(ox * c + c0, acc);
                     ox += 1;
                 }
+            }
+        }
+    }
+}
+
+/// [`avx2::rows_k`] on 16-channel blocks with AVX-512 (half the instructions per
+/// multiply-add; compiled with Rust 1.89 or newer only, `lhmpp_bf16_intrinsics`).
+#[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+#[allow(clippy::incompatible_msrv)]
+mod avx512 {
+    use std::arch::x86_64::*;
+
+    use super::{Epilogue, Rows};
+    use crate::kernels::gemm_avx2::{OutPtr, ROW_PIXELS};
+
+    /// Whether the CPU has AVX-512F.
+    pub(super) fn available() -> bool {
+        std::arch::is_x86_feature_detected!("avx512f")
+    }
+
+    /// [`crate::kernels::gemm_avx2::row_taps`] on 16 channels.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn row_taps<const K: usize, const S: usize, const CHECKED: bool>(
+        acc: &mut [__m512; ROW_PIXELS],
+        wk: &[__m512; K],
+        line: *const f32,
+        x0: isize,
+        w: usize,
+        c: usize,
+        zero: *const f32,
+    ) {
+        for j in 0..(ROW_PIXELS - 1) * S + K {
+            let ix = x0 + j as isize;
+            let at = line.wrapping_offset(ix * c as isize);
+            let ptr = if !CHECKED || (ix as usize) < w {
+                at
+            } else {
+                zero
+            };
+            let x = _mm512_loadu_ps(ptr);
+            for (kx, wv) in wk.iter().enumerate() {
+                if j >= kx && (j - kx) % S == 0 && (j - kx) / S < ROW_PIXELS {
+                    let p = (j - kx) / S;
+                    acc[p] = _mm512_fmadd_ps(x, *wv, acc[p]);
+                }
+            }
+        }
+    }
+
+    /// [`super::avx2::rows_k`] for `channels` a range of multiples of 16.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512F; no one else may write `out`'s `channels` meanwhile.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn rows_k<const K: usize, const S: usize>(
+        job: &Rows,
+        epi: Epilogue,
+        out: OutPtr,
+        channels: std::ops::Range<usize>,
+    ) {
+        const P: usize = ROW_PIXELS;
+        let dw = job.dw;
+        let c = dw.channels;
+        let (h, w) = (job.shape.height, job.shape.width);
+        let ow = job.out_shape.width;
+        let left = job.pad.left as isize;
+        assert!(dw.kernel == (K, K) && dw.stride == (S, S));
+        assert!(job.input.len() >= h * w * c && dw.weight.len() >= K * K * c);
+        assert!(dw.bias.len() >= c && out.len % (ow * c) == 0);
+        assert!(channels.start % 8 == 0 && channels.len() % 16 == 0 && channels.end <= c);
+        assert!(epi.residual.is_none_or(|r| r.len() >= out.len));
+        let rows = out.len / (ow * c);
+        let (lo1, hi1) = epi.pre.bounds();
+        let (lo2, hi2) = epi.post.bounds();
+        let (lo1, hi1, lo2, hi2) = (
+            _mm512_set1_ps(lo1),
+            _mm512_set1_ps(hi1),
+            _mm512_set1_ps(lo2),
+            _mm512_set1_ps(hi2),
+        );
+        let zero = [0.0f32; 16];
+        let input = job.input.as_ptr();
+        for r in 0..rows {
+            let oy = job.first + r;
+            let y0 = (oy * S) as isize - job.pad.top as isize;
+            let ky_lo = (-y0).max(0) as usize;
+            let ky_hi = ((h as isize - y0).max(0) as usize).min(K);
+            let out_row = out.ptr.add(r * ow * c);
+            let res_row = epi.residual.map(|x| x.as_ptr().add(r * ow * c));
+            let mut ox = 0;
+            while ox < ow {
+                let x0 = (ox * S) as isize - left;
+                let inside = x0 >= 0 && x0 as usize + (P - 1) * S + K <= w;
+                for c0 in channels.clone().step_by(16) {
+                    let bias = _mm512_loadu_ps(dw.bias.as_ptr().add(c0));
+                    let wts = dw.weight.as_ptr().add(c0);
+                    let mut acc = [bias; P];
+                    for ky in ky_lo..ky_hi {
+                        let line = input.add((y0 + ky as isize) as usize * w * c + c0);
+                        let wk: [__m512; K] =
+                            std::array::from_fn(|kx| _mm512_loadu_ps(wts.add((ky * K + kx) * c)));
+                        if inside {
+                            row_taps::<K, S, false>(&mut acc, &wk, line, x0, w, c, zero.as_ptr());
+                        } else {
+                            row_taps::<K, S, true>(&mut acc, &wk, line, x0, w, c, zero.as_ptr());
+                        }
+                    }
+                    for (p, &a) in acc.iter().enumerate().take(ow - ox) {
+                        let at = (ox + p) * c + c0;
+                        let mut v = _mm512_min_ps(_mm512_max_ps(a, lo1), hi1);
+                        if let Some(res) = res_row {
+                            v = _mm512_add_ps(v, _mm512_loadu_ps(res.add(at)));
+                            v = _mm512_min_ps(_mm512_max_ps(v, lo2), hi2);
+                        }
+                        _mm512_storeu_ps(out_row.add(at), v);
+                    }
+                }
+                ox += P;
             }
         }
     }

@@ -31,6 +31,12 @@ const KB_MAX: usize = 128;
 #[cfg(target_arch = "x86_64")]
 const CHANNEL_SPLIT_MAX_PIXELS: usize = 256;
 
+/// Whether the CPU has AVX-512F (for [`SparsePointwise::spmm32_avx512`]).
+#[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+fn avx512() -> bool {
+    std::arch::is_x86_feature_detected!("avx512f")
+}
+
 /// This thread's scratch grown to a transposed block of `k` and of `n` rows, each starting
 /// on a 64-byte boundary.
 #[cfg(target_arch = "x86_64")]
@@ -332,6 +338,8 @@ impl SparsePointwise {
         }
         let ch = channels.clone();
         match nv {
+            #[cfg(lhmpp_bf16_intrinsics)]
+            4 if avx512() => self.spmm32_avx512(xt, yt, ch),
             4 => self.spmm_avx2::<4>(xt, yt, ch),
             3 => self.spmm_avx2::<3>(xt, yt, ch),
             2 => self.spmm_avx2::<2>(xt, yt, ch),
@@ -363,6 +371,63 @@ impl SparsePointwise {
                     }
                     _mm256_storeu_ps(dst.ptr.add(j * n + o), y);
                 }
+            }
+        }
+    }
+
+    /// [`Self::spmm_avx2`] for whole 32-pixel blocks with AVX-512: per entry one broadcast
+    /// and two 16-lane multiply-adds, the same sums in the same order lane by lane. (The
+    /// CPUs we target multiply-add at the same rate at either width, but this loop is bound
+    /// by its loads and instructions, which halve.)
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512F.
+    #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+    #[target_feature(enable = "avx512f")]
+    #[allow(clippy::incompatible_msrv)]
+    unsafe fn spmm32_avx512(&self, xt: &[f32], yt: &mut [f32], channels: std::ops::Range<usize>) {
+        use std::arch::x86_64::*;
+        let n = self.n;
+        assert!(xt.len() >= self.k * WIDE && yt.len() >= n * WIDE && WIDE == 32);
+        assert!(channels.end <= n);
+        assert!(self.kb_starts.len() == self.kb_count * n + 1);
+        assert!(*self.kb_starts.last().unwrap() as usize <= self.kb_values.len());
+        assert!(self.kb_offsets.len() == self.kb_values.len());
+        // every offset is (input channel < k) · WIDE (see `new`)
+        let (x, y) = (xt.as_ptr(), yt.as_mut_ptr());
+        let (offs, vals) = (self.kb_offsets.as_ptr(), self.kb_values.as_ptr());
+        let starts = self.kb_starts.as_ptr();
+        for b in 0..self.kb_count {
+            for o in channels.clone() {
+                let s = *starts.add(b * n + o) as usize;
+                let e = *starts.add(b * n + o + 1) as usize;
+                let yo = y.add(o * WIDE);
+                let (mut a0, mut a1) = if b == 0 {
+                    (_mm512_setzero_ps(), _mm512_setzero_ps())
+                } else {
+                    (_mm512_loadu_ps(yo), _mm512_loadu_ps(yo.add(16)))
+                };
+                let (mut c0, mut c1) = (_mm512_setzero_ps(), _mm512_setzero_ps());
+                let mut j = s;
+                while j + 2 <= e {
+                    let w0 = _mm512_set1_ps(*vals.add(j));
+                    let w1 = _mm512_set1_ps(*vals.add(j + 1));
+                    let x0 = x.add(*offs.add(j) as usize);
+                    let x1 = x.add(*offs.add(j + 1) as usize);
+                    a0 = _mm512_fmadd_ps(_mm512_loadu_ps(x0), w0, a0);
+                    a1 = _mm512_fmadd_ps(_mm512_loadu_ps(x0.add(16)), w0, a1);
+                    c0 = _mm512_fmadd_ps(_mm512_loadu_ps(x1), w1, c0);
+                    c1 = _mm512_fmadd_ps(_mm512_loadu_ps(x1.add(16)), w1, c1);
+                    j += 2;
+                }
+                if j < e {
+                    let w0 = _mm512_set1_ps(*vals.add(j));
+                    let x0 = x.add(*offs.add(j) as usize);
+                    a0 = _mm512_fmadd_ps(_mm512_loadu_ps(x0), w0, a0);
+                    a1 = _mm512_fmadd_ps(_mm512_loadu_ps(x0.add(16)), w0, a1);
+                }
+                _mm512_storeu_ps(yo, _mm512_add_ps(a0, c0));
+                _mm512_storeu_ps(yo.add(16), _mm512_add_ps(a1, c1));
             }
         }
     }
@@ -435,6 +500,45 @@ impl SparsePointwise {
 mod tests {
     use super::*;
     use crate::kernels::nhwc::Activation;
+
+    /// The AVX-512 and AVX2 32-pixel kernels give the same sums (the AVX2 one is what CPUs
+    /// without AVX-512 run; on those, only it is checked, through `run`).
+    #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+    #[test]
+    fn avx512_blocks_match_avx2_blocks() {
+        if !(avx512() && crate::kernels::gemm_avx2::available()) {
+            return;
+        }
+        for (k, n) in [(8, 8), (264, 40), (1152, 24)] {
+            let w: Vec<f32> = (0..n * k)
+                .map(|i| {
+                    if i % 4 == 1 {
+                        (i % 23) as f32 * 0.1 - 1.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let sp = SparsePointwise::new(&w, k, n, &vec![0.0; n]);
+            let xt: Vec<f32> = (0..k * WIDE)
+                .map(|i| (i % 17) as f32 * 0.25 - 2.0)
+                .collect();
+            let (mut y1, mut y2) = (vec![0.0; n * WIDE], vec![0.0; n * WIDE]);
+            // SAFETY: both instruction sets are present (checked above).
+            unsafe {
+                sp.spmm32_avx512(&xt, &mut y1, 0..n);
+                avx2_spmm4(&sp, &xt, &mut y2);
+            }
+            assert_eq!(y1, y2, "k{k} n{n}");
+        }
+    }
+
+    /// [`SparsePointwise::spmm_avx2`] for 32 pixels, with the features enabled.
+    #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn avx2_spmm4(sp: &SparsePointwise, xt: &[f32], yt: &mut [f32]) {
+        sp.spmm_avx2::<4>(xt, yt, 0..sp.n);
+    }
 
     #[test]
     fn sparse_products_match_dense_summation() {
