@@ -134,8 +134,43 @@ impl ConvNhwc {
         if self.rgb.is_some() && super::gemm_avx2::available() {
             let macs = m * n * self.gemm.k();
             let per = parallel::items_per_task(os.height, macs, 1 << 18, 1);
+            let k3s2 = self.kernel == (3, 3) && self.stride == (2, 2);
             parallel::for_each_chunk(out, per * os.width * n, |t, chunk| {
                 let first = t * per;
+                let job = RgbJob {
+                    conv: self,
+                    input,
+                    shape,
+                    pad,
+                    os,
+                    first_row: first,
+                    epi,
+                };
+                #[cfg(lhmpp_bf16_intrinsics)]
+                if k3s2 && rgb_avx512::available() {
+                    // SAFETY: the CPU has AVX-512F/VL, AVX2 and FMA (checked).
+                    unsafe {
+                        match n / 8 {
+                            1 => rgb_avx512::rows::<1, 12>(&job, chunk),
+                            2 => rgb_avx512::rows::<2, 12>(&job, chunk),
+                            3 => rgb_avx512::rows::<3, 8>(&job, chunk),
+                            _ => rgb_avx512::rows::<4, 6>(&job, chunk),
+                        }
+                    }
+                    return;
+                }
+                if k3s2 {
+                    // SAFETY: the CPU has AVX2 and FMA (checked above).
+                    unsafe {
+                        match n / 8 {
+                            1 => rgb_k3s2_avx2::<1, 8>(&job, chunk),
+                            2 => rgb_k3s2_avx2::<2, 6>(&job, chunk),
+                            3 => rgb_k3s2_avx2::<3, 4>(&job, chunk),
+                            _ => rgb_k3s2_avx2::<4, 3>(&job, chunk),
+                        }
+                    }
+                    return;
+                }
                 // SAFETY: the CPU has AVX2 and FMA (checked above).
                 unsafe {
                     match n / 8 {
@@ -701,6 +736,159 @@ impl ConvNhwc {
     }
 }
 
+/// One task's share of an RGB first convolution ([`ConvNhwc::rgb_rows`] and the 3×3
+/// stride-2 kernels below).
+#[cfg(target_arch = "x86_64")]
+struct RgbJob<'a> {
+    conv: &'a ConvNhwc,
+    input: &'a [f32],
+    shape: Shape,
+    pad: Padding,
+    os: Shape,
+    first_row: usize,
+    epi: Epilogue<'a>,
+}
+
+/// [`rgb_k3s2`] with AVX2/FMA.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn rgb_k3s2_avx2<const NV: usize, const P: usize>(job: &RgbJob, chunk: &mut [f32]) {
+    rgb_k3s2::<NV, P>(job, chunk)
+}
+
+/// The RGB first convolution for a 3×3 kernel with stride 2 (every BlazePose network's
+/// first layer): as [`ConvNhwc::rgb_rows`], but with the kernel and stride known, each
+/// group's three input rows are read at fixed offsets from the start of its input columns —
+/// every broadcast one load with an immediate offset, no per-tap pointer arithmetic — and a
+/// group that reaches into the padding reads a zero-padded copy of its columns instead.
+///
+/// # Safety
+/// The caller's function must enable AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn rgb_k3s2<const NV: usize, const P: usize>(job: &RgbJob, chunk: &mut [f32]) {
+    use std::arch::x86_64::*;
+    const K: usize = 3;
+    const S: usize = 2;
+    const C: usize = RGB_IN;
+    let conv = job.conv;
+    let packed = conv
+        .rgb
+        .as_deref()
+        .expect("rgb layers keep their packed weight");
+    let n = NV * 8;
+    let (h, w, ow) = (job.shape.height, job.shape.width, job.os.width);
+    let span = ((P - 1) * S + K) * C;
+    let mut buf = [0.0f32; 96];
+    assert!(span <= buf.len());
+    assert!(conv.kernel == (K, K) && conv.stride == (S, S) && conv.c_in == C);
+    assert!(conv.gemm.n() == n && packed.len() == K * K * C * n && conv.bias.len() == n);
+    assert!(job.input.len() >= h * w * C);
+    assert!(chunk.len() % (ow * n) == 0 && job.first_row + chunk.len() / (ow * n) <= job.os.height);
+    if let Some(r) = job.epi.residual {
+        assert!(r.len() >= job.os.len());
+    }
+    let (lo1, hi1) = job.epi.pre.bounds();
+    let (lo2, hi2) = job.epi.post.bounds();
+    let (lo1, hi1, lo2, hi2) = (
+        _mm256_set1_ps(lo1),
+        _mm256_set1_ps(hi1),
+        _mm256_set1_ps(lo2),
+        _mm256_set1_ps(hi2),
+    );
+    let bias: [__m256; NV] =
+        std::array::from_fn(|v| _mm256_loadu_ps(conv.bias.as_ptr().add(v * 8)));
+    let base = job.input.as_ptr();
+    let left = job.pad.left as isize;
+    for r in 0..chunk.len() / (ow * n) {
+        let oy = job.first_row + r;
+        let y0 = (oy * S) as isize - job.pad.top as isize;
+        let mut ox = 0;
+        while ox < ow {
+            let count = P.min(ow - ox);
+            let x0 = (ox * S) as isize - left;
+            let inside = x0 >= 0 && x0 as usize + (P - 1) * S + K <= w;
+            // the bias is added after the sums, as in the general path (same rounding)
+            let mut acc = [[_mm256_setzero_ps(); NV]; P];
+            for ky in 0..K {
+                let iy = y0 + ky as isize;
+                if iy < 0 || iy >= h as isize {
+                    continue;
+                }
+                let line = base.add(iy as usize * w * C);
+                let seg = if inside {
+                    line.add(x0 as usize * C)
+                } else {
+                    for (j, v) in buf[..span].iter_mut().enumerate() {
+                        let ix = x0 + (j / C) as isize;
+                        *v = if ix >= 0 && (ix as usize) < w {
+                            *line.add(ix as usize * C + j % C)
+                        } else {
+                            0.0
+                        };
+                    }
+                    buf.as_ptr()
+                };
+                let wt = packed.as_ptr().add(ky * K * C * n);
+                for kx in 0..K {
+                    for ci in 0..C {
+                        let wv: [__m256; NV] = std::array::from_fn(|v| {
+                            _mm256_loadu_ps(wt.add((kx * C + ci) * n + v * 8))
+                        });
+                        for (p, acc) in acc.iter_mut().enumerate() {
+                            let x = _mm256_broadcast_ss(&*seg.add((p * S + kx) * C + ci));
+                            for (acc, &wv) in acc.iter_mut().zip(&wv) {
+                                *acc = _mm256_fmadd_ps(x, wv, *acc);
+                            }
+                        }
+                    }
+                }
+            }
+            for (p, acc) in acc.iter().enumerate().take(count) {
+                let at = (r * ow + ox + p) * n;
+                let q = (oy * ow + ox + p) * n;
+                for (v, &a) in acc.iter().enumerate() {
+                    let a = _mm256_add_ps(a, bias[v]);
+                    let mut y = _mm256_min_ps(_mm256_max_ps(a, lo1), hi1);
+                    if let Some(res) = job.epi.residual {
+                        y = _mm256_add_ps(y, _mm256_loadu_ps(res.as_ptr().add(q + v * 8)));
+                        y = _mm256_min_ps(_mm256_max_ps(y, lo2), hi2);
+                    }
+                    _mm256_storeu_ps(chunk.as_mut_ptr().add(at + v * 8), y);
+                }
+            }
+            ox += P;
+        }
+    }
+}
+
+/// [`rgb_k3s2`] compiled with AVX-512VL, whose 32 vector registers hold twice the pixels
+/// per group (Rust 1.89 or newer only, `lhmpp_bf16_intrinsics`).
+#[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+#[allow(clippy::incompatible_msrv)]
+mod rgb_avx512 {
+    use super::{rgb_k3s2, RgbJob};
+
+    /// Whether the CPU has AVX-512F and VL (and AVX2 and FMA).
+    pub(super) fn available() -> bool {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+            && crate::kernels::gemm_avx2::available()
+    }
+
+    /// [`rgb_k3s2`] with the wider register file.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512F/VL, AVX2 and FMA.
+    #[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
+    pub(super) unsafe fn rows<const NV: usize, const P: usize>(job: &RgbJob, chunk: &mut [f32]) {
+        rgb_k3s2::<NV, P>(job, chunk)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -752,6 +940,58 @@ mod tests {
             }
         }
         (out, Shape::new(oh, ow, c_out))
+    }
+
+    /// The AVX2 build of the 3×3 stride-2 RGB kernel (what CPUs without AVX-512 run; `run`
+    /// takes the AVX-512 one where it can) against the direct summation.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn rgb_kernel_without_avx512_matches_direct_summation() {
+        if !crate::kernels::gemm_avx2::available() {
+            return;
+        }
+        for (h, w, co, pad) in [
+            (9, 37, 24, Padding::uniform(1)),
+            (
+                8,
+                20,
+                16,
+                Padding {
+                    top: 0,
+                    left: 0,
+                    bottom: 1,
+                    right: 1,
+                },
+            ),
+        ] {
+            let s = Shape::new(h, w, 3);
+            let (x, wt, b) = (values(s.len(), 5), values(co * 27, 6), values(co, 7));
+            let conv = ConvNhwc::new(&wt, &b, co, (3, 3), 3, (2, 2));
+            let (want, os) = reference(&x, s, &wt, &b, co, (3, 3), (2, 2), pad);
+            let mut got = vec![f32::NAN; os.len()];
+            let job = RgbJob {
+                conv: &conv,
+                input: &x,
+                shape: s,
+                pad,
+                os,
+                first_row: 0,
+                epi: Epilogue::default(),
+            };
+            // SAFETY: the CPU has AVX2 and FMA (checked above).
+            unsafe {
+                match co / 8 {
+                    2 => rgb_k3s2_avx2::<2, 6>(&job, &mut got),
+                    _ => rgb_k3s2_avx2::<3, 4>(&job, &mut got),
+                }
+            }
+            let d = got
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f32::max);
+            assert!(d < 1e-4, "{h}x{w}->{co}: {d}");
+        }
     }
 
     #[test]
@@ -810,6 +1050,22 @@ mod tests {
             ),
             (8, 13, 3, 8, (5, 5), (1, 1), Padding::uniform(2)),
             (10, 9, 3, 32, (3, 3), (2, 2), Padding::uniform(1)),
+            (6, 41, 3, 16, (3, 3), (2, 2), Padding::uniform(1)),
+            (
+                9,
+                50,
+                3,
+                8,
+                (3, 3),
+                (2, 2),
+                Padding {
+                    top: 0,
+                    left: 0,
+                    bottom: 1,
+                    right: 1,
+                },
+            ),
+            (5, 38, 3, 24, (3, 3), (2, 2), Padding::uniform(1)),
             (7, 11, 3, 16, (2, 3), (1, 2), Padding::uniform(1)),
             (2, 2, 288, 195, (2, 2), (1, 1), Padding::default()),
             (3, 4, 40, 72, (2, 2), (1, 1), Padding::default()),
