@@ -533,8 +533,27 @@ impl ConvNhwc {
                             }
                         }
                     }
+                    let sums8 = hsum8(&acc);
+                    if n == 1 && count == P {
+                        // one output channel: the eight pixels are contiguous
+                        let at = r * ow + ox;
+                        let q = oy * ow + ox;
+                        let b = _mm256_set1_ps(self.bias[0]);
+                        let mut y = _mm256_add_ps(sums8, b);
+                        y = _mm256_min_ps(
+                            _mm256_max_ps(y, _mm256_set1_ps(lo1)),
+                            _mm256_set1_ps(hi1),
+                        );
+                        if let Some(res) = epi.residual {
+                            y = _mm256_add_ps(y, _mm256_loadu_ps(res[q..q + P].as_ptr()));
+                            let (lo2, hi2) = (_mm256_set1_ps(lo2), _mm256_set1_ps(hi2));
+                            y = _mm256_min_ps(_mm256_max_ps(y, lo2), hi2);
+                        }
+                        _mm256_storeu_ps(chunk[at..at + P].as_mut_ptr(), y);
+                        continue;
+                    }
                     let mut sums = [0.0f32; P];
-                    _mm256_storeu_ps(sums.as_mut_ptr(), hsum8(&acc));
+                    _mm256_storeu_ps(sums.as_mut_ptr(), sums8);
                     for (p, &sum) in sums.iter().enumerate().take(count) {
                         let q = oy * ow + ox + p;
                         let mut y = (sum + self.bias[o]).max(lo1).min(hi1);
