@@ -1,8 +1,13 @@
 //! Dense 2-D convolution of one channels-last image with explicit zero padding and any kernel
 //! size and stride, as matrix products ([`super::pointwise`]): a 1×1 stride-1 unpadded layer
 //! multiplies the pixel rows in place; any other gathers the `kh·kw·C_in` values under each
-//! output pixel (zeros off the image) into a per-thread block of rows first. The weight is
-//! TFLite's `[C_out][kh][kw][C_in]`, whose rows are already in the gathered order.
+//! output pixel (zeros off the image) into a per-thread block of rows first (with AVX2, reads
+//! them in place through a table of tap pointers instead). The weight is TFLite's
+//! `[C_out][kh][kw][C_in]`, whose rows are already in the gathered order. Two shapes have
+//! kernels of their own with AVX2/FMA: a network's first convolution over the 3-channel RGB
+//! image (the output vectors of a few pixels in registers, each input value broadcast), and
+//! convolutions with at most 4 output channels (vectorised over pixels, input channels in
+//! the lanes).
 
 use std::cell::RefCell;
 

@@ -3,10 +3,13 @@
 //! activations and residual of [`Epilogue`].
 //!
 //! Channels are processed in blocks of 16 (then 8, then single channels), so every tap is a
-//! vector multiply-add of contiguous input and weight values. For 3×3 and 5×5 filters the
-//! block's weights stay in registers while the block walks along an output row; output pixels
-//! whose window lies inside the image take a path without bounds checks, those at the border a
-//! checked one. Output rows run in parallel on rayon.
+//! vector multiply-add of contiguous input and weight values. Square 3×3 and 5×5 filters with
+//! stride 1 or 2 (all of BlazePose's) take a row kernel with AVX2/FMA (16-channel blocks with
+//! AVX-512 where the compiler and CPU have it): eight output pixels of a row at a time, each
+//! input column under them loaded once for every tap that reads it, padding columns read as
+//! zeros (no separate border path). Other filters take an eight-pixel AVX2 kernel inside the
+//! image and a checked path at the border; without AVX2, portable loops. Output rows run in
+//! parallel; maps of few rows split their channels between the threads instead.
 
 use super::nhwc::{Epilogue, Padding, Shape};
 use super::parallel;

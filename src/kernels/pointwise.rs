@@ -3,13 +3,15 @@
 //! A 1×1 convolution is one such product over the pixels of an NHWC map; a k×k convolution
 //! gathers its taps into rows first ([`super::conv_nhwc`]).
 //!
-//! The weights are packed once into column panels of 32, 16 or 8 channels (`[k][width]`, the
+//! The weights are packed once into column panels of 16 or 8 channels (`[k][width]`, the
 //! last panel zero-padded). A micro-kernel keeps a `rows × width` block of the output in
-//! registers (6×32, 12×16 or 12×8: twelve 512-bit accumulators under AVX-512) and runs over
-//! `k`, broadcasting one input value per row against the panel's row of weights. The
-//! epilogue adds the bias, applies the first activation, adds an optional residual and applies
-//! the second, as the block is stored. Rows are cut into blocks that stay in the L2 cache while
-//! every panel passes over them, and into rayon tasks.
+//! registers (6×16 or 12×8, twelve 256-bit accumulators with AVX2/FMA; one or two rows
+//! without padding them to a block) and runs over `k`, broadcasting one input value per row
+//! against the panel's row of weights. The epilogue adds the bias, applies the first
+//! activation, adds an optional residual and applies the second, as the block is stored. Rows
+//! are cut into blocks that stay in the L2 cache while every panel passes over them, and into
+//! parallel tasks; products of at most 128 rows on several threads split the column panels
+//! instead (even shares, and each weight read by one thread only).
 
 use super::nhwc::Epilogue;
 use super::parallel;
