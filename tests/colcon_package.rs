@@ -11,6 +11,8 @@
 //! directory, and colcon builds with the same profile and features, so cargo finds the crate
 //! up to date: the colcon build costs seconds, not a second release build of the crate.
 
+mod dds_domain;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -172,7 +174,7 @@ fn colcon_builds_the_package_and_its_binary_serves_an_rclpy_peer() {
     let msgs = install.join("lhmpp_msgs");
     let venv = python.parent().and_then(Path::parent).unwrap();
 
-    let domain = 20 + (std::process::id() + 30) % 80;
+    let domain = dds_domain::test_domain(60);
     // `ros2 run lhmpp lhmpp ARGS`: source the workspace, find the package's prefix in the ament
     // index, run lib/lhmpp/lhmpp (ros2cli is not among the PyPI wheels, so this is its lookup).
     let params = install.join("lhmpp/share/lhmpp/launch_configs/camera.yaml");

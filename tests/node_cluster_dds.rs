@@ -2,6 +2,8 @@
 //! (loopback only) exchange heartbeats on `cluster/heartbeat`, each hears the other's (and not
 //! its own); heartbeat text that is not a member of a cluster does not parse.
 
+mod dds_domain;
+
 use lhmpp::config::NodeConfig;
 use lhmpp::node::inputs::InputEvent;
 use lhmpp::node::ros::{RosNode, RosNodeOptions};
@@ -33,7 +35,7 @@ fn members_hear_each_others_heartbeats() {
         .build()
         .unwrap();
     let _guard = runtime.enter();
-    let domain = 100 + (std::process::id() % 40) as i32;
+    let domain = i32::from(dds_domain::test_domain(90));
     let (a, mut a_in) = member(0, domain);
     let (b, mut b_in) = member(1, domain);
     let deadline = Instant::now() + Duration::from_secs(20);

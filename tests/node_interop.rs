@@ -8,6 +8,8 @@
 //! prints `RESULT ok ...`. Bounded by a watchdog; loopback only (RustDDS restricted to
 //! 127.0.0.1, Cyclone given 127.0.0.1 as its only unicast peer, multicast off).
 
+mod dds_domain;
+
 use lhmpp::body::SkinWeights;
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{GaussianAvatar, GaussianCloud, GaussianColors, Header, Point, Time};
@@ -105,11 +107,6 @@ fn python() -> PathBuf {
     ))
 }
 
-/// A domain of our own per test process, so parallel runs on one host do not meet.
-fn test_domain() -> u16 {
-    100 + (std::process::id() % 120) as u16
-}
-
 fn cyclone_loopback_config() -> String {
     "<CycloneDDS><Domain>\
        <General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>\
@@ -200,7 +197,7 @@ async fn wait_for_frames(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
     let python = python();
-    let domain = test_domain();
+    let domain = dds_domain::test_domain(0);
     let mut cfg = NodeConfig {
         domain_id: i32::from(domain),
         namespace: "/lhmpp_test".into(),
@@ -242,6 +239,8 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
     let mut lines = peer_lines(&mut peer.0);
 
     let started = Instant::now();
+    // What the test waits for now, for the watchdog's message.
+    let stage = std::sync::Mutex::new("discovery: the peer's first frames");
     let outcome = tokio::time::timeout(WATCHDOG, async {
         // 1. Frames from the peer arrive decoded, raw and PNG-compressed.
         let cameras = [
@@ -252,6 +251,7 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
         let first_frame_after = started.elapsed();
         assert!(frames.len() >= 6, "input queue closed early");
         frames.iter().for_each(assert_person_frame);
+        *stage.lock().unwrap() = "a malformed frame counted as rejected";
         // The peer's malformed frames are counted, not fatal.
         let topic = node.topics().images[0].clone();
         while node
@@ -265,6 +265,7 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
         // 2. Publish a rendered frame (and the avatar) until the peer reports.
+        *stage.lock().unwrap() = "the peer's report on our avatar and frame";
         let render = image::RgbImage::from_fn(RENDER_SIDE, RENDER_SIDE, |x, y| {
             image::Rgb([x as u8 * 8, y as u8 * 8, 200])
         });
@@ -295,8 +296,12 @@ async fn cyclonedds_peer_and_node_exchange_images_and_avatars() {
     .await;
     let stats = node.input_stats();
     node.shutdown();
-    let (first_frame_after, delays, result) =
-        outcome.expect("watchdog: interop did not finish in time");
+    let Ok((first_frame_after, delays, result)) = outcome else {
+        panic!(
+            "watchdog: interop did not finish in {WATCHDOG:?}, waiting for {}; inputs {stats:?}",
+            stage.lock().unwrap()
+        );
+    };
     eprintln!(
         "first decoded frame after {first_frame_after:?}; stamp-to-event delays {delays:?}; \
          peer said: {result}; {stats:?}"

@@ -5,6 +5,8 @@
 //! sizes, finite values, unit rotations, skin weights, revisions increasing). The peer then
 //! vanishes and a new one comes back: the node serves it newer revisions. Bounded in time.
 
+mod dds_domain;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -31,7 +33,7 @@ fn node_reconstructs_frames_from_a_cyclonedds_peer_and_publishes_avatars_and_ren
     let python = PathBuf::from(std::env::var("LHMPP_TEST_PYTHON").expect(
         "LHMPP_TEST_PYTHON is not set: run scripts/test (it installs the cyclonedds peer)",
     ));
-    let domain = 20 + std::process::id() % 80;
+    let domain = u32::from(dds_domain::test_domain(50));
     let out = tempfile::tempdir().unwrap();
     let sets = [
         format!("domain_id={domain}"),

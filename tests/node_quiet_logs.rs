@@ -2,6 +2,8 @@
 //! ros2-client only at error), `--log` opens everything, a clean shutdown logs no error, and
 //! a config that cannot run fails with one line before any DDS participant exists.
 
+mod dds_domain;
+
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -51,8 +53,9 @@ fn live_run_for_10_s(log: Option<&str>, domain: u32) -> (Option<i32>, Vec<String
 
 #[test]
 fn a_ten_second_run_is_quiet_by_default_and_log_opens_everything() {
-    let domain = 100 + std::process::id() % 40;
-    let verbose = std::thread::spawn(move || live_run_for_10_s(Some("info"), domain + 41));
+    let domain = u32::from(dds_domain::test_domain(80));
+    let verbose_domain = u32::from(dds_domain::test_domain(81));
+    let verbose = std::thread::spawn(move || live_run_for_10_s(Some("info"), verbose_domain));
     let (code, lines) = live_run_for_10_s(None, domain);
     let (verbose_code, verbose_lines) = verbose.join().unwrap();
     eprintln!(

@@ -6,6 +6,8 @@
 //! and the GaussianAvatar as typed messages, and checks increasing revisions, finite
 //! Gaussians, and frames that change with the pose. Bounded in time.
 
+mod dds_domain;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -72,7 +74,7 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
         .and_then(Path::parent)
         .unwrap()
         .to_path_buf();
-    let domain = 20 + (std::process::id() + 50) % 80;
+    let domain = dds_domain::test_domain(70);
     let sets = [
         format!("domain_id={domain}"),
         "dds_interfaces=[127.0.0.1]".into(),

@@ -3,15 +3,17 @@
 //! late subscriber gets the newest latched message, and every output reaches the subscribers
 //! its QoS promises. Loopback only, no peer needed.
 
+mod dds_domain;
+
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{GaussianAvatar, ReconstructionStatus};
 use lhmpp::node::ros::{rgb8_image, PublishOutcome, RosNode, RosNodeOptions};
 use std::collections::BTreeMap;
 
-/// Starts the node, loopback only, on a domain from `domain_base` + 0..30 (by process id).
-fn start_node(domain_base: i32, namespace: &str) -> (RosNode, RosNodeOptions) {
+/// Starts the node, loopback only, on this process's domain for `salt` (`dds_domain`).
+fn start_node(salt: u32, namespace: &str) -> (RosNode, RosNodeOptions) {
     let cfg = NodeConfig {
-        domain_id: domain_base + (std::process::id() % 30) as i32,
+        domain_id: i32::from(dds_domain::test_domain(salt)),
         namespace: namespace.into(),
         ..NodeConfig::default()
     };
@@ -24,7 +26,7 @@ fn start_node(domain_base: i32, namespace: &str) -> (RosNode, RosNodeOptions) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn publishing_before_any_reader_is_not_an_error() {
-    let (node, _) = start_node(200, "/lhmpp_outputs_test");
+    let (node, _) = start_node(30, "/lhmpp_outputs_test");
     assert_eq!(node.avatar_subscribers(), 0);
     let frame = image::RgbImage::new(16, 16);
     let mut outcomes = Vec::new();
@@ -245,7 +247,7 @@ fn receive_outputs(frame_qos: &str, namespace: &str, domain: i32) -> Vec<(String
 
 #[test]
 fn every_output_reaches_reliable_and_best_effort_subscribers() {
-    let domain = 150 + (std::process::id() % 40) as i32;
+    let domain = i32::from(dds_domain::test_domain(32));
     let got = receive_outputs("reliable", "/lhmpp_qos_reliable", domain);
     eprintln!("frame_qos reliable: {got:?}");
     for (what, received) in &got {
@@ -255,7 +257,7 @@ fn every_output_reaches_reliable_and_best_effort_subscribers() {
 
 #[test]
 fn best_effort_frames_reach_only_best_effort_subscribers() {
-    let domain = 190 + (std::process::id() % 40) as i32;
+    let domain = i32::from(dds_domain::test_domain(33));
     let got = receive_outputs("best_effort", "/lhmpp_qos_best_effort", domain);
     eprintln!("frame_qos best_effort: {got:?}");
     let count = |what: &str| got.iter().find(|(w, _)| w.ends_with(what)).unwrap().1;
@@ -271,7 +273,7 @@ fn a_late_subscriber_gets_the_newest_avatar_held_while_nobody_listened() {
     use ros2_client::qos::{Durability, History, QosProfile, Reliability, WhenFull};
     let runtime = runtime();
     let _guard = runtime.enter();
-    let (node, opts) = start_node(110, "/lhmpp_latched_test");
+    let (node, opts) = start_node(31, "/lhmpp_latched_test");
     // Nobody listens: each avatar is held (the newest replaces the older), none goes to DDS,
     // whose transient-local history would otherwise keep every one of them.
     for revision in 1..=40u32 {

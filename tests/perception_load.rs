@@ -6,6 +6,8 @@
 //! the frames it cannot take (counted), memory stays bounded. `scripts/perception-load` runs
 //! the same for longer.
 
+mod dds_domain;
+
 mod load_support;
 
 use load_support::{interrupt, lhmpp, number_after, KillOnDrop};
@@ -18,7 +20,7 @@ const SECONDS: u64 = 30;
 #[test]
 fn two_vga_streams_are_perceived_at_a_steady_rate_without_stalling_the_pipeline() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let domain = 100 + (std::process::id() + 37) % 100;
+    let domain = dds_domain::test_domain(41);
     let report = tempfile::tempdir().unwrap();
     let mut node = KillOnDrop(
         lhmpp()

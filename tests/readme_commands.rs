@@ -14,6 +14,8 @@
 //! The photo recipe's `photo.jpg` is a synthetic dressed person (`lhmpp synth --realism
 //! dressed`), written as a JPEG first.
 
+mod dds_domain;
+
 mod load_support;
 
 use load_support::{interrupt, lhmpp, KillOnDrop};
@@ -100,7 +102,7 @@ fn scratch() -> tempfile::TempDir {
 }
 
 fn domain() -> String {
-    (150 + std::process::id() % 60).to_string()
+    dds_domain::test_domain(20).to_string()
 }
 
 fn run(dir: &Path, command: &str) -> Output {

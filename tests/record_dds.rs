@@ -6,6 +6,8 @@
 //! Python `mcap` reader agrees. Needs `LHMPP_TEST_PYTHON` (set by `scripts/test`).
 //! Loopback only (RustDDS restricted to 127.0.0.1, Cyclone's only peer 127.0.0.1, no multicast).
 
+mod dds_domain;
+
 use lhmpp::bag::BagReader;
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{BodyPose, Image, RosMessage};
@@ -24,12 +26,6 @@ fn python() -> PathBuf {
     PathBuf::from(std::env::var("LHMPP_TEST_PYTHON").expect(
         "LHMPP_TEST_PYTHON is not set: run scripts/test (it installs the cyclonedds peer in target/pyenv)",
     ))
-}
-
-/// A domain of this test process's own (`offset` tells the tests of one process apart), away
-/// from node_interop's 100..220.
-fn test_domain(offset: u16) -> u16 {
-    10 + 2 * (std::process::id() % 40) as u16 + offset
 }
 
 fn cyclone_loopback_config() -> String {
@@ -196,7 +192,7 @@ fn frames_of(reader: &BagReader) -> Vec<Image> {
 #[test]
 fn sigint_finishes_a_bag_holding_every_published_message() {
     const N: usize = 20;
-    let domain = test_domain(0);
+    let domain = dds_domain::test_domain(10);
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), domain);
     let bag = dir.path().join("rec");
@@ -288,7 +284,7 @@ print(n)
 
 #[test]
 fn sigkill_leaves_a_bag_readable_up_to_the_last_flush() {
-    let domain = test_domain(1);
+    let domain = dds_domain::test_domain(11);
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), domain);
     let bag = dir.path().join("killed");

@@ -5,6 +5,8 @@
 //! under 1 GB, its queue waits stay bounded, and its counters add up. scripts/soak runs the same
 //! for 10 minutes and plots the memory (RELIABILITY.md).
 
+mod dds_domain;
+
 mod load_support;
 
 use load_support::{interrupt, lhmpp, number_after, KillOnDrop};
@@ -15,7 +17,7 @@ use std::time::Duration;
 #[test]
 fn a_minute_of_four_1080p_streams_keeps_the_node_reconstructing_and_the_counters_true() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let domain = 100 + std::process::id() % 100;
+    let domain = dds_domain::test_domain(40);
     let report = tempfile::tempdir().unwrap();
     let node = KillOnDrop(
         lhmpp()

@@ -187,7 +187,17 @@ def main():
     sent = 0
     first_render_at = None
     start = time.monotonic()
+    next_progress = start + 5.0
     while time.monotonic() < deadline:
+        if time.monotonic() >= next_progress:
+            # Progress on stderr (the test shows it): who matched whom so far.
+            next_progress += 5.0
+            print(f"peer: {time.monotonic() - start:.0f} s, sent {sent} frames; matched readers "
+                  f"image {len(writer.get_matched_subscriptions())}, compressed "
+                  f"{len(compressed_writer.get_matched_subscriptions())}; matched writers "
+                  f"avatar {len(avatar_reader.get_matched_publications())}, render "
+                  f"{len(render_reader.get_matched_publications())}; render: {render_err}; "
+                  f"avatar: {avatar_err}", file=sys.stderr, flush=True)
         if sent % 5 == 0:
             bad = Image(
                 header=Header(stamp=stamp_now(), frame_id="bad_step"),

@@ -55,11 +55,40 @@ pub fn create_context(opts: &ParticipantOptions) -> Result<Context, RosError> {
     if opts.socket_receive_buffer > 0 {
         builder = builder.socket_receive_buffer_size(opts.socket_receive_buffer);
     }
+    if let Some((low, high)) = ephemeral_ports().and_then(|r| ports_in_range(opts.domain_id, r)) {
+        tracing::warn!(
+            "DDS domain {} uses UDP ports {low}..={high}, inside this host's ephemeral port range \
+             (net.ipv4.ip_local_port_range): when another socket holds one, discovery fails now \
+             and then; on Linux, domains 0..=101 and 215..=232 stay clear of it",
+            opts.domain_id
+        );
+    }
     let participant = builder.build().map_err(|e| {
         RosError::Create(format!("DDS participant in domain {}: {e}", opts.domain_id))
     })?;
     Context::from_domain_participant(participant)
         .map_err(|e| RosError::Create(format!("ROS 2 context in domain {}: {e}", opts.domain_id)))
+}
+
+/// RTPS discovery and user ports of a domain (port base 7400, domain gain 250), for the
+/// first ten participants on a host.
+fn domain_ports(domain: u16) -> (u32, u32) {
+    let base = 7400 + 250 * u32::from(domain);
+    (base, base + 11 + 2 * 9)
+}
+
+/// The part of `domain`'s ports (`domain_ports`) inside `range`, if any.
+fn ports_in_range(domain: u16, range: (u32, u32)) -> Option<(u32, u32)> {
+    let (low, high) = domain_ports(domain);
+    let (low, high) = (low.max(range.0), high.min(range.1));
+    (low <= high).then_some((low, high))
+}
+
+/// This host's ephemeral port range (`/proc/sys/net/ipv4/ip_local_port_range`), if readable.
+fn ephemeral_ports() -> Option<(u32, u32)> {
+    let text = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range").ok()?;
+    let mut it = text.split_whitespace().map(|t| t.parse::<u32>().ok());
+    Some((it.next()??, it.next()??))
 }
 
 /// The image subscriptions' QoS for `inputs.image_qos`: keep last 5, volatile; best effort
@@ -112,6 +141,19 @@ pub fn frame_output_qos(choice: FrameQos) -> QosProfile {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn domains_whose_ports_meet_the_linux_ephemeral_range_are_found() {
+        let linux = (32768, 60999);
+        assert_eq!(ports_in_range(0, linux), None);
+        assert_eq!(ports_in_range(100, linux), None);
+        assert_eq!(ports_in_range(101, linux), None);
+        assert_eq!(ports_in_range(102, linux), Some((32900, 32929)));
+        assert_eq!(ports_in_range(150, linux), Some((44900, 44929)));
+        assert_eq!(ports_in_range(214, linux), Some((60900, 60929)));
+        assert_eq!(ports_in_range(215, linux), None);
+        assert_eq!(ports_in_range(232, linux), None);
+    }
 
     #[test]
     fn domain_id_comes_from_config_then_env_then_zero() {
