@@ -1,5 +1,6 @@
 //! `lhmpp loadgen`: synthetic camera streams on loopback, bounded in time, for load and soak
-//! tests of the node. It publishes N cameras × R Hz × W×H frames of a walking synthetic person
+//! tests of the node. It publishes N cameras × R Hz × W×H frames of a walking synthetic person,
+//! or with `--people K` of K people crossing a room (the crowd scene of `lhmpp synth --people`)
 //! (JPEG `CompressedImage` or raw `rgb8` `Image`, each with its `CameraInfo`), on 127.0.0.1
 //! only. With `--watch-pid` it samples that process's resident memory every second and
 //! reports its maximum and slope; `--report DIR` keeps the samples (`rss.csv`) and the
@@ -14,6 +15,7 @@ use lhmpp::node::ros::{
     create_context, image_input_qos, resolve_domain_id, type_name, ParticipantOptions,
 };
 use lhmpp::synth::capture::{camera_info, optical_frame};
+use lhmpp::synth::crowd::{render_crowd_stream, CrowdOptions};
 use lhmpp::synth::stream::{render_stream, StreamOptions};
 use ros2_client::qos::QosProfile;
 use ros2_client::{Name, NodeName, NodeOptions};
@@ -62,7 +64,8 @@ pub struct LoadgenArgs {
     /// How frames travel.
     #[arg(long, value_enum, default_value_t = Encoding::Jpeg)]
     pub encoding: Encoding,
-    /// Distinct frames per camera (the walk cycle sampled evenly), cycled.
+    /// Distinct frames per camera (the walk cycle sampled evenly; with `--people`, the walk
+    /// across the room), cycled.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..=240))]
     pub frames: u16,
     /// Topic prefix.
@@ -71,9 +74,14 @@ pub struct LoadgenArgs {
     /// DDS domain (default: `ROS_DOMAIN_ID`, else 0).
     #[arg(long)]
     pub domain: Option<u16>,
-    /// Seed of the synthetic person.
+    /// Seed of the synthetic person (of the crowd scene with `--people`).
     #[arg(long, default_value_t = 5)]
     pub seed: u64,
+    /// Publish this many people walking across a room past one another, seen by fixed room
+    /// cameras (as `lhmpp synth --people`), instead of one person on a camera ring. Each cycle
+    /// of `--frames` starts the walk again, so the people reappear at its start.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=8))]
+    pub people: Option<u8>,
     /// Sample this process's resident memory every second (the node under load).
     #[arg(long, value_name = "PID")]
     pub watch_pid: Option<u32>,
@@ -128,6 +136,8 @@ pub struct RssReport {
 /// What a run did (printed, and `summary.json`).
 #[derive(Debug, Serialize)]
 pub struct LoadSummary {
+    /// People in the scene (`--people`; one on a camera ring without it).
+    pub people: u8,
     /// Cameras.
     pub cameras: u16,
     /// Target rate per camera.
@@ -185,18 +195,35 @@ pub fn run(args: LoadgenArgs) -> Result<()> {
         "rendering {} frames × {} cameras at {}×{} ...",
         args.frames, args.cameras, args.width, args.height
     );
-    let stream = render_stream(
-        &StreamOptions {
-            seed: args.seed,
-            cameras: args.cameras.into(),
-            frames: args.frames.into(),
-            width: args.width,
-            height: args.height,
-            points: 30_000,
-        },
-        |done, total| eprint!("\r  frame {done}/{total}"),
-    )
-    .context("rendering the synthetic person")?;
+    let progress = |done, total| eprint!("\r  frame {done}/{total}");
+    let stream = match args.people {
+        None => render_stream(
+            &StreamOptions {
+                seed: args.seed,
+                cameras: args.cameras.into(),
+                frames: args.frames.into(),
+                width: args.width,
+                height: args.height,
+                points: 30_000,
+            },
+            progress,
+        )
+        .context("rendering the synthetic person")?,
+        Some(people) => render_crowd_stream(
+            &CrowdOptions {
+                seed: args.seed,
+                people: people.into(),
+                cameras: args.cameras.into(),
+                frames: args.frames.into(),
+                fps: args.rate as f32,
+                width: args.width,
+                height: args.height,
+                ..CrowdOptions::default()
+            },
+            progress,
+        )
+        .context("rendering the crowd scene")?,
+    };
     eprintln!();
     let encoded: Vec<Vec<Vec<u8>>> = (0..stream.cameras.len())
         .map(|c| {
@@ -292,6 +319,7 @@ pub fn run(args: LoadgenArgs) -> Result<()> {
         .map(|s| s.join().expect("memory sampler panicked"))
         .unwrap_or_default();
     let summary = LoadSummary {
+        people: args.people.unwrap_or(1),
         cameras: args.cameras,
         rate_hz: args.rate,
         width: args.width,

@@ -9,6 +9,7 @@ mod body;
 mod config_cmd;
 mod config_source;
 mod eval;
+mod eval_crowd;
 mod eval_perception;
 mod eval_photos;
 mod eval_tracking;
@@ -76,6 +77,9 @@ enum Command {
     /// Score person tracking on crowd bags of `synth --people N`: persons found, id switches
     /// per 100 images, views given another person's id (`eval-tracking BAG...`).
     EvalTracking(eval_tracking::EvalTrackingArgs),
+    /// Score each tracked person's avatar against their own true person on crowd scenes, beside
+    /// the avatar of that person alone in the same scene (`eval-crowd --people 3 --seeds 2`).
+    EvalCrowd(eval_crowd::EvalCrowdArgs),
     /// Inspect MCAP bags in the rosbag2 layout (`bag info BAG`), recover damaged ones
     /// (`bag recover IN -o OUT`).
     Bag(bag::BagArgs),
@@ -144,6 +148,7 @@ pub fn main() -> anyhow::Result<()> {
         Command::EvalPerception(args) => eval_perception::run(args),
         Command::EvalPhotos(args) => eval_photos::run(args),
         Command::EvalTracking(args) => eval_tracking::run(args),
+        Command::EvalCrowd(args) => eval_crowd::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Body(args) => body::run(args),
         Command::Bag(args) => bag::run(args),

@@ -47,6 +47,10 @@ pub struct SynthArgs {
     /// `--camera`, `--publish-shape`, `--realism`) do not apply.
     #[arg(long)]
     people: Option<usize>,
+    /// With `--people`: render only `person_K` of the scene (same paths, cameras and light),
+    /// the single-person reference that `lhmpp eval-crowd` compares each avatar with.
+    #[arg(long, value_name = "K")]
+    only: Option<usize>,
     /// With `--people`: fixed cameras around the room.
     #[arg(long, default_value_t = 2)]
     cameras: usize,
@@ -170,6 +174,7 @@ fn run_crowd(args: &SynthArgs, people: usize) -> Result<()> {
         width,
         height,
         points: args.points,
+        only: args.only,
     };
     let started = std::time::Instant::now();
     let mut last_report = started;

@@ -2,8 +2,10 @@
 //! [`perception`]: camera-only perception scored against synthetic ground truth
 //! (`lhmpp eval-perception`). [`photos`]: the avatar's colours against real photos, region by
 //! region with CIEDE2000 (`lhmpp eval-photos`). [`tracking`]: person ids on crowd scenes
-//! (`lhmpp eval-tracking`).
+//! (`lhmpp eval-tracking`). [`crowd`]: each tracked person's avatar against their own
+//! true person, beside the avatar made of that person alone (`lhmpp eval-crowd`).
 
+pub mod crowd;
 pub mod heldout;
 pub mod metrics;
 pub mod perception;

@@ -63,6 +63,9 @@ pub struct CrowdOptions {
     pub height: u32,
     /// Gaussians per person.
     pub points: usize,
+    /// Render only this person (`person_k`): the same scene (paths, cameras, lighting) with
+    /// the others left out, the single-person reference of `lhmpp eval-crowd`.
+    pub only: Option<usize>,
 }
 
 impl Default for CrowdOptions {
@@ -76,6 +79,7 @@ impl Default for CrowdOptions {
             width: 640,
             height: 480,
             points: 30_000,
+            only: None,
         }
     }
 }
@@ -130,6 +134,12 @@ impl Crowd {
             return Err(SynthError::Dataset(format!(
                 "--people {}: a crowd scene holds 1 to {MAX_PEOPLE} people",
                 options.people
+            )));
+        }
+        if let Some(k) = options.only.filter(|&k| k >= options.people) {
+            return Err(SynthError::Dataset(format!(
+                "--only {k}: the scene has people 0 to {}",
+                options.people - 1
             )));
         }
         let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x63_726f_7764);
@@ -190,7 +200,11 @@ impl Crowd {
         let lighting = Lighting::random(&mut lights);
         let key = lighting.lights.first().map(|l| l.direction);
         let mut posed_people = Vec::with_capacity(self.people.len());
-        for (person, path) in self.people.iter().zip(&self.paths) {
+        for (k, (person, path)) in self.people.iter().zip(&self.paths).enumerate() {
+            if o.only.is_some_and(|only| only != k) {
+                posed_people.push(None);
+                continue;
+            }
             let pose = walk_pose(path.phase + seconds * WALK_FPS);
             let matrices = person
                 .template
@@ -203,12 +217,12 @@ impl Crowd {
                 None => None,
             };
             let floor = path.at(s);
-            posed_people.push(PosedPerson {
+            posed_people.push(Some(PosedPerson {
                 posed,
                 shadow,
                 heading: path.heading(),
                 offset: Vec3::new(floor.x, 0.0, floor.y),
-            });
+            }));
         }
         Ok((0..self.cameras.len())
             .map(|c| self.render_camera(f, c, &lighting, &posed_people))
@@ -216,13 +230,14 @@ impl Crowd {
     }
 
     /// Shades the posed people for camera `c` (lit in each body's frame), renders them
-    /// together with their one-hot person features, and composes image and id map.
+    /// together with their one-hot person features, and composes image and id map. People
+    /// left out of the scene ([`CrowdOptions::only`]) are `None`.
     fn render_camera(
         &self,
         f: usize,
         c: usize,
         lighting: &Lighting,
-        posed_people: &[PosedPerson],
+        posed_people: &[Option<PosedPerson>],
     ) -> CrowdFrame {
         let o = &self.options;
         let n = self.people.len();
@@ -230,6 +245,7 @@ impl Crowd {
         let eye = Vec3::from(rig.camera.world_from_camera.translation);
         let mut scene: Option<Gaussians> = None;
         for (k, (person, p)) in self.people.iter().zip(posed_people).enumerate() {
+            let Some(p) = p else { continue };
             // Light in the body's frame: the camera's eye brought into it.
             let eye_body = p.heading.inverse() * (eye - p.offset);
             let mut lit = lighting.lit(person, &p.posed, eye_body, p.shadow.as_deref(), false);
@@ -400,6 +416,25 @@ pub fn write_crowd_bag(
     let messages = bag.finish()?;
     let bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
     Ok(super::SynthSummary { messages, bytes })
+}
+
+/// Renders every frame of the crowd scene of `options` from every camera, for a live stream
+/// (`lhmpp loadgen --people N`): `images[frame][camera]`, with the room cameras.
+/// `progress(done, total)` after each frame.
+pub fn render_crowd_stream(
+    options: &CrowdOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<super::stream::StreamFrames, SynthError> {
+    let crowd = Crowd::new(options)?;
+    let mut images = Vec::with_capacity(options.frames);
+    for f in 0..options.frames {
+        images.push(crowd.render_frame(f)?.into_iter().map(|c| c.rgb).collect());
+        progress(f + 1, options.frames);
+    }
+    Ok(super::stream::StreamFrames {
+        cameras: crowd.cameras,
+        images,
+    })
 }
 
 /// A raw image message of camera `name`'s optical frame: `channels` bytes per pixel.

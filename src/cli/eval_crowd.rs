@@ -1,0 +1,232 @@
+//! `lhmpp eval-crowd`: each tracked person's avatar against their own true person, beside the
+//! avatar the node makes when that person is alone in the same scene.
+//!
+//! For each seed it renders the crowd scene of `lhmpp synth --people N` (all people, then each
+//! person alone), replays every bag through the node with `--config` (one avatar per tracked
+//! person), and scores the avatars on held-out views of each true person
+//! (`lhmpp::eval::crowd`): unlit, rest pose, a ring of cameras that no scene camera matches.
+//! The issue's check: each person's avatar within 1 dB of their single-person one.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use lhmpp::config::NodeConfig;
+use lhmpp::eval::crowd::{pair_avatars, person_truth, score_avatar, AvatarScore, TruthView};
+use lhmpp::node::run::{run as run_node, RunSummary};
+use lhmpp::splat::{read_ply, Gaussians};
+use lhmpp::synth::crowd::{write_crowd_bag, Crowd, CrowdOptions};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Options of `lhmpp eval-crowd`.
+#[derive(Args, Debug)]
+pub struct EvalCrowdArgs {
+    /// People in each scene.
+    #[arg(long, default_value_t = 3)]
+    people: usize,
+    /// Scene seeds, one scene each (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "2")]
+    seeds: Vec<u64>,
+    /// Fixed room cameras.
+    #[arg(long, default_value_t = 2)]
+    cameras: usize,
+    /// Frames per camera.
+    #[arg(long, default_value_t = 30)]
+    frames: usize,
+    /// Held-out views per person (a ring around them).
+    #[arg(long, default_value_t = 4)]
+    heldout: usize,
+    /// Held-out view size in pixels (square).
+    #[arg(long, default_value_t = 256)]
+    size: u32,
+    /// The node's config; the bag, the camera topics and the output folder are set per run.
+    #[arg(long, default_value = "launch_configs/people.yaml")]
+    config: PathBuf,
+    /// Extra config overrides (`key=value`), after the config file.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Where the bags and each run's outputs go (bags are reused when present).
+    #[arg(long, default_value = "target/eval-crowd")]
+    work: PathBuf,
+    /// Print the rows as JSON too.
+    #[arg(long)]
+    json: bool,
+}
+
+/// One person of one scene: their avatar in the crowd and alone.
+#[derive(Debug, serde::Serialize)]
+struct PersonRow {
+    seed: u64,
+    person: usize,
+    /// The tracked id whose avatar was paired with them in the crowd (`None`: no avatar left).
+    crowd_id: Option<String>,
+    crowd: Option<AvatarScore>,
+    /// Avatars made alone (one when tracking holds).
+    alone_avatars: usize,
+    alone: Option<AvatarScore>,
+}
+
+/// Runs the scenes and prints the table.
+pub fn run(args: EvalCrowdArgs) -> Result<()> {
+    if args.heldout == 0 || args.size < 32 {
+        bail!("--heldout must be ≥ 1 and --size ≥ 32");
+    }
+    std::fs::create_dir_all(&args.work)
+        .with_context(|| format!("creating {}", args.work.display()))?;
+    println!("| seed | person | crowd avatar | crowd PSNR / SSIM / IoU | alone PSNR / SSIM / IoU | crowd − alone dB |");
+    println!("| ---: | ---: | --- | --- | --- | ---: |");
+    let mut rows = Vec::new();
+    for &seed in &args.seeds {
+        let options = CrowdOptions {
+            seed,
+            people: args.people,
+            cameras: args.cameras,
+            frames: args.frames,
+            ..CrowdOptions::default()
+        };
+        let crowd = Crowd::new(&options).context("making the crowd scene")?;
+        let truths = crowd
+            .people
+            .iter()
+            .map(|p| person_truth(p, args.heldout, args.size))
+            .collect::<Result<Vec<_>, _>>()
+            .context("rendering the held-out views")?;
+        let together = avatars_of(&args, &options)?;
+        let scores: Vec<Vec<AvatarScore>> = together
+            .iter()
+            .map(|(_, g)| truths.iter().map(|t| score_avatar(g, t)).collect())
+            .collect();
+        let paired = pair_avatars(&scores, args.people);
+        let unpaired = together
+            .len()
+            .saturating_sub(paired.iter().flatten().count());
+        for (k, truth) in truths.iter().enumerate() {
+            let alone = avatars_of(
+                &args,
+                &CrowdOptions {
+                    only: Some(k),
+                    ..options.clone()
+                },
+            )?;
+            let row = PersonRow {
+                seed,
+                person: k,
+                crowd_id: paired[k].map(|a| together[a].0.clone()),
+                crowd: paired[k].map(|a| scores[a][k]),
+                alone_avatars: alone.len(),
+                alone: best(&alone, truth),
+            };
+            println!("{}", table_row(&row));
+            rows.push(row);
+        }
+        if unpaired > 0 {
+            println!("| {seed} | | {unpaired} avatar(s) of split ids, paired with nobody | | | |");
+        }
+    }
+    let deltas: Vec<f64> = rows
+        .iter()
+        .filter_map(|r| Some(r.crowd?.psnr - r.alone?.psnr))
+        .collect();
+    if !deltas.is_empty() {
+        let mean = deltas.iter().sum::<f64>() / deltas.len() as f64;
+        let worst = deltas.iter().copied().fold(f64::INFINITY, f64::min);
+        println!(
+            "\ncrowd − alone over {} persons: mean {mean:+.2} dB, worst {worst:+.2} dB; \
+             persons without a crowd avatar: {}",
+            deltas.len(),
+            rows.iter().filter(|r| r.crowd.is_none()).count()
+        );
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    }
+    Ok(())
+}
+
+fn table_row(r: &PersonRow) -> String {
+    let cell = |s: Option<AvatarScore>| {
+        s.map_or("none".to_string(), |s| {
+            format!("{:.2} / {:.3} / {:.3}", s.psnr, s.ssim, s.iou)
+        })
+    };
+    let delta = match (r.crowd, r.alone) {
+        (Some(c), Some(a)) => format!("{:+.2}", c.psnr - a.psnr),
+        _ => String::new(),
+    };
+    format!(
+        "| {} | person_{} | {} | {} | {} ({} avatar{}) | {delta} |",
+        r.seed,
+        r.person,
+        r.crowd_id.as_deref().unwrap_or("none"),
+        cell(r.crowd),
+        cell(r.alone),
+        r.alone_avatars,
+        if r.alone_avatars == 1 { "" } else { "s" },
+    )
+}
+
+/// The best-scoring of `avatars` against `truth`.
+fn best(avatars: &[(String, Gaussians)], truth: &[TruthView]) -> Option<AvatarScore> {
+    avatars
+        .iter()
+        .map(|(_, g)| score_avatar(g, truth))
+        .max_by(|a, b| a.psnr.total_cmp(&b.psnr))
+}
+
+/// Renders the scene of `options` into a bag under `--work` (kept for reruns), replays it
+/// through the node and returns each tracked person's latest avatar (id, canonical Gaussians).
+fn avatars_of(args: &EvalCrowdArgs, options: &CrowdOptions) -> Result<Vec<(String, Gaussians)>> {
+    let name = format!(
+        "p{}s{}c{}f{}{}",
+        options.people,
+        options.seed,
+        options.cameras,
+        options.frames,
+        options.only.map_or(String::new(), |k| format!("_only{k}"))
+    );
+    let bag = args.work.join(format!("{name}.mcap"));
+    if !bag.is_file() {
+        tracing::info!(bag = %bag.display(), "rendering the scene");
+        let partial = args.work.join(format!(".{name}.mcap.partial"));
+        write_crowd_bag(&partial, options, |_, _| {})
+            .with_context(|| format!("writing {}", partial.display()))?;
+        std::fs::rename(&partial, &bag).with_context(|| format!("writing {}", bag.display()))?;
+    }
+    let out = args.work.join(&name);
+    if out.exists() {
+        std::fs::remove_dir_all(&out).with_context(|| format!("clearing {}", out.display()))?;
+    }
+    let topics = |suffix: &str| {
+        let list: Vec<String> = (0..options.cameras)
+            .map(|c| format!("/cam{c}/{suffix}"))
+            .collect();
+        format!("[{}]", list.join(","))
+    };
+    let mut overrides = args.overrides.clone();
+    overrides.extend([
+        format!("replay.bag={}", bag.display()),
+        format!("outputs.dir={}", out.display()),
+        "outputs.render_rate_hz=0".to_string(),
+        format!("inputs.image_topics={}", topics("image_raw")),
+        format!("inputs.camera_info_topics={}", topics("camera_info")),
+    ]);
+    let config = NodeConfig::load(&args.config, &overrides)
+        .with_context(|| format!("loading {}", args.config.display()))?;
+    tracing::info!(bag = %bag.display(), "replaying through the node");
+    let summary: RunSummary = run_node(&config, BTreeMap::new())
+        .with_context(|| format!("replaying {}", bag.display()))?;
+    read_avatars(&out, &summary)
+}
+
+/// The latest avatar PLY of every person of `summary` that has one.
+fn read_avatars(dir: &Path, summary: &RunSummary) -> Result<Vec<(String, Gaussians)>> {
+    summary
+        .persons
+        .iter()
+        .filter(|p| p.revision > 0)
+        .map(|p| {
+            let path = dir.join(format!("avatar_{}.ply", p.id));
+            let ply = read_ply(&path).with_context(|| format!("reading {}", path.display()))?;
+            Ok((p.id.clone(), ply.gaussians))
+        })
+        .collect()
+}
