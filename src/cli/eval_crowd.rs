@@ -183,12 +183,21 @@ fn avatars_of(args: &EvalCrowdArgs, options: &CrowdOptions) -> Result<Vec<(Strin
         options.frames,
         options.only.map_or(String::new(), |k| format!("_only{k}"))
     );
-    let bag = args.work.join(format!("{name}.mcap"));
-    if !bag.is_file() {
+    // A rosbag2 folder, written under `.partial/` and moved into `bags/` when complete.
+    let bag = args.work.join("bags").join(&name);
+    if !bag.join("metadata.yaml").is_file() {
         tracing::info!(bag = %bag.display(), "rendering the scene");
-        let partial = args.work.join(format!(".{name}.mcap.partial"));
+        let partial = args.work.join(".partial").join(&name);
+        if partial.exists() {
+            std::fs::remove_dir_all(&partial)
+                .with_context(|| format!("clearing {}", partial.display()))?;
+        }
         write_crowd_bag(&partial, options, |_, _| {})
             .with_context(|| format!("writing {}", partial.display()))?;
+        if bag.exists() {
+            std::fs::remove_dir_all(&bag).with_context(|| format!("clearing {}", bag.display()))?;
+        }
+        std::fs::create_dir_all(args.work.join("bags"))?;
         std::fs::rename(&partial, &bag).with_context(|| format!("writing {}", bag.display()))?;
     }
     let out = args.work.join(&name);

@@ -108,27 +108,57 @@ pub struct ShapeEstimate {
     pub misfit: f32,
 }
 
+/// Rays that pass farther than this from their triangulated point (metres) do not see the
+/// same point: views of two different people (an identity mix-up between cameras), or of a
+/// person who moved between the views' stamps. Such a landmark is not measured.
+pub const MAX_RAY_GAP: f32 = 0.15;
+
 /// The point nearest (least squares) to the rays of the views where landmark `k` is at least
-/// `min_visibility` visible, weighted by visibility; `None` with fewer than two such views or
-/// nearly parallel rays.
+/// `min_visibility` visible, weighted by visibility. A ray passing farther than
+/// [`MAX_RAY_GAP`] from the point is dropped (the farthest first) and the point solved again;
+/// `None` when fewer than two rays are left or they are nearly parallel.
 pub fn triangulate(views: &[CalibratedView], k: usize, min_visibility: f32) -> Option<Vec3> {
+    let mut rays: Vec<(Vec3, Vec3, f32)> = views
+        .iter()
+        .filter_map(|v| {
+            let l = v.landmarks[k];
+            if l.visibility < min_visibility || !l.position.is_finite() {
+                return None;
+            }
+            let (origin, dir) = v.ray(l.position.truncate());
+            Some((origin, dir, l.visibility))
+        })
+        .collect();
+    loop {
+        let p = nearest_point(&rays)?;
+        let gap = |&(o, d, _): &(Vec3, Vec3, f32)| (p - o).reject_from_normalized(d).length();
+        let (worst, far) = rays
+            .iter()
+            .map(gap)
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(&b.1))?;
+        if far <= MAX_RAY_GAP {
+            return Some(p);
+        }
+        rays.swap_remove(worst);
+    }
+}
+
+/// The point nearest (least squares, weighted) to rays `(origin, unit direction, weight)`;
+/// `None` for fewer than two rays or nearly parallel ones.
+fn nearest_point(rays: &[(Vec3, Vec3, f32)]) -> Option<Vec3> {
+    if rays.len() < 2 {
+        return None;
+    }
     let mut a = Mat3::ZERO;
     let mut b = Vec3::ZERO;
-    let mut used = 0;
-    for v in views {
-        let l = v.landmarks[k];
-        if l.visibility < min_visibility || !l.position.is_finite() {
-            continue;
-        }
-        let (origin, dir) = v.ray(l.position.truncate());
-        let w = l.visibility;
+    for &(origin, dir, w) in rays {
         // (I − d dᵀ): the distance of p from the ray is |(I − d dᵀ)(p − o)|.
         let m = Mat3::IDENTITY - Mat3::from_cols(dir * dir.x, dir * dir.y, dir * dir.z);
         a += m * w;
         b += m * origin * w;
-        used += 1;
     }
-    if used < 2 || a.determinant().abs() < 1e-6 {
+    if a.determinant().abs() < 1e-6 {
         return None;
     }
     let p = a.inverse() * b;
@@ -283,6 +313,21 @@ mod tests {
         let ratio = tall.shape.height_scale / short.shape.height_scale;
         assert!((ratio - 1.06 / 0.94).abs() < 0.005, "{ratio}");
         assert_eq!(tall.shape.girth_scale, 1.0);
+    }
+
+    /// Two cameras that see two different people under one id (or a person who moved between
+    /// the stamps) give no height, rather than a wrong one.
+    #[test]
+    fn views_of_two_people_give_no_height() {
+        let base = BodyTemplate::load_default().unwrap();
+        let pose = crate::body::motion::walk_pose(10.0);
+        let mut views = views_of(&base, &pose, 2);
+        assert!(estimate_shape(&base, &views, 0.5).unwrap().is_some());
+        // The second camera sees someone else, 0.6 m to the side of the first person.
+        let other = views_of(&base, &pose, 2)[1];
+        views[1].world_from_camera =
+            Affine3A::from_translation(Vec3::new(0.6, 0.0, 0.0)) * other.world_from_camera;
+        assert_eq!(estimate_shape(&base, &views, 0.5).unwrap(), None);
     }
 
     #[test]
