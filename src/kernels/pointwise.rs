@@ -180,7 +180,9 @@ impl PackedGemm {
         use super::gemm_avx2::{panel16, panel8, PanelOut};
         let n = self.n;
         assert!(out.len >= m * n && (m == 0 || a.len() >= (m - 1) * lda + self.k));
-        let block = (BLOCK_FLOATS / self.k.max(1)).clamp(12, 240) / 12 * 12;
+        // Whole blocks of every micro-kernel (6 and 12 rows with AVX2, 8 with AVX-512): a
+        // block of 12 rows would have the 8-row kernel recompute 4 of them.
+        let block = (BLOCK_FLOATS / self.k.max(1)).clamp(24, 240) / 24 * 24;
         let mut r0 = 0;
         while r0 < m {
             let rm = block.min(m - r0);
