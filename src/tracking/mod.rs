@@ -53,7 +53,7 @@ impl Default for TrackingConfig {
             max_persons: 8,
             min_iou: 0.3,
             min_similarity: 0.8,
-            max_floor_gap: 0.5,
+            max_floor_gap: 0.8,
             floor_fresh: 0.3,
         }
     }
