@@ -95,6 +95,8 @@ const WIDE_ROWS: usize = 8;
 #[cfg(lhmpp_bf16_intrinsics)]
 #[target_feature(enable = "avx512f,avx2,fma")]
 #[allow(clippy::too_many_arguments)]
+// The AVX-512 intrinsics are stable since Rust 1.89; `lhmpp_bf16_intrinsics` is set only then.
+#[allow(clippy::incompatible_msrv)]
 unsafe fn panel16_avx512(
     panel: &[f32],
     k: usize,
