@@ -127,7 +127,7 @@ fn two_node_processes_reconstruct_each_person_once_and_hand_over_on_a_kill() {
         lhmpp()
             .args(["loadgen", "--people", "3", "--cameras", "1", "--rate", "10"])
             .args(["--width", "320", "--height", "240", "--frames", "240"])
-            .args(["--seconds", "90", "--seed", "1"])
+            .args(["--seconds", "150", "--seed", "1"])
             .args(["--domain", &domain.to_string()])
             .stdout(Stdio::null())
             .stderr(Stdio::null())
@@ -149,7 +149,7 @@ fn two_node_processes_reconstruct_each_person_once_and_hand_over_on_a_kill() {
         )
     };
     // Both members reconstruct their share: three persons between them, none twice.
-    let shared = wait_for(Duration::from_secs(60), || {
+    let shared = wait_for(Duration::from_secs(90), || {
         let (a, b) = (persons(&published0), persons(&published1));
         !a.is_empty() && !b.is_empty() && a.len() + b.len() >= 3
     });
