@@ -16,6 +16,7 @@
 //! (`cargo test --release --test bad_input_matrix -- --nocapture`).
 
 mod bag_support;
+mod load_support;
 
 use lhmpp::bag::{BagReader, BagWriter};
 use lhmpp::config::NodeConfig;
@@ -642,21 +643,7 @@ fn peak_rss_kb(args: &[&str], sets: &[String]) -> Option<u64> {
 
 /// stderr without ANSI colours.
 fn plain(bytes: &[u8]) -> String {
-    let text = String::from_utf8_lossy(bytes);
-    let mut out = String::with_capacity(text.len());
-    let mut chars = text.chars();
-    while let Some(c) = chars.next() {
-        if c == '\u{1b}' {
-            for d in chars.by_ref() {
-                if d.is_ascii_alphabetic() {
-                    break;
-                }
-            }
-        } else {
-            out.push(c);
-        }
-    }
-    out
+    load_support::without_ansi(&String::from_utf8_lossy(bytes))
 }
 
 /// Log records: a record starts with its timestamp; a message that spans lines (a decoder's

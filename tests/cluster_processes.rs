@@ -11,7 +11,7 @@
 mod dds_domain;
 mod load_support;
 
-use load_support::{interrupt, lhmpp, KillOnDrop};
+use load_support::{interrupt, lhmpp, without_ansi, KillOnDrop};
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::{BufRead, BufReader};
 use std::path::Path;
@@ -48,7 +48,6 @@ fn member(index: u32, domain: u16, log: &Path) -> (KillOnDrop, Published) {
         ])
         .args(["--set", "outputs.render_rate_hz=0"])
         .args(["--set", "tracking.forget_after=30.0"])
-        .env("NO_COLOR", "1")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -59,7 +58,7 @@ fn member(index: u32, domain: u16, log: &Path) -> (KillOnDrop, Published) {
     let mut file = std::fs::File::create(log).unwrap();
     std::thread::spawn(move || {
         for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            let line = strip_ansi(&line);
+            let line = without_ansi(&line);
             use std::io::Write;
             let _ = writeln!(file, "{line}");
             if line.contains("avatar published") {
@@ -76,24 +75,6 @@ fn member(index: u32, domain: u16, log: &Path) -> (KillOnDrop, Published) {
         }
     });
     (KillOnDrop(child), published)
-}
-
-/// `line` without terminal colour sequences.
-fn strip_ansi(line: &str) -> String {
-    let mut out = String::with_capacity(line.len());
-    let mut chars = line.chars();
-    while let Some(c) = chars.next() {
-        if c == '\u{1b}' {
-            for c in chars.by_ref() {
-                if c.is_ascii_alphabetic() {
-                    break;
-                }
-            }
-        } else {
-            out.push(c);
-        }
-    }
-    out
 }
 
 fn persons(published: &Published) -> BTreeSet<String> {

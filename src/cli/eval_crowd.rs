@@ -197,7 +197,8 @@ fn avatars_of(args: &EvalCrowdArgs, options: &CrowdOptions) -> Result<Vec<(Strin
         if bag.exists() {
             std::fs::remove_dir_all(&bag).with_context(|| format!("clearing {}", bag.display()))?;
         }
-        std::fs::create_dir_all(args.work.join("bags"))?;
+        let bags = args.work.join("bags");
+        std::fs::create_dir_all(&bags).with_context(|| format!("creating {}", bags.display()))?;
         std::fs::rename(&partial, &bag).with_context(|| format!("writing {}", bag.display()))?;
     }
     let out = args.work.join(&name);

@@ -1,5 +1,6 @@
-//! Shared by the load tests: a child process killed when dropped, the `lhmpp` binary without
-//! inherited ROS settings, and numbers read off the node's summary lines.
+//! Shared by the tests that run `lhmpp` as a process: a child process killed when dropped, the
+//! `lhmpp` binary without inherited ROS settings, numbers read off the node's summary lines,
+//! and its log without terminal colours.
 
 #![allow(dead_code)]
 
@@ -42,4 +43,22 @@ pub fn interrupt(pid: u32) {
         .status()
         .is_ok_and(|s| s.success());
     assert!(ok, "kill -INT {pid}");
+}
+
+/// `text` without ANSI terminal sequences (the node's log is coloured even into a pipe).
+pub fn without_ansi(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut chars = text.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            for d in chars.by_ref() {
+                if d.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }

@@ -17,13 +17,6 @@ const SYNC_WINDOW_NS: i64 = 500_000_000;
 const REAPPLY: f32 = 0.01;
 /// Weight of a new estimate in the running average, once there have been this many.
 const AVERAGE_OVER: f32 = 10.0;
-/// Estimates whose segments disagree more than this (`ShapeEstimate::misfit`, relative) are
-/// not used: two cameras that see two different people under one id triangulate phantom
-/// points, and their segments then scale inconsistently (on crowd scenes those estimates ran
-/// from 1.0 to 7.5 times the template's height; agreeing ones stayed within 0.9–1.2).
-const MAX_MISFIT: f32 = 0.15;
-/// Height scales outside this range are not a person's (MakeHuman template: 1.34–2.09 m).
-const PLAUSIBLE_HEIGHT: std::ops::RangeInclusive<f32> = 0.8..=1.25;
 
 /// Camera calibration and the body height read from calibrated views.
 pub struct Calibration {
@@ -141,7 +134,7 @@ impl Calibration {
             segments = estimate.segments,
             "height estimate"
         );
-        if estimate.misfit > MAX_MISFIT || !PLAUSIBLE_HEIGHT.contains(&h) {
+        if !estimate.agrees() {
             return None;
         }
         let (mean, n) = reading.average.unwrap_or((h, 0.0));
