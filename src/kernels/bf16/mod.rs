@@ -4,13 +4,17 @@
 //! bf16 rows, [`Lhs`]) is rounded to bf16 tile by tile as the product runs, and the output is
 //! f32.
 //!
-//! On CPUs with AVX512-BF16 the micro-kernel ([`avx512`]) multiplies with `vdpbf16ps`: one
+//! On CPUs with AMX-BF16 (and an OS that grants the tile state) the tile kernel ([`amx`])
+//! multiplies 32 × 32 output blocks with `tdpbf16ps`. On CPUs with AVX512-BF16 the
+//! micro-kernel ([`avx512`]) multiplies with `vdpbf16ps`: one
 //! instruction takes 16 output columns × one pair of `k` (the packed layout stores the two
 //! `k` of a pair next to each other), 6 rows × 64 columns are held in 24 accumulators. On
 //! other CPUs the portable kernel ([`portable`]) computes the same sums — products of
 //! bf16-rounded values accumulated in f32 — with plain loops. [`Kernel::detect`] picks one at
 //! run time; [`gemm`] runs the blocked product ([`gemm::gemm_with`] with an explicit kernel).
 
+#[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+pub mod amx;
 pub mod attention;
 #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
 pub mod avx512;
@@ -36,29 +40,92 @@ pub const MC: usize = 384;
 /// Which micro-kernel runs the products.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kernel {
+    /// Intel AMX `tdpbf16ps` on tile registers, with AVX512-BF16 for the edges ([`amx`]).
+    Amx,
     /// AVX512-BF16 `vdpbf16ps` (x86-64 CPUs reporting `avx512f` and `avx512bf16`).
     Avx512Bf16,
     /// Plain loops: f32 products of the bf16-rounded values, f32 sums.
     Portable,
 }
 
+/// The environment variable that picks a slower kernel than [`Kernel::detect`] would
+/// (`avx512` or `portable`), to compare kernels on one machine.
+pub const KERNEL_ENV: &str = "LHMPP_BF16_KERNEL";
+
 impl Kernel {
-    /// The fastest kernel this CPU runs (checked once, then cached).
+    /// The fastest kernel this CPU runs, or the one [`KERNEL_ENV`] names when this CPU runs it
+    /// (checked once, then cached).
     pub fn detect() -> Self {
         static DETECTED: std::sync::OnceLock<Kernel> = std::sync::OnceLock::new();
         *DETECTED.get_or_init(|| {
-            if avx512::available() {
-                Kernel::Avx512Bf16
-            } else {
-                Kernel::Portable
+            let fastest = Self::available()
+                .into_iter()
+                .next()
+                .unwrap_or(Kernel::Portable);
+            let Ok(name) = std::env::var(KERNEL_ENV) else {
+                return fastest;
+            };
+            match Self::available().into_iter().find(|k| k.name() == name) {
+                Some(k) => k,
+                None => {
+                    tracing::warn!(
+                        "{KERNEL_ENV}={name}: not a bf16 kernel this CPU runs ({}); using {}",
+                        Self::available()
+                            .iter()
+                            .map(|k| k.name())
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                        fastest.name()
+                    );
+                    fastest
+                }
             }
         })
+    }
+
+    /// The kernels this CPU runs, fastest first (the portable one always last).
+    pub fn available() -> Vec<Kernel> {
+        let mut kernels = Vec::new();
+        if amx::available() {
+            kernels.push(Kernel::Amx);
+        }
+        if avx512::available() {
+            kernels.push(Kernel::Avx512Bf16);
+        }
+        kernels.push(Kernel::Portable);
+        kernels
+    }
+
+    /// The kernel's name as [`KERNEL_ENV`] takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernel::Amx => "amx",
+            Kernel::Avx512Bf16 => "avx512",
+            Kernel::Portable => "portable",
+        }
+    }
+
+    /// Whether this CPU runs the kernel.
+    pub fn runs_here(self) -> bool {
+        match self {
+            Kernel::Amx => amx::available(),
+            Kernel::Avx512Bf16 => avx512::available(),
+            Kernel::Portable => true,
+        }
     }
 }
 
 #[cfg(not(all(target_arch = "x86_64", lhmpp_bf16_intrinsics)))]
 mod avx512 {
     /// No AVX512-BF16 kernel in this build (not x86-64, or a compiler older than Rust 1.89).
+    pub fn available() -> bool {
+        false
+    }
+}
+
+#[cfg(not(all(target_arch = "x86_64", lhmpp_bf16_intrinsics)))]
+mod amx {
+    /// No AMX kernel in this build (not x86-64, or a compiler older than Rust 1.89).
     pub fn available() -> bool {
         false
     }
