@@ -176,7 +176,7 @@ impl PackedLinear<'_> {
             }
             None => None,
         };
-        let mut acc = vec![0f32; m * n];
+        let mut acc = super::super::written_zeros(m * n);
         // The epilogue runs on each row segment of a task as soon as its products are done,
         // while the values are in the cache: f32 bias, activation or gated residual, then (bf16
         // input) the rounding into the output.
