@@ -1,5 +1,6 @@
 //! `lhmpp bench points`: time of each point-backbone stage (embed, encoder levels, decoder
-//! levels) on a seeded synthetic body surface, random weights, f32, CPU; prints a table.
+//! levels) on a seeded synthetic body surface, random weights, f32 or bf16, CPU; prints a
+//! table (after one untimed warm-up pass).
 
 use anyhow::{Context, Result};
 use candle_core::{DType, Device, Tensor};
@@ -21,6 +22,9 @@ pub struct PointsBenchArgs {
     /// CPU threads (0 = all).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Weights and activations: `f32` or `bf16` (bf16 products with f32 accumulation).
+    #[arg(long, default_value = "f32", value_parser = ["f32", "bf16"])]
+    dtype: String,
 }
 
 /// Prints one row per preset × point count: per-stage milliseconds and tokens per level.
@@ -32,7 +36,14 @@ pub fn run(a: PointsBenchArgs) -> Result<()> {
             .context("thread pool")?;
     }
     let dev = Device::Cpu;
-    println!("| preset | points | stage | tokens | ms |\n| --- | ---: | --- | ---: | ---: |");
+    let dtype = if a.dtype == "bf16" {
+        DType::BF16
+    } else {
+        DType::F32
+    };
+    println!(
+        "| preset | dtype | points | stage | tokens | ms |\n| --- | --- | ---: | --- | ---: | ---: |"
+    );
     for preset in &a.presets {
         let cfg = match preset.as_str() {
             "tiny" => PointBackboneConfig::tiny(),
@@ -42,16 +53,26 @@ pub fn run(a: PointsBenchArgs) -> Result<()> {
             other => anyhow::bail!("unknown preset `{other}`"),
         };
         let vm = VarMap::new();
-        let vb = VarBuilder::from_varmap(&vm, DType::F32, &dev);
+        let vb = VarBuilder::from_varmap(&vm, dtype, &dev);
         let bb = PointBackbone::new(&cfg, vb.pp("transformer").pp("point_backbone"))?;
         for &n in &a.points {
             let (p, nrm) = body_surface_points(n, 42);
             let coords = Tensor::from_vec(p.concat(), (n, 3), &dev)?;
             let normals = Tensor::from_vec(nrm.concat(), (n, 3), &dev)?;
+            // Warm-up: first-touch allocations and thread start-up are not timed.
+            let mut s = bb.embed(&coords, &normals)?;
+            for l in 0..cfg.num_levels() {
+                s = bb.encoder_stage(l, s)?;
+            }
+            for l in (0..cfg.num_levels() - 1).rev() {
+                s = bb.decoder_stage(l, s)?;
+            }
+            drop(s);
             let total = Instant::now();
             let row = |stage: &str, tokens: usize, t: Instant| {
                 println!(
-                    "| {preset} | {n} | {stage} | {tokens} | {:.0} |",
+                    "| {preset} | {} | {n} | {stage} | {tokens} | {:.0} |",
+                    a.dtype,
                     t.elapsed().as_secs_f64() * 1e3
                 )
             };

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use super::gemm::{gemm, Lhs};
 use super::pack::{PackedRhs, Strided, ToBf16Bits};
 use super::{f32_to_bf16_bits, NR};
-use crate::kernels::fast_exp::{exp_approx, exp_shifted_sum, max_of};
+use crate::kernels::fast_exp::{exp_approx, max_of};
 
 /// Query rows per unit of work.
 pub const QUERY_BLOCK: usize = 128;
@@ -219,6 +219,7 @@ fn attend_block(
 ) -> Result<()> {
     let Dims { lk, dv, .. } = dims;
     let mut scores = vec![0f32; rows * KEY_BLOCK];
+    let mut probs = vec![half::bf16::ZERO; rows * KEY_BLOCK];
     let mut acc = vec![0f32; rows * dv];
     let mut row_max = vec![f32::NEG_INFINITY; rows];
     let mut row_sum = vec![0f32; rows];
@@ -235,15 +236,16 @@ fn attend_block(
             false,
         )?;
         for r in 0..rows {
-            let s = &mut scores[r * KEY_BLOCK..r * KEY_BLOCK + n_keys];
-            s.iter_mut().for_each(|x| *x *= scale);
-            let new_max = row_max[r].max(max_of(s));
+            let s = &scores[r * KEY_BLOCK..r * KEY_BLOCK + n_keys];
+            // `scale > 0`, so the largest scaled score is the scaled largest score.
+            let new_max = row_max[r].max(scale * row_max_of(s));
             let correction = if row_max[r] == f32::NEG_INFINITY {
                 0.0
             } else {
                 exp_approx(row_max[r] - new_max)
             };
-            row_sum[r] = row_sum[r] * correction + exp_shifted_sum(s, new_max);
+            let p = &mut probs[r * KEY_BLOCK..r * KEY_BLOCK + n_keys];
+            row_sum[r] = row_sum[r] * correction + row_exp(s, scale, new_max, p);
             row_max[r] = new_max;
             if correction != 1.0 {
                 acc[r * dv..(r + 1) * dv]
@@ -251,8 +253,8 @@ fn attend_block(
                     .for_each(|a| *a *= correction);
             }
         }
-        let probs = Lhs::F32 {
-            data: &scores,
+        let probs = Lhs::Bf16 {
+            data: &probs,
             ld: KEY_BLOCK,
         };
         gemm(
@@ -275,6 +277,60 @@ fn attend_block(
         }
     }
     Ok(())
+}
+
+/// Largest score of a row: AVX-512 where the CPU has it.
+fn row_max_of(scores: &[f32]) -> f32 {
+    #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+    if super::avx512::available() {
+        // SAFETY: the CPU has AVX512F (checked).
+        return unsafe { super::avx512::max_of(scores) };
+    }
+    max_of(scores)
+}
+
+/// `exp(scale·s − shift)` of a row's scores as bf16 probabilities, returning their f32 sum:
+/// the AVX512-BF16 pass where the CPU has it, else [`exp_to_bf16`].
+fn row_exp(scores: &[f32], scale: f32, shift: f32, probs: &mut [half::bf16]) -> f32 {
+    #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+    if super::avx512::available() {
+        let bits: &mut [u16] = bytemuck::cast_slice_mut(probs);
+        // SAFETY: the CPU has AVX512F and AVX512-BF16 (checked).
+        return unsafe { super::avx512::exp_to_bf16(scores, scale, shift, bits) };
+    }
+    exp_to_bf16(scores, scale, shift, probs)
+}
+
+/// The loop of [`exp_to_bf16`], inlined into each instruction-set variant.
+#[inline(always)]
+fn exp_to_bf16_portable(scores: &[f32], scale: f32, shift: f32, probs: &mut [half::bf16]) -> f32 {
+    const LANES: usize = 16;
+    let mut lanes = [0f32; LANES];
+    let mut s_chunks = scores.chunks_exact(LANES);
+    let mut p_chunks = probs.chunks_exact_mut(LANES);
+    for (s, p) in (&mut s_chunks).zip(&mut p_chunks) {
+        for i in 0..LANES {
+            let e = exp_approx(s[i] * scale - shift);
+            p[i] = half::bf16::from_bits(f32_to_bf16_bits(e));
+            lanes[i] += e;
+        }
+    }
+    let mut total = 0f32;
+    for (s, p) in s_chunks.remainder().iter().zip(p_chunks.into_remainder()) {
+        let e = exp_approx(s * scale - shift);
+        *p = half::bf16::from_bits(f32_to_bf16_bits(e));
+        total += e;
+    }
+    total + lanes.iter().sum::<f32>()
+}
+
+crate::simd::simd_dispatch! {
+    avx2_fma;
+    /// Writes `exp(scale·s − shift)` of every score `s` as bf16 into `probs` (the left operand
+    /// of the product with the values, read in place) and returns the sum of the f32 values:
+    /// scaling, exponential, rounding and sum in one pass over the scores.
+    fn exp_to_bf16[](scores: &[f32], scale: f32, shift: f32, probs: &mut [half::bf16]) -> f32
+        = exp_to_bf16_portable;
 }
 
 #[cfg(test)]
@@ -319,6 +375,37 @@ mod tests {
             let d_f32 = crate::testing::max_abs_diff(&got, &want);
             assert!(d_f32 < 0.02, "f32 in: {d_f32}");
         }
+    }
+
+    #[test]
+    fn the_dispatched_row_passes_match_the_portable_loops() {
+        // 37 values: two full vectors and a masked tail; scores up to 40 below the maximum.
+        let scores: Vec<f32> = (0..37)
+            .map(|i| ((i * 29) % 37) as f32 * -1.1 + 3.0)
+            .collect();
+        let (scale, shift) = (0.7, 0.7 * 3.0);
+        assert_eq!(row_max_of(&scores), max_of(&scores));
+        assert_eq!(row_max_of(&[]), f32::NEG_INFINITY);
+        let mut want = vec![half::bf16::ZERO; 37];
+        let mut got = vec![half::bf16::from_f32(9.0); 38];
+        let want_sum = exp_to_bf16_portable(&scores, scale, shift, &mut want);
+        let got_sum = row_exp(&scores, scale, shift, &mut got[..37]);
+        assert!(
+            ((got_sum - want_sum) / want_sum).abs() < 1e-6,
+            "{got_sum} vs {want_sum}"
+        );
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            let exact = (f64::from(scores[i]) * 0.7 - 2.1).exp();
+            assert!(
+                (g.to_f64() - exact).abs() <= exact / 256.0,
+                "{i}: {g} vs {exact}"
+            );
+            assert!(
+                (g.to_f64() - w.to_f64()).abs() <= exact / 128.0,
+                "{i}: {g} vs {w}"
+            );
+        }
+        assert_eq!(got[37].to_f32(), 9.0, "wrote past the row");
     }
 
     #[test]

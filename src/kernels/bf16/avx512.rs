@@ -110,3 +110,80 @@ unsafe fn tile_rows<const R: usize>(
         }
     }
 }
+
+/// Largest value of `xs` (`−∞` when empty), 16 lanes at a time.
+///
+/// # Safety
+/// The CPU must have AVX512F.
+#[target_feature(enable = "avx512f")]
+pub unsafe fn max_of(xs: &[f32]) -> f32 {
+    let neg_inf = _mm512_set1_ps(f32::NEG_INFINITY);
+    let mut best = neg_inf;
+    let mut i = 0;
+    while i < xs.len() {
+        let mask = lanes_from(xs.len() - i);
+        let v = _mm512_mask_loadu_ps(neg_inf, mask, xs.as_ptr().add(i));
+        best = _mm512_max_ps(best, v);
+        i += 16;
+    }
+    _mm512_reduce_max_ps(best)
+}
+
+/// Writes `exp(scale·s − shift)` of every score `s` of `scores` as bf16 bits into `probs` and
+/// returns the sum of the f32 values: `2^t` with `t = (scale·s − shift)·log₂e` (one
+/// multiply-add), `2^t = 2^round(t) · 2^f` by `vscalefps`, and `2^f` on `f ∈ [−½, ½]` by a
+/// degree-6 polynomial (relative error about 2e-7), values below `2^-127` flushed towards 0.
+///
+/// # Safety
+/// The CPU must have AVX512F and AVX512-BF16.
+#[target_feature(enable = "avx512f,avx512bf16")]
+pub unsafe fn exp_to_bf16(scores: &[f32], scale: f32, shift: f32, probs: &mut [u16]) -> f32 {
+    let n = scores.len().min(probs.len());
+    let a = _mm512_set1_ps(scale * std::f32::consts::LOG2_E);
+    let b = _mm512_set1_ps(-shift * std::f32::consts::LOG2_E);
+    let lowest = _mm512_set1_ps(-127.0);
+    let mut sum = _mm512_setzero_ps();
+    let mut i = 0;
+    while i < n {
+        let mask = lanes_from(n - i);
+        let s = _mm512_maskz_loadu_ps(mask, scores.as_ptr().add(i));
+        let t = _mm512_max_ps(_mm512_fmadd_ps(s, a, b), lowest);
+        let e = _mm512_maskz_mov_ps(mask, exp2(t));
+        sum = _mm512_add_ps(sum, e);
+        let h: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(e));
+        _mm256_mask_storeu_epi16(probs.as_mut_ptr().add(i) as *mut i16, mask, h);
+        i += 16;
+    }
+    _mm512_reduce_add_ps(sum)
+}
+
+/// `2^t` for `t ≥ −127`: `2^round(t) · (1 + f·P(f))` with `f = t − round(t)` and the
+/// Cephes `exp2f` minimax coefficients.
+#[inline]
+#[target_feature(enable = "avx512f")]
+unsafe fn exp2(t: __m512) -> __m512 {
+    let whole = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(t);
+    let f = _mm512_sub_ps(t, whole);
+    let mut p = _mm512_set1_ps(1.535_336_2e-4);
+    for c in [
+        1.339_887_4e-3,
+        9.618_437e-3,
+        5.550_332_5e-2,
+        0.240_226_48,
+        0.693_147_2,
+    ] {
+        p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(c));
+    }
+    let p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(1.0));
+    _mm512_scalef_ps(p, whole)
+}
+
+/// The mask of the first `min(left, 16)` lanes.
+#[inline]
+fn lanes_from(left: usize) -> __mmask16 {
+    if left >= 16 {
+        0xffff
+    } else {
+        (1u16 << left) - 1
+    }
+}
