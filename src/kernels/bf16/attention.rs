@@ -387,7 +387,7 @@ mod tests {
         assert_eq!(row_max_of(&scores), max_of(&scores));
         assert_eq!(row_max_of(&[]), f32::NEG_INFINITY);
         let mut want = vec![half::bf16::ZERO; 37];
-        let mut got = vec![half::bf16::from_f32(9.0); 38];
+        let mut got = [half::bf16::from_f32(9.0); 38];
         let want_sum = exp_to_bf16_portable(&scores, scale, shift, &mut want);
         let got_sum = row_exp(&scores, scale, shift, &mut got[..37]);
         assert!(
