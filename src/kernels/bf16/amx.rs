@@ -102,8 +102,8 @@ impl Tiles {
         Tiles(())
     }
 
-    /// `C[rows × cols] += A · Bᵀ` for one packed tile of the right operand, as
-    /// [`super::avx512::tile`] but for any number of rows.
+    /// `C[rows × cols] += A · Bᵀ` (or `=` when `add` is false) for one packed tile of the
+    /// right operand, as [`super::avx512::tile`] but for any number of rows.
     ///
     /// # Safety
     /// As [`super::avx512::tile`], for `rows` rows instead of at most six.
@@ -118,6 +118,7 @@ impl Tiles {
         c: *mut f32,
         ldc: usize,
         cols: usize,
+        add: bool,
     ) {
         let steps = kc / T;
         let tiled_rows = if steps > 0 { rows / T * T } else { 0 };
@@ -129,15 +130,15 @@ impl Tiles {
                 let (ar, cr) = (a.add(r0 * lda), c.add(r0 * ldc + j0));
                 let br = b.add(j0 * 2);
                 if j0 + 2 * T <= cols {
-                    self.block(pair, steps, ar, lda, br, cr, ldc);
+                    self.block(pair, steps, ar, lda, br, cr, ldc, add);
                 } else {
                     // A part-filled column group: into zeros, then the valid columns added.
                     let mut scratch = [0f32; 4 * T * T];
-                    self.block(pair, steps, ar, lda, br, scratch.as_mut_ptr(), 2 * T);
+                    self.block(pair, steps, ar, lda, br, scratch.as_mut_ptr(), 2 * T, false);
                     for r in 0..pair * T {
                         let row = cr.add(r * ldc);
                         for (j, &v) in scratch[r * 2 * T..][..cols - j0].iter().enumerate() {
-                            *row.add(j) += v;
+                            *row.add(j) = if add { *row.add(j) + v } else { v };
                         }
                     }
                 }
@@ -149,7 +150,17 @@ impl Tiles {
         let mut r = tiled_rows;
         while r < rows {
             let n = super::MR.min(rows - r);
-            super::avx512::tile(n, kc, a.add(r * lda), lda, b, c.add(r * ldc), ldc, cols);
+            super::avx512::tile(
+                n,
+                kc,
+                a.add(r * lda),
+                lda,
+                b,
+                c.add(r * ldc),
+                ldc,
+                cols,
+                add,
+            );
             r += n;
         }
         let done = steps * T;
@@ -166,14 +177,15 @@ impl Tiles {
                     c.add(r * ldc),
                     ldc,
                     cols,
+                    true,
                 );
                 r += n;
             }
         }
     }
 
-    /// `C += A · Bᵀ` over `steps × 16` pairs for 16 or 32 rows (`pair` 1 or 2) × 32 columns:
-    /// output tiles 0–3, left tiles 4–5, right tiles 6–7.
+    /// `C += A · Bᵀ` (`C = A · Bᵀ` when `add` is false) over `steps × 16` pairs for 16 or 32
+    /// rows (`pair` 1 or 2) × 32 columns: output tiles 0–3, left tiles 4–5, right tiles 6–7.
     #[allow(clippy::too_many_arguments)]
     unsafe fn block(
         &self,
@@ -184,19 +196,30 @@ impl Tiles {
         b: *const u16,
         c: *mut f32,
         ldc: usize,
+        add: bool,
     ) {
         let (lda_b, ldc_b) = (lda * 4, ldc * 4);
         let c1 = c.add(T);
         if pair == 2 {
             let (c2, c3) = (c.add(T * ldc), c.add(T * ldc + T));
-            asm!(
+            if !add {
+                asm!(
+                    "tilezero tmm0",
+                    "tilezero tmm1",
+                    "tilezero tmm2",
+                    "tilezero tmm3",
+                    options(nostack, nomem),
+                );
+            } else {
+                asm!(
                 "tileloadd tmm0, [{c0} + {s}*1]",
                 "tileloadd tmm1, [{c1} + {s}*1]",
                 "tileloadd tmm2, [{c2} + {s}*1]",
                 "tileloadd tmm3, [{c3} + {s}*1]",
                 c0 = in(reg) c, c1 = in(reg) c1, c2 = in(reg) c2, c3 = in(reg) c3,
                 s = in(reg) ldc_b, options(nostack, readonly),
-            );
+                );
+            }
             for q in 0..steps {
                 let a0 = a.add(q * T);
                 let b0 = b.add(q * T * NR * 2);
@@ -223,11 +246,16 @@ impl Tiles {
                 s = in(reg) ldc_b, options(nostack),
             );
         } else {
-            asm!(
-                "tileloadd tmm0, [{c0} + {s}*1]",
-                "tileloadd tmm1, [{c1} + {s}*1]",
-                c0 = in(reg) c, c1 = in(reg) c1, s = in(reg) ldc_b, options(nostack, readonly),
-            );
+            if !add {
+                asm!("tilezero tmm0", "tilezero tmm1", options(nostack, nomem));
+            } else {
+                asm!(
+                    "tileloadd tmm0, [{c0} + {s}*1]",
+                    "tileloadd tmm1, [{c1} + {s}*1]",
+                    c0 = in(reg) c, c1 = in(reg) c1, s = in(reg) ldc_b,
+                    options(nostack, readonly),
+                );
+            }
             for q in 0..steps {
                 let a0 = a.add(q * T);
                 let b0 = b.add(q * T * NR * 2);

@@ -14,7 +14,7 @@ use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::gemm::{gemm, Lhs};
+use super::gemm::{gemm, gemm_overwrite, Lhs};
 use super::pack::{PackedRhs, Strided, ToBf16Bits};
 use super::{f32_to_bf16_bits, NR};
 use crate::kernels::fast_exp::{exp_approx, max_of};
@@ -226,8 +226,7 @@ fn attend_block(
     let mut key = 0;
     while key < lk {
         let n_keys = KEY_BLOCK.min(lk - key);
-        scores.fill(0.0);
-        gemm(
+        gemm_overwrite(
             q_block,
             rows,
             keys.view().columns(key, n_keys)?,

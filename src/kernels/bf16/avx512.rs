@@ -9,17 +9,20 @@ use std::arch::x86_64::*;
 
 use super::NR;
 
-/// Whether the CPU has AVX512F and AVX512-BF16 (`vdpbf16ps`, `vcvtneps2bf16`).
+/// Whether the CPU has AVX512F and AVX512-BF16 (`vdpbf16ps`, `vcvtneps2bf16`), with the BW and
+/// VL extensions (masked 16-bit stores; every CPU with AVX512-BF16 has them).
 pub fn available() -> bool {
     std::arch::is_x86_feature_detected!("avx512f")
         && std::arch::is_x86_feature_detected!("avx512bf16")
+        && std::arch::is_x86_feature_detected!("avx512bw")
+        && std::arch::is_x86_feature_detected!("avx512vl")
 }
 
 /// Rounds `src` to bf16 (nearest, ties to even) into `dst`, 16 values per instruction.
 ///
 /// # Safety
 /// The CPU must have AVX512F and AVX512-BF16.
-#[target_feature(enable = "avx512f,avx512bf16")]
+#[target_feature(enable = "avx512f,avx512bf16,avx512bw,avx512vl")]
 pub unsafe fn convert(src: &[f32], dst: &mut [u16]) {
     let n = src.len().min(dst.len());
     let mut i = 0;
@@ -37,7 +40,8 @@ pub unsafe fn convert(src: &[f32], dst: &mut [u16]) {
     }
 }
 
-/// `C[rows × cols] += A · Bᵀ` for one tile: `A` is `rows` rows of `kc` bf16 pairs (`lda`
+/// `C[rows × cols] += A · Bᵀ` (or `=` when `add` is false: `C` is then only written) for one
+/// tile: `A` is `rows` rows of `kc` bf16 pairs (`lda`
 /// pairs apart), `B` one packed tile (`kc × NR × 2` bf16 from `b`), `C` rows `ldc` apart.
 ///
 /// # Safety
@@ -45,7 +49,7 @@ pub unsafe fn convert(src: &[f32], dst: &mut [u16]) {
 /// `(rows − 1)·lda + kc` values, `b` holds `kc·NR·2`, and `c` is valid for reads and writes of
 /// `cols` values at each of `rows` rows `ldc` apart, touched by no one else meanwhile.
 #[allow(clippy::too_many_arguments)]
-#[target_feature(enable = "avx512f,avx512bf16")]
+#[target_feature(enable = "avx512f,avx512bf16,avx512bw,avx512vl")]
 pub unsafe fn tile(
     rows: usize,
     kc: usize,
@@ -55,19 +59,20 @@ pub unsafe fn tile(
     c: *mut f32,
     ldc: usize,
     cols: usize,
+    add: bool,
 ) {
     match rows {
-        1 => tile_rows::<1>(kc, a, lda, b, c, ldc, cols),
-        2 => tile_rows::<2>(kc, a, lda, b, c, ldc, cols),
-        3 => tile_rows::<3>(kc, a, lda, b, c, ldc, cols),
-        4 => tile_rows::<4>(kc, a, lda, b, c, ldc, cols),
-        5 => tile_rows::<5>(kc, a, lda, b, c, ldc, cols),
-        _ => tile_rows::<6>(kc, a, lda, b, c, ldc, cols),
+        1 => tile_rows::<1>(kc, a, lda, b, c, ldc, cols, add),
+        2 => tile_rows::<2>(kc, a, lda, b, c, ldc, cols, add),
+        3 => tile_rows::<3>(kc, a, lda, b, c, ldc, cols, add),
+        4 => tile_rows::<4>(kc, a, lda, b, c, ldc, cols, add),
+        5 => tile_rows::<5>(kc, a, lda, b, c, ldc, cols, add),
+        _ => tile_rows::<6>(kc, a, lda, b, c, ldc, cols, add),
     }
 }
 
 /// [`tile`] for `R` rows: `R × 4` accumulators of 16 columns.
-#[target_feature(enable = "avx512f,avx512bf16")]
+#[target_feature(enable = "avx512f,avx512bf16,avx512bw,avx512vl")]
 unsafe fn tile_rows<const R: usize>(
     kc: usize,
     a: *const u32,
@@ -76,6 +81,7 @@ unsafe fn tile_rows<const R: usize>(
     c: *mut f32,
     ldc: usize,
     cols: usize,
+    add: bool,
 ) {
     let mut acc = [[_mm512_setzero_ps(); 4]; R];
     for p in 0..kc {
@@ -105,8 +111,12 @@ unsafe fn tile_rows<const R: usize>(
             } else {
                 (1u16 << left) - 1
             };
-            let old = _mm512_maskz_loadu_ps(mask, row.add(col));
-            _mm512_mask_storeu_ps(row.add(col), mask, _mm512_add_ps(old, v));
+            let v = if add {
+                _mm512_add_ps(_mm512_maskz_loadu_ps(mask, row.add(col)), v)
+            } else {
+                v
+            };
+            _mm512_mask_storeu_ps(row.add(col), mask, v);
         }
     }
 }
@@ -136,7 +146,7 @@ pub unsafe fn max_of(xs: &[f32]) -> f32 {
 ///
 /// # Safety
 /// The CPU must have AVX512F and AVX512-BF16.
-#[target_feature(enable = "avx512f,avx512bf16")]
+#[target_feature(enable = "avx512f,avx512bf16,avx512bw,avx512vl")]
 pub unsafe fn exp_to_bf16(scores: &[f32], scale: f32, shift: f32, probs: &mut [u16]) -> f32 {
     let n = scores.len().min(probs.len());
     let a = _mm512_set1_ps(scale * std::f32::consts::LOG2_E);

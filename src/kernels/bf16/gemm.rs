@@ -1,4 +1,5 @@
-//! The blocked bf16 product `out += A · Bᵀ` (f32 output) over a [`PackedRhs`].
+//! The blocked bf16 product `out += A · Bᵀ` or `out = A · Bᵀ` (f32 output) over a
+//! [`PackedRhs`].
 //!
 //! Work is cut into tasks of up to [`MC`] rows × a range of [`NR`]-column tiles (rayon runs
 //! them when the product is large enough); inside a task, for each block of [`KC_PAIRS`] pairs
@@ -43,6 +44,16 @@ impl Lhs<'_> {
             Lhs::Bf16 { data, ld } => (data.len(), *ld),
         }
     }
+}
+
+/// Whether a product adds to the output or replaces it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Store {
+    /// `out += A · Bᵀ`.
+    Accumulate,
+    /// `out = A · Bᵀ`: the old values are never read, so `out` may start uninitialised (no
+    /// zeroing pass over memory before the product).
+    Overwrite,
 }
 
 /// A part of a [`PackedRhs`]: `n` output columns from tile `tile0`, `k` values of the inner
@@ -132,6 +143,29 @@ pub fn gemm(
     gemm_with(Kernel::detect(), lhs, m, rhs, out, ldc, parallel)
 }
 
+/// `out[i·ldc + j] = Σ_t A[i, t] · B[j, t]`: as [`gemm`], but the old values of the `m × n`
+/// output are never read.
+pub fn gemm_overwrite(
+    lhs: Lhs,
+    m: usize,
+    rhs: RhsView,
+    out: &mut [f32],
+    ldc: usize,
+    parallel: bool,
+) -> candle_core::Result<()> {
+    gemm_with_epilogue(
+        Kernel::detect(),
+        Store::Overwrite,
+        lhs,
+        m,
+        rhs,
+        out,
+        ldc,
+        parallel,
+        None,
+    )
+}
+
 /// The output pointer shared by the tasks, which write disjoint rectangles.
 #[derive(Clone, Copy)]
 struct OutPtr(*mut f32);
@@ -155,18 +189,87 @@ pub fn gemm_with(
     ldc: usize,
     parallel: bool,
 ) -> candle_core::Result<()> {
-    gemm_with_epilogue(kernel, lhs, m, rhs, out, ldc, parallel, None)
+    gemm_with_epilogue(
+        kernel,
+        Store::Accumulate,
+        lhs,
+        m,
+        rhs,
+        out,
+        ldc,
+        parallel,
+        None,
+    )
 }
 
-/// [`gemm_with`] followed, task by task, by `epilogue` on every output row segment (each
-/// `(row, column)` of the `m × rhs.n()` output is passed exactly once).
+/// [`gemm_with`] with the `store` mode, followed, task by task, by `epilogue` on every output
+/// row segment (each `(row, column)` of the `m × rhs.n()` output is passed exactly once).
 #[allow(clippy::too_many_arguments)]
 pub fn gemm_with_epilogue(
     kernel: Kernel,
+    store: Store,
     lhs: Lhs,
     m: usize,
     rhs: RhsView,
     out: &mut [f32],
+    ldc: usize,
+    parallel: bool,
+    epilogue: Option<RowEpilogue>,
+) -> candle_core::Result<()> {
+    let (ptr, len) = (OutPtr(out.as_mut_ptr()), out.len());
+    run(
+        kernel,
+        store,
+        lhs,
+        m,
+        rhs,
+        (ptr, len),
+        ldc,
+        parallel,
+        epilogue,
+    )
+}
+
+/// `out = A · Bᵀ` into memory not yet initialised (as [`Store::Overwrite`]), then `epilogue`
+/// as in [`gemm_with_epilogue`]: afterwards the values at `i·ldc + j` for `i < m`,
+/// `j < rhs.n()` are initialised (the gaps between rows are not touched).
+#[allow(clippy::too_many_arguments)]
+pub fn gemm_uninit(
+    kernel: Kernel,
+    lhs: Lhs,
+    m: usize,
+    rhs: RhsView,
+    out: &mut [std::mem::MaybeUninit<f32>],
+    ldc: usize,
+    parallel: bool,
+    epilogue: Option<RowEpilogue>,
+) -> candle_core::Result<()> {
+    let (ptr, len) = (OutPtr(out.as_mut_ptr().cast()), out.len());
+    let store = Store::Overwrite;
+    run(
+        kernel,
+        store,
+        lhs,
+        m,
+        rhs,
+        (ptr, len),
+        ldc,
+        parallel,
+        epilogue,
+    )
+}
+
+/// The product behind the public entry points, on an output of `len` values at `ptr`: only
+/// the `m × n` values are touched, each by one task, and (in [`Store::Overwrite`]) written
+/// before anything reads them.
+#[allow(clippy::too_many_arguments)]
+fn run(
+    kernel: Kernel,
+    store: Store,
+    lhs: Lhs,
+    m: usize,
+    rhs: RhsView,
+    (ptr, out_len): (OutPtr, usize),
     ldc: usize,
     parallel: bool,
     epilogue: Option<RowEpilogue>,
@@ -187,10 +290,9 @@ pub fn gemm_with_epilogue(
             "bf16 gemm: left operand of {len} values is too short for {m}×{k} with rows {ld} apart"
         );
     }
-    if ldc < n || (m - 1) * ldc + n > out.len() {
+    if ldc < n || (m - 1) * ldc + n > out_len {
         candle_core::bail!(
-            "bf16 gemm: output of {} values is too short for {m}×{n} with rows {ldc} apart",
-            out.len()
+            "bf16 gemm: output of {out_len} values is too short for {m}×{n} with rows {ldc} apart"
         );
     }
     let tiles = n.div_ceil(NR);
@@ -213,7 +315,6 @@ pub fn gemm_with_epilogue(
     };
     let row_tasks = m.div_ceil(row_block);
     let col_tasks = tiles.div_ceil(tiles_per_task);
-    let ptr = OutPtr(out.as_mut_ptr());
     let task = |i: usize| {
         let (rt, ct) = (i / col_tasks, i % col_tasks);
         let rows = rt * row_block..m.min((rt + 1) * row_block);
@@ -222,7 +323,14 @@ pub fn gemm_with_epilogue(
         if k > 0 {
             // SAFETY: rows < m and the tiles' columns < n lie inside `out` (checked above), and
             // the (rows × tiles) rectangles of different `i` are disjoint.
-            unsafe { run_task(kernel, lhs, rows.clone(), rhs, tiles, ptr, ldc) };
+            unsafe { run_task(kernel, store, lhs, rows.clone(), rhs, tiles, ptr, ldc) };
+        } else if store == Store::Overwrite {
+            for row in rows.clone() {
+                // SAFETY: as above; this task alone touches these values.
+                unsafe {
+                    std::ptr::write_bytes(ptr.0.add(row * ldc + columns.start), 0, columns.len())
+                };
+            }
         }
         if let Some(epilogue) = epilogue {
             for row in rows {
@@ -285,8 +393,10 @@ fn pack_lhs(
 /// # Safety
 /// `out` must be valid for reads and writes at `i·ldc + j` for the task's rows `i` and the
 /// columns `j < rhs.n` of its tiles, touched by no other task; the kernel must run on this CPU.
+#[allow(clippy::too_many_arguments)]
 unsafe fn run_task(
     kernel: Kernel,
+    store: Store,
     lhs: Lhs,
     rows: Range<usize>,
     rhs: RhsView,
@@ -306,6 +416,7 @@ unsafe fn run_task(
     let mut pc = 0;
     while pc < pairs {
         let kc = kc_pairs(kernel).min(pairs - pc);
+        let add = store == Store::Accumulate || pc > 0;
         let mut ic = rows.start;
         while ic < rows.end {
             let mc = MC.min(rows.end - ic);
@@ -325,7 +436,7 @@ unsafe fn run_task(
                 if let Some(amx) = &tiles_amx {
                     assert!(block.len() >= (mc - 1) * lda + kc && b.len() >= kc * NR * 2);
                     let c = out.0.add(ic * ldc + col);
-                    amx.tile(mc, kc, block.as_ptr(), lda, b.as_ptr(), c, ldc, cols);
+                    amx.tile(mc, kc, block.as_ptr(), lda, b.as_ptr(), c, ldc, cols, add);
                     continue;
                 }
                 let mut ir = 0;
@@ -337,9 +448,19 @@ unsafe fn run_task(
                         #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
                         Kernel::Avx512Bf16 | Kernel::Amx => {
                             assert!(a.len() >= (r - 1) * lda + kc && b.len() >= kc * NR * 2);
-                            super::avx512::tile(r, kc, a.as_ptr(), lda, b.as_ptr(), c, ldc, cols)
+                            super::avx512::tile(
+                                r,
+                                kc,
+                                a.as_ptr(),
+                                lda,
+                                b.as_ptr(),
+                                c,
+                                ldc,
+                                cols,
+                                add,
+                            )
                         }
-                        _ => portable::tile(r, kc, a, lda, b, c, ldc, cols),
+                        _ => portable::tile(r, kc, a, lda, b, c, ldc, cols, add),
                     }
                     ir += r;
                 }
@@ -648,6 +769,7 @@ mod tests {
             let kernel = Kernel::detect();
             gemm_with_epilogue(
                 kernel,
+                Store::Accumulate,
                 lhs,
                 m,
                 packed.view(),
@@ -662,6 +784,51 @@ mod tests {
                 "{m}×{n}×{k}"
             );
             assert!(out.iter().all(|&x| x == -1.0));
+        }
+    }
+
+    #[test]
+    fn overwriting_ignores_the_old_output_and_equals_adding_to_zeros() {
+        // Shapes with AMX tiles, edge rows and columns, k tails past whole tiles, several
+        // k blocks (k = 1100 > 2·256 pairs), and k = 0 (the output becomes zeros).
+        for &(m, n, k) in &[(37, 70, 515), (64, 33, 1100), (5, 16, 2), (3, 40, 0)] {
+            let a = values(m * k, 7);
+            let w = values(n * k, 8);
+            let packed = PackedRhs::from_rows(&w, n, k).unwrap();
+            let lhs = Lhs::F32 { data: &a, ld: k };
+            for kernel in kernels() {
+                for parallel in [false, true] {
+                    let mut added = vec![0f32; m * n];
+                    gemm_with(kernel, lhs, m, packed.view(), &mut added, n, parallel).unwrap();
+                    // NaN everywhere, and a stride wider than a row: the gap keeps its NaN.
+                    let ldc = n + 3;
+                    let mut written = vec![f32::NAN; (m - 1) * ldc + n];
+                    gemm_with_epilogue(
+                        kernel,
+                        Store::Overwrite,
+                        lhs,
+                        m,
+                        packed.view(),
+                        &mut written,
+                        ldc,
+                        parallel,
+                        None,
+                    )
+                    .unwrap();
+                    for i in 0..m {
+                        assert_eq!(
+                            &written[i * ldc..i * ldc + n],
+                            &added[i * n..(i + 1) * n],
+                            "{kernel:?} {m}×{n}×{k} row {i}"
+                        );
+                        if i + 1 < m {
+                            assert!(written[i * ldc + n..(i + 1) * ldc]
+                                .iter()
+                                .all(|v| v.is_nan()));
+                        }
+                    }
+                }
+            }
         }
     }
 }

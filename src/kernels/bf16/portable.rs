@@ -3,7 +3,8 @@
 
 use super::{bf16_bits_to_f32, NR};
 
-/// `C[rows × cols] += A · Bᵀ` for one tile, as [`super::avx512::tile`].
+/// `C[rows × cols] += A · Bᵀ` (or `=` when `add` is false) for one tile, as
+/// [`super::avx512::tile`].
 ///
 /// # Safety
 /// `a` holds `(rows − 1)·lda + kc` values, `b` holds `kc·NR·2`, and `c` is valid for reads and
@@ -19,6 +20,7 @@ pub unsafe fn tile(
     c: *mut f32,
     ldc: usize,
     cols: usize,
+    add: bool,
 ) {
     let b = &b[..kc * NR * 2];
     for r in 0..rows {
@@ -33,8 +35,12 @@ pub unsafe fn tile(
         }
         // SAFETY: row `r < rows` of `c` holds `cols` values no one else touches (caller).
         let c_row = std::slice::from_raw_parts_mut(c.add(r * ldc), cols);
-        for (o, s) in c_row.iter_mut().zip(acc) {
-            *o += s;
+        if add {
+            for (o, s) in c_row.iter_mut().zip(acc) {
+                *o += s;
+            }
+        } else {
+            c_row.copy_from_slice(&acc[..cols]);
         }
     }
 }
