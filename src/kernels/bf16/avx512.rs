@@ -72,6 +72,7 @@ pub unsafe fn tile(
 }
 
 /// [`tile`] for `R` rows: `R × 4` accumulators of 16 columns.
+#[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx512f,avx512bf16,avx512bw,avx512vl")]
 unsafe fn tile_rows<const R: usize>(
     kc: usize,
