@@ -7,8 +7,9 @@ use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape};
 
 use super::gemm::{gemm_uninit, Lhs};
+use super::pack::round_to_bf16;
 use super::Kernel;
-use super::{f32_to_bf16_bits, PackedRhs};
+use super::{bf16_bits_to_f32, PackedRhs};
 use crate::kernels::gelu::{gelu_in_place, gelu_tanh_in_place};
 use crate::kernels::linear::Activation;
 
@@ -90,15 +91,6 @@ impl<'a> Residual<'a> {
             Residual::F32(d) => d.len(),
         }
     }
-
-    /// Element `i` as f32.
-    #[inline(always)]
-    fn get(&self, i: usize) -> f32 {
-        match self {
-            Residual::Bf16(d) => d[i].to_f32(),
-            Residual::F32(d) => d[i],
-        }
-    }
 }
 
 impl PackedLinear<'_> {
@@ -122,16 +114,26 @@ impl PackedLinear<'_> {
         match residual {
             Some(r) => {
                 let base = row * n + col;
-                match self.gate {
-                    Some(g) => values
+                let len = values.len();
+                match (r, self.gate) {
+                    (Residual::F32(r), Some(g)) => values
                         .iter_mut()
+                        .zip(&r[base..base + len])
                         .zip(&g[cols])
-                        .enumerate()
-                        .for_each(|(j, (o, g))| *o = r.get(base + j) + g * *o),
-                    None => values
+                        .for_each(|((o, r), g)| *o = r + g * *o),
+                    (Residual::F32(r), None) => values
                         .iter_mut()
-                        .enumerate()
-                        .for_each(|(j, o)| *o += r.get(base + j)),
+                        .zip(&r[base..base + len])
+                        .for_each(|(o, r)| *o += r),
+                    (Residual::Bf16(r), Some(g)) => values
+                        .iter_mut()
+                        .zip(&r[base..base + len])
+                        .zip(&g[cols])
+                        .for_each(|((o, r), g)| *o = bf16_bits_to_f32(r.to_bits()) + g * *o),
+                    (Residual::Bf16(r), None) => values
+                        .iter_mut()
+                        .zip(&r[base..base + len])
+                        .for_each(|(o, r)| *o += bf16_bits_to_f32(r.to_bits())),
                 }
             }
             None => match self.act {
@@ -195,9 +197,7 @@ impl PackedLinear<'_> {
                 let o = unsafe {
                     std::slice::from_raw_parts_mut(dst.get().add(row * n + col), values.len())
                 };
-                for (o, &v) in o.iter_mut().zip(values.iter()) {
-                    *o = half::bf16::from_bits(f32_to_bf16_bits(v));
-                }
+                round_to_bf16(values, bytemuck::cast_slice_mut(o));
             };
             gemm_uninit(
                 Kernel::detect(),

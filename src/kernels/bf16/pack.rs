@@ -144,6 +144,18 @@ impl PackedRhs {
     }
 }
 
+/// Writes the bf16 bits of `src` into `dst` (same length), 16 values per instruction where the
+/// CPU has AVX512-BF16 (the same rounding as [`convert_portable`]).
+pub fn round_to_bf16(src: &[f32], dst: &mut [u16]) {
+    #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
+    if super::Kernel::detect() != super::Kernel::Portable {
+        // SAFETY: a kernel other than the portable one runs only where AVX512-BF16 does.
+        unsafe { super::avx512::convert(src, dst) };
+        return;
+    }
+    convert_portable(src, dst)
+}
+
 /// Writes the bf16 bits of `src` into `dst` (same length) with the portable rounding.
 pub fn convert_portable(src: &[f32], dst: &mut [u16]) {
     for (d, &s) in dst.iter_mut().zip(src) {
