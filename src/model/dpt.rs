@@ -325,7 +325,17 @@ fn channel_major_patches(data: &[f32], dims: (usize, usize, usize, usize), p: us
 
 impl NeuralRenderer {
     /// Build from `vb = root.pp("neural_renderer")`.
+    ///
+    /// A bf16 checkpoint on the CPU loads this head in f32 (its weights widened once, a few MB)
+    /// so that it runs on the channels-last f32 kernels: their Winograd 3×3 convolutions do a
+    /// quarter of the multiplications that bf16 products would do, and beat stock candle's
+    /// bf16 convolutions several times over (`lhmpp bench cpu-peer --only dpt --dtype bf16`).
     pub fn new(cfg: &DptConfig, vb: VarBuilder) -> Result<Self> {
+        let vb = if vb.device().is_cpu() && vb.dtype() == DType::BF16 {
+            vb.set_dtype(DType::F32)
+        } else {
+            vb
+        };
         let p = cfg.patch_size;
         let head = DptHead::new(cfg, vb.pp("dense_predictor"))?;
         let w = head.layer_rn[0].weight();
@@ -424,6 +434,13 @@ impl NeuralRenderer {
         }
         let (h, w) = (dims[2], dims[3]);
         let (hh, ww) = (h / p, w / p);
+        let widened;
+        let features = if self.cpu_head.is_some() && features.dtype() == DType::BF16 {
+            widened = features.to_dtype(DType::F32)?;
+            &widened
+        } else {
+            features
+        };
         let cpu = features.device().is_cpu() && features.dtype() == DType::F32;
         if let (Some(head), Some(patchify), true) = (&self.cpu_head, &self.cpu_patchify, cpu) {
             // A channels-last map viewed as [B, C, H, W] (the rasteriser's features permuted)

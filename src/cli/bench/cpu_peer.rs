@@ -49,8 +49,9 @@ pub struct CpuPeerArgs {
     /// Smallest config of each piece only, 2 timed runs (smoke test).
     #[arg(long)]
     quick: bool,
-    /// Weights and activations in `f32` or `bf16` (matmul, vit, joint, attn; bf16 products
-    /// with f32 accumulation, as PyTorch's bf16 CPU kernels).
+    /// Weights and activations in `f32` or `bf16` (matmul, vit, joint, attn, dpt; bf16
+    /// products with f32 accumulation, as PyTorch's bf16 CPU kernels; the dpt head of a bf16
+    /// model runs its convolutions in f32, see `NeuralRenderer::new`).
     #[arg(long, default_value = "f32", value_parser = ["f32", "bf16"])]
     dtype: String,
 }
@@ -223,6 +224,7 @@ fn dpt_piece(
     sizes: &[usize],
     quick: bool,
     runs: usize,
+    dtype: DType,
 ) -> anyhow::Result<()> {
     let dev = Device::Cpu;
     let presets: &[(&str, DptConfig)] = if quick {
@@ -234,7 +236,7 @@ fn dpt_piece(
         ][..]
     };
     for (name, cfg) in presets {
-        let vb = seeded_var_builder(7, DType::F32, &dev);
+        let vb = seeded_var_builder(7, dtype, &dev);
         let renderer = NeuralRenderer::new(cfg, vb.pp("neural_renderer"))?;
         let renderer = if piece == "dpt-candle" {
             renderer.with_candle_ops()
@@ -242,7 +244,8 @@ fn dpt_piece(
             renderer
         };
         for &size in sizes {
-            let feats = Tensor::randn(0f32, 1.0, (1, cfg.in_channels, size, size), &dev)?;
+            let feats = Tensor::randn(0f32, 1.0, (1, cfg.in_channels, size, size), &dev)?
+                .to_dtype(dtype)?;
             let t = time_runs(runs, || Ok(renderer.forward(&feats).map(|_| ())?))?;
             table.report(
                 piece,
@@ -325,8 +328,8 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
     } else {
         DType::F32
     };
-    if dtype != DType::F32 && ["dpt", "dpt-candle", "conv3x3"].iter().any(|p| has(p)) {
-        anyhow::bail!("bench cpu-peer: the dpt and conv3x3 pieces run in f32 only");
+    if dtype != DType::F32 && ["dpt-candle", "conv3x3"].iter().any(|p| has(p)) {
+        anyhow::bail!("bench cpu-peer: the dpt-candle and conv3x3 pieces run in f32 only");
     }
     println!(
         "# lhmpp bench cpu-peer: candle 0.11.1, {}, random weights, {} rayon threads, gemm avx512 kernels {}, bf16 kernel {:?}",
@@ -425,7 +428,7 @@ pub fn run(a: CpuPeerArgs) -> anyhow::Result<()> {
     }
     for piece in ["dpt", "dpt-candle"] {
         if has(piece) {
-            dpt_piece(&mut table, piece, &a.dpt_sizes, a.quick, runs)?;
+            dpt_piece(&mut table, piece, &a.dpt_sizes, a.quick, runs, dtype)?;
         }
     }
     println!();
