@@ -18,6 +18,7 @@ pub mod amx;
 pub mod attention;
 #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
 pub mod avx512;
+pub mod gathered;
 pub mod gemm;
 pub mod linear;
 pub mod pack;

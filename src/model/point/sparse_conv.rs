@@ -7,11 +7,13 @@
 
 use std::collections::HashMap;
 
-use candle_core::{Device, IndexOp, Result, Tensor};
+use candle_core::{DType, Device, IndexOp, Result, Tensor};
 use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
 use super::grid::pack_cell;
+use crate::kernels::bf16::gathered::{GatheredProducts, OffsetPairs};
+use crate::kernels::bf16::PackedRhs;
 
 /// Index of the kernel offset `(dx, dy, dz)` ∈ {-1,0,1}³ in the flattened 27-entry kernel.
 pub fn kernel_index(dx: i32, dy: i32, dz: i32) -> usize {
@@ -28,6 +30,9 @@ pub struct NeighbourMap {
     inputs: Vec<Option<Tensor>>,
     /// For all offsets concatenated in kernel order: the output rows `p`.
     outputs: Option<Tensor>,
+    /// The same pairs on the host for the bf16 CPU kernel: the 26 non-centre offsets in
+    /// kernel order (empty where no pair exists).
+    host_pairs: Vec<OffsetPairs>,
     /// Number of active voxels.
     len: usize,
 }
@@ -75,13 +80,20 @@ impl NeighbourMap {
             .collect();
         let mut inputs = Vec::with_capacity(27);
         let mut all_outputs = Vec::new();
-        for (ins, outs) in per_offset {
+        let mut host_pairs = Vec::with_capacity(26);
+        for (k, (ins, outs)) in per_offset.into_iter().enumerate() {
             if ins.is_empty() {
                 inputs.push(None);
             } else {
                 let n = ins.len();
-                inputs.push(Some(Tensor::from_vec(ins, n, device)?));
-                all_outputs.extend(outs);
+                inputs.push(Some(Tensor::from_slice(&ins, n, device)?));
+                all_outputs.extend_from_slice(&outs);
+            }
+            if k != CENTRE {
+                host_pairs.push(OffsetPairs {
+                    inputs: ins,
+                    outputs: outs,
+                });
             }
         }
         let outputs = if all_outputs.is_empty() {
@@ -93,6 +105,7 @@ impl NeighbourMap {
         Ok(Self {
             inputs,
             outputs,
+            host_pairs,
             len: grid.len(),
         })
     }
@@ -119,6 +132,40 @@ pub struct SubMConv3d {
     /// Per kernel offset, the weight as `[in, out]` (ready for `x · W`).
     weights: Vec<Tensor>,
     bias: Tensor,
+    /// For a bf16 layer on the CPU: the centre weight, the 26 others in kernel order, packed
+    /// for the bf16 kernel, and the bias in f32.
+    packed: Option<std::sync::Arc<PackedBf16>>,
+}
+
+/// A layer's weights packed for [`GatheredProducts`].
+#[derive(Debug)]
+struct PackedBf16 {
+    centre: PackedRhs,
+    others: Vec<PackedRhs>,
+    bias: Vec<f32>,
+}
+
+impl PackedBf16 {
+    /// Packs `w [out, 27, in]` (bf16, CPU) and the bias.
+    fn new(w: &Tensor, bias: &Tensor) -> Result<Self> {
+        let (c_out, _, c_in) = w.dims3()?;
+        let values = w.flatten_all()?.to_vec1::<half::bf16>()?;
+        let offset = |k: usize| -> Result<PackedRhs> {
+            let rows: Vec<half::bf16> = (0..c_out)
+                .flat_map(|o| &values[(o * 27 + k) * c_in..(o * 27 + k + 1) * c_in])
+                .copied()
+                .collect();
+            PackedRhs::from_rows(&rows, c_out, c_in)
+        };
+        Ok(Self {
+            centre: offset(CENTRE)?,
+            others: (0..27)
+                .filter(|&k| k != CENTRE)
+                .map(offset)
+                .collect::<Result<_>>()?,
+            bias: bias.to_dtype(DType::F32)?.to_vec1()?,
+        })
+    }
 }
 
 impl SubMConv3d {
@@ -140,11 +187,31 @@ impl SubMConv3d {
         let weights = (0..27)
             .map(|k| w.i((.., k, ..))?.t()?.contiguous())
             .collect::<Result<Vec<_>>>()?;
-        Ok(Self { weights, bias })
+        let packed = if w.device().is_cpu() && w.dtype() == DType::BF16 {
+            Some(std::sync::Arc::new(PackedBf16::new(&w, &bias)?))
+        } else {
+            None
+        };
+        Ok(Self {
+            weights,
+            bias,
+            packed,
+        })
     }
 
     /// Convolve the features `[M, c_in]` of the voxels of `map` → `[M, c_out]`.
+    /// A bf16 layer on the CPU runs the bf16 gathered-product kernel (f32 sums, one rounding);
+    /// other layers run candle's products and `index_add`.
     pub fn forward(&self, x: &Tensor, map: &NeighbourMap) -> Result<Tensor> {
+        if let (Some(p), true) = (&self.packed, x.device().is_cpu()) {
+            let op = GatheredProducts {
+                centre: &p.centre,
+                weights: &p.others,
+                pairs: &map.host_pairs,
+                bias: &p.bias,
+            };
+            return x.contiguous()?.apply_op1_no_bwd(&op);
+        }
         let mut out = x.matmul(&self.weights[CENTRE])?;
         if let Some(outputs) = &map.outputs {
             let mut parts = Vec::with_capacity(26);
@@ -221,28 +288,40 @@ mod tests {
             }
         }
         let (c_in, c_out) = (5, 7);
+        // bf16-valued inputs and weights, so that the bf16 layer differs from the reference
+        // by its f32 sums and one rounding of the output only.
+        let round = |v: f32| half::bf16::from_f32(v).to_f32();
         let x: Vec<Vec<f32>> = (0..grid.len())
-            .map(|_| (0..c_in).map(|_| rng.gen_range(-1.0..1.0)).collect())
+            .map(|_| (0..c_in).map(|_| round(rng.gen_range(-1.0..1.0))).collect())
             .collect();
         let w: Vec<f32> = (0..c_out * 27 * c_in)
-            .map(|_| rng.gen_range(-1.0..1.0))
+            .map(|_| round(rng.gen_range(-1.0..1.0)))
             .collect();
-        let b: Vec<f32> = (0..c_out).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        let conv = SubMConv3d::from_weights(
-            &Tensor::from_vec(w.clone(), (c_out, 3, 3, 3, c_in), &dev)?,
-            Tensor::from_vec(b.clone(), c_out, &dev)?,
-        )?;
+        let b: Vec<f32> = (0..c_out)
+            .map(|_| round(rng.gen_range(-1.0..1.0)))
+            .collect();
         let map = NeighbourMap::new(&grid, &dev)?;
-        let xt = Tensor::from_vec(x.concat(), (grid.len(), c_in), &dev)?;
-        let got = conv.forward(&xt, &map)?.to_vec2::<f32>()?;
+        assert!(map.pair_count() > 0);
         let want = dense_reference(&grid, &x, &w, &b, c_in);
-        let mut max_diff = 0f32;
-        for (g, w) in got.iter().zip(&want) {
-            for (a, b) in g.iter().zip(w) {
-                max_diff = max_diff.max((a - b).abs());
+        for (dtype, tol) in [(DType::F32, 1e-5f32), (DType::BF16, 0.06)] {
+            let conv = SubMConv3d::from_weights(
+                &Tensor::from_vec(w.clone(), (c_out, 3, 3, 3, c_in), &dev)?.to_dtype(dtype)?,
+                Tensor::from_vec(b.clone(), c_out, &dev)?.to_dtype(dtype)?,
+            )?;
+            assert_eq!(conv.packed.is_some(), dtype == DType::BF16);
+            let xt = Tensor::from_vec(x.concat(), (grid.len(), c_in), &dev)?.to_dtype(dtype)?;
+            let y = conv.forward(&xt, &map)?;
+            assert_eq!(y.dtype(), dtype);
+            let got = y.to_dtype(DType::F32)?.to_vec2::<f32>()?;
+            let mut max_diff = 0f32;
+            for (g, w) in got.iter().zip(&want) {
+                for (a, b) in g.iter().zip(w) {
+                    max_diff = max_diff.max((a - b).abs());
+                }
             }
+            // bf16: outputs of up to ~10 are rounded to 8 bits of mantissa (≤ 0.03).
+            assert!(max_diff < tol, "{dtype:?}: max abs diff {max_diff}");
         }
-        assert!(max_diff < 1e-5, "max abs diff {max_diff}");
         Ok(())
     }
 
