@@ -3,6 +3,8 @@
 //! f32 accumulation ([`super::gemm`]) and the bias, GELU, gate and residual applied in f32.
 //! The output has the dtype of the input (bf16 or f32).
 
+use std::mem::MaybeUninit;
+
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape};
 
@@ -45,6 +47,28 @@ fn lhs<'a>(s: &'a CpuStorage, l: &Layout, k: usize) -> Result<Lhs<'a>> {
             "bf16 linear: input is {:?}, expected bf16 or f32",
             other.dtype()
         ),
+    })
+}
+
+thread_local! {
+    /// Each thread's f32 accumulator for products with a bf16 output, kept between calls (as
+    /// large as the largest such product the thread ran).
+    static SCRATCH: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Runs `f` on `len` uninitialised f32 values: the thread's [`SCRATCH`] buffer, or a fresh
+/// one when that is in use further up this thread's stack.
+fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<f32>]) -> R) -> R {
+    SCRATCH.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut buf) => {
+            buf.clear();
+            buf.reserve(len);
+            f(&mut buf.spare_capacity_mut()[..len])
+        }
+        Err(_) => {
+            let mut fresh: Vec<f32> = Vec::with_capacity(len);
+            f(&mut fresh.spare_capacity_mut()[..len])
+        }
     })
 }
 
@@ -183,34 +207,42 @@ impl PackedLinear<'_> {
         // `vec![0.0; len]` maps the shared zero page, and the first write after a read of each
         // page was a copy-on-write fault with a TLB flush on every core: 16 % of a 700M bf16
         // forward on 2 cores).
-        let mut acc: Vec<f32> = Vec::with_capacity(m * n);
+        //
         // The epilogue runs on each row segment of a task as soon as its products are done,
         // while the values are in the cache: f32 bias, activation or gated residual, then (bf16
         // input) the rounding into the output.
         let storage = if x.0.dtype() == DType::BF16 {
-            let mut out = vec![half::bf16::ZERO; m * n];
+            let mut out: Vec<half::bf16> = Vec::with_capacity(m * n);
             let dst = Bf16Ptr(out.as_mut_ptr());
             let epilogue = |row: usize, col: usize, values: &mut [f32]| {
                 self.epilogue(values, row, col, n, residual);
-                // SAFETY: `out` holds `m × n` values; the gemm passes each (row, column) once,
-                // so no two calls write the same output values.
+                // SAFETY: `out` has room for `m × n` values; the gemm passes each (row, column)
+                // once, so no two calls write the same output values.
                 let o = unsafe {
                     std::slice::from_raw_parts_mut(dst.get().add(row * n + col), values.len())
                 };
                 round_to_bf16(values, bytemuck::cast_slice_mut(o));
             };
-            gemm_uninit(
-                Kernel::detect(),
-                a,
-                m,
-                self.weight.view(),
-                &mut acc.spare_capacity_mut()[..m * n],
-                n,
-                true,
-                Some(&epilogue),
-            )?;
+            // The f32 accumulator is scratch here: the thread's buffer, reused from call to
+            // call, so that its pages are not faulted in afresh for every layer (a nested call
+            // on this thread, while rayon waits, takes a fresh one).
+            with_scratch(m * n, |acc| {
+                gemm_uninit(
+                    Kernel::detect(),
+                    a,
+                    m,
+                    self.weight.view(),
+                    acc,
+                    n,
+                    true,
+                    Some(&epilogue),
+                )
+            })?;
+            // SAFETY: the epilogue wrote all m × n values (each (row, column) once, no gaps).
+            unsafe { out.set_len(m * n) };
             CpuStorage::BF16(out)
         } else {
+            let mut acc: Vec<f32> = Vec::with_capacity(m * n);
             let epilogue = |row: usize, col: usize, values: &mut [f32]| {
                 self.epilogue(values, row, col, n, residual)
             };
