@@ -16,11 +16,8 @@ use rayon::prelude::*;
 
 use super::gemm::{gemm, gemm_overwrite, Lhs};
 use super::pack::{PackedRhs, Strided, ToBf16Bits};
-use super::{f32_to_bf16_bits, Kernel, NR};
+use super::{f32_to_bf16_bits, NR};
 use crate::kernels::fast_exp::{exp_approx, max_of};
-
-/// Channels per step of the tile kernel (16 pairs).
-const AMX_STEP: usize = 32;
 
 /// Query rows per unit of work.
 pub const QUERY_BLOCK: usize = 128;
@@ -170,32 +167,10 @@ fn attend_all<T: Operand>(
     out: &mut [f32],
 ) -> Result<()> {
     let Dims { lq, lk, d, dv, .. } = dims;
-    // The tile kernel multiplies whole steps of 32 channels and leaves the rest to the vector
-    // kernel: heads of other widths (the point backbone's 16 channels) get queries and keys
-    // padded with zero channels to whole steps (the sums are unchanged).
-    let dp = if Kernel::detect() == Kernel::Amx && d % AMX_STEP != 0 {
-        d.next_multiple_of(AMX_STEP)
-    } else {
-        d
-    };
-    let padded = |x: &[T], rows: usize| -> Vec<half::bf16> {
-        let mut out = vec![half::bf16::ZERO; rows * dp];
-        for (dst, src) in out.chunks_exact_mut(dp).zip(x.chunks_exact(d)) {
-            for (o, &v) in dst.iter_mut().zip(src) {
-                *o = half::bf16::from_bits(v.bf16_bits());
-            }
-        }
-        out
-    };
     let packed: Vec<(PackedRhs, PackedRhs)> = (0..dims.bh)
         .into_par_iter()
         .map(|head| {
-            let k_head = &k[head * lk * d..(head + 1) * lk * d];
-            let keys = if dp == d {
-                PackedRhs::from_rows(k_head, lk, d)?
-            } else {
-                PackedRhs::from_rows(&padded(k_head, lk), lk, dp)?
-            };
+            let keys = PackedRhs::from_rows(&k[head * lk * d..(head + 1) * lk * d], lk, d)?;
             let values_t = PackedRhs::pack(
                 Strided {
                     data: &v[head * lk * dv..(head + 1) * lk * dv],
@@ -213,20 +188,21 @@ fn attend_all<T: Operand>(
         .enumerate()
         .try_for_each(|(head, (out_head, (keys, values_t)))| {
             let q_head = &q[head * lq * d..(head + 1) * lq * d];
-            let q_padded = (dp != d).then(|| padded(q_head, lq));
             out_head
                 .par_chunks_mut(QUERY_BLOCK * dv)
                 .enumerate()
                 .try_for_each(|(block, out_block)| {
                     let rows = out_block.len() / dv;
-                    let q_block = match &q_padded {
-                        Some(qp) => Lhs::Bf16 {
-                            data: &qp[block * QUERY_BLOCK * dp..][..rows * dp],
-                            ld: dp,
-                        },
-                        None => T::lhs(&q_head[block * QUERY_BLOCK * d..][..rows * d], d),
-                    };
-                    attend_block(scale, dims, q_block, rows, keys, values_t, out_block)
+                    let q_block = &q_head[block * QUERY_BLOCK * d..][..rows * d];
+                    attend_block(
+                        scale,
+                        dims,
+                        T::lhs(q_block, d),
+                        rows,
+                        keys,
+                        values_t,
+                        out_block,
+                    )
                 })
         })
 }
