@@ -328,8 +328,8 @@ impl NeuralRenderer {
     ///
     /// A bf16 checkpoint on the CPU loads this head in f32 (its weights widened once, a few MB)
     /// so that it runs on the channels-last f32 kernels: their Winograd 3×3 convolutions do a
-    /// quarter of the multiplications that bf16 products would do, and beat stock candle's
-    /// bf16 convolutions several times over (`lhmpp bench cpu-peer --only dpt --dtype bf16`).
+    /// quarter of the multiplications that bf16 products would do (700M head at 588², 2
+    /// threads: 0.86× PyTorch bf16's time, `scripts/bench-cpu-peer --only dpt --dtype bf16`).
     pub fn new(cfg: &DptConfig, vb: VarBuilder) -> Result<Self> {
         let vb = if vb.device().is_cpu() && vb.dtype() == DType::BF16 {
             vb.set_dtype(DType::F32)

@@ -21,7 +21,7 @@ pub struct OffsetPairs {
     pub outputs: Vec<u32>,
 }
 
-/// The candle op over `X [M, K]` (bf16 or f32), giving `[M, N]` in the input's dtype.
+/// The candle op over `X [M, K]` in bf16, giving `[M, N]` in bf16.
 #[derive(Debug, Clone, Copy)]
 pub struct GatheredProducts<'a> {
     /// `W₀ [N, K]`, applied to every row in place.
@@ -35,8 +35,8 @@ pub struct GatheredProducts<'a> {
 }
 
 impl GatheredProducts<'_> {
-    /// `out[M, N]` in f32 for the input rows `x` (`m` rows of `k`).
-    fn products(&self, x: Lhs, m: usize, k: usize) -> Result<Vec<f32>> {
+    /// The sums `out[M, N]` without the bias, in f32, for the input rows `x` (`m` rows of `k`).
+    fn products(&self, x: &[half::bf16], m: usize, k: usize) -> Result<Vec<f32>> {
         let n = self.centre.n();
         if self.centre.k() != k || self.bias.len() != n {
             candle_core::bail!(
@@ -48,7 +48,7 @@ impl GatheredProducts<'_> {
         let mut acc: Vec<f32> = Vec::with_capacity(m * n);
         gemm_uninit(
             Kernel::detect(),
-            x,
+            Lhs::Bf16 { data: x, ld: k },
             m,
             self.centre.view(),
             &mut acc.spare_capacity_mut()[..m * n],
@@ -92,13 +92,8 @@ impl GatheredProducts<'_> {
                 .par_chunks_mut(k)
                 .zip(pairs.inputs.par_iter())
                 .for_each(|(dst, &row)| {
-                    let row = row as usize;
-                    match x {
-                        Lhs::Bf16 { data, ld } => {
-                            dst.copy_from_slice(bytemuck::cast_slice(&data[row * ld..row * ld + k]))
-                        }
-                        Lhs::F32 { data, ld } => round_to_bf16(&data[row * ld..row * ld + k], dst),
-                    }
+                    let row = row as usize * k;
+                    dst.copy_from_slice(bytemuck::cast_slice(&x[row..row + k]))
                 });
             products.resize(p * n, 0.0);
             let lhs = Lhs::Bf16 {
@@ -111,9 +106,6 @@ impl GatheredProducts<'_> {
                 dst.iter_mut().zip(src).for_each(|(d, s)| *d += s);
             }
         }
-        acc.par_chunks_mut(n.max(1)).for_each(|row| {
-            row.iter_mut().zip(self.bias).for_each(|(o, b)| *o += b);
-        });
         Ok(acc)
     }
 }
@@ -129,35 +121,19 @@ impl CustomOp1 for GatheredProducts<'_> {
             candle_core::bail!("sparse conv: input is not contiguous");
         };
         let n = self.centre.n();
-        let storage = match s {
-            CpuStorage::BF16(d) => {
-                let acc = self.products(
-                    Lhs::Bf16 {
-                        data: &d[a..b],
-                        ld: k,
-                    },
-                    m,
-                    k,
-                )?;
-                let mut out = vec![half::bf16::ZERO; m * n];
-                out.par_chunks_mut(1 << 14)
-                    .zip(acc.par_chunks(1 << 14))
-                    .for_each(|(o, v)| round_to_bf16(v, bytemuck::cast_slice_mut(o)));
-                CpuStorage::BF16(out)
-            }
-            CpuStorage::F32(d) => CpuStorage::F32(self.products(
-                Lhs::F32 {
-                    data: &d[a..b],
-                    ld: k,
-                },
-                m,
-                k,
-            )?),
-            other => candle_core::bail!(
-                "sparse conv: input is {:?}, expected bf16 or f32",
-                other.dtype()
-            ),
+        let CpuStorage::BF16(d) = s else {
+            candle_core::bail!("sparse conv: input is {:?}, expected bf16", s.dtype());
         };
+        let mut acc = self.products(&d[a..b], m, k)?;
+        // The bias in f32, then one rounding per output row.
+        let mut out = vec![half::bf16::ZERO; m * n];
+        out.par_chunks_mut(n.max(1))
+            .zip(acc.par_chunks_mut(n.max(1)))
+            .for_each(|(o, v)| {
+                v.iter_mut().zip(self.bias).for_each(|(v, b)| *v += b);
+                round_to_bf16(v, bytemuck::cast_slice_mut(o));
+            });
+        let storage = CpuStorage::BF16(out);
         Ok((storage, Shape::from((m, n))))
     }
 }

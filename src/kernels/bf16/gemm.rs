@@ -6,6 +6,7 @@
 //! of `k`, the task's rows are rounded to bf16 into a small buffer, then every tile of the right
 //! operand is multiplied by every [`MR`]-row slice of that buffer with the micro-kernel.
 
+use std::mem::MaybeUninit;
 use std::ops::Range;
 
 use rayon::prelude::*;
@@ -51,7 +52,7 @@ impl Lhs<'_> {
 
 /// Whether a product adds to the output or replaces it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Store {
+enum Store {
     /// `out += A · Bᵀ`.
     Accumulate,
     /// `out = A · Bᵀ`: the old values are never read, so `out` may start uninitialised (no
@@ -156,8 +157,10 @@ pub fn gemm_overwrite(
     ldc: usize,
     parallel: bool,
 ) -> candle_core::Result<()> {
-    gemm_with_epilogue(
-        Kernel::detect(),
+    let kernel = Kernel::detect();
+    let out = (OutPtr(out.as_mut_ptr()), out.len());
+    run(
+        kernel,
         Store::Overwrite,
         lhs,
         m,
@@ -192,7 +195,8 @@ pub fn gemm_with(
     ldc: usize,
     parallel: bool,
 ) -> candle_core::Result<()> {
-    gemm_with_epilogue(
+    let out = (OutPtr(out.as_mut_ptr()), out.len());
+    run(
         kernel,
         Store::Accumulate,
         lhs,
@@ -205,57 +209,29 @@ pub fn gemm_with(
     )
 }
 
-/// [`gemm_with`] with the `store` mode, followed, task by task, by `epilogue` on every output
-/// row segment (each `(row, column)` of the `m × rhs.n()` output is passed exactly once).
-#[allow(clippy::too_many_arguments)]
-pub fn gemm_with_epilogue(
-    kernel: Kernel,
-    store: Store,
-    lhs: Lhs,
-    m: usize,
-    rhs: RhsView,
-    out: &mut [f32],
-    ldc: usize,
-    parallel: bool,
-    epilogue: Option<RowEpilogue>,
-) -> candle_core::Result<()> {
-    let (ptr, len) = (OutPtr(out.as_mut_ptr()), out.len());
-    run(
-        kernel,
-        store,
-        lhs,
-        m,
-        rhs,
-        (ptr, len),
-        ldc,
-        parallel,
-        epilogue,
-    )
-}
-
-/// `out = A · Bᵀ` into memory not yet initialised (as [`Store::Overwrite`]), then `epilogue`
-/// as in [`gemm_with_epilogue`]: afterwards the values at `i·ldc + j` for `i < m`,
-/// `j < rhs.n()` are initialised (the gaps between rows are not touched).
+/// `out = A · Bᵀ` into memory not yet initialised, followed, task by task, by `epilogue` on
+/// every output row segment (each `(row, column)` of the `m × rhs.n()` output is passed exactly
+/// once): afterwards the values at `i·ldc + j` for `i < m`, `j < rhs.n()` are initialised (the
+/// gaps between rows are not touched).
 #[allow(clippy::too_many_arguments)]
 pub fn gemm_uninit(
     kernel: Kernel,
     lhs: Lhs,
     m: usize,
     rhs: RhsView,
-    out: &mut [std::mem::MaybeUninit<f32>],
+    out: &mut [MaybeUninit<f32>],
     ldc: usize,
     parallel: bool,
     epilogue: Option<RowEpilogue>,
 ) -> candle_core::Result<()> {
-    let (ptr, len) = (OutPtr(out.as_mut_ptr().cast()), out.len());
-    let store = Store::Overwrite;
+    let out = (OutPtr(out.as_mut_ptr().cast()), out.len());
     run(
         kernel,
-        store,
+        Store::Overwrite,
         lhs,
         m,
         rhs,
-        (ptr, len),
+        out,
         ldc,
         parallel,
         epilogue,
@@ -776,30 +752,22 @@ mod tests {
                     *x = -1.0;
                 }
             };
-            let mut out = vec![0f32; m * n];
+            let mut out = vec![MaybeUninit::new(0f32); m * n];
             let kernel = Kernel::detect();
-            gemm_with_epilogue(
-                kernel,
-                Store::Accumulate,
-                lhs,
-                m,
-                packed.view(),
-                &mut out,
-                n,
-                true,
-                Some(&epilogue),
-            )
-            .unwrap();
+            let view = packed.view();
+            gemm_uninit(kernel, lhs, m, view, &mut out, n, true, Some(&epilogue)).unwrap();
             assert!(
                 seen.iter().all(|c| c.load(Ordering::Relaxed) == 1),
                 "{m}×{n}×{k}"
             );
-            assert!(out.iter().all(|&x| x == -1.0));
+            // SAFETY: the values were initialised (zeros) before the product.
+            assert!(out.iter().all(|x| unsafe { x.assume_init() } == -1.0));
         }
     }
 
     #[test]
     fn overwriting_ignores_the_old_output_and_equals_adding_to_zeros() {
+        // The old output is NaN: any read of it would show in the result.
         // Shapes with AMX tiles, edge rows and columns, k tails past whole tiles, several
         // k blocks (k = 1100 > 2·256 pairs), and k = 0 (the output becomes zeros).
         for &(m, n, k) in &[(37, 70, 515), (64, 33, 1100), (5, 16, 2), (3, 40, 0)] {
@@ -813,19 +781,12 @@ mod tests {
                     gemm_with(kernel, lhs, m, packed.view(), &mut added, n, parallel).unwrap();
                     // NaN everywhere, and a stride wider than a row: the gap keeps its NaN.
                     let ldc = n + 3;
-                    let mut written = vec![f32::NAN; (m - 1) * ldc + n];
-                    gemm_with_epilogue(
-                        kernel,
-                        Store::Overwrite,
-                        lhs,
-                        m,
-                        packed.view(),
-                        &mut written,
-                        ldc,
-                        parallel,
-                        None,
-                    )
-                    .unwrap();
+                    let mut written = vec![MaybeUninit::new(f32::NAN); (m - 1) * ldc + n];
+                    let view = packed.view();
+                    gemm_uninit(kernel, lhs, m, view, &mut written, ldc, parallel, None).unwrap();
+                    // SAFETY: every value was initialised (NaN) before the product.
+                    let written: Vec<f32> =
+                        written.iter().map(|x| unsafe { x.assume_init() }).collect();
                     for i in 0..m {
                         assert_eq!(
                             &written[i * ldc..i * ldc + n],

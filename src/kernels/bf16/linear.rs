@@ -8,7 +8,7 @@ use std::mem::MaybeUninit;
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape};
 
-use super::gemm::{gemm_uninit, Lhs};
+use super::gemm::{gemm_uninit, Lhs, RowEpilogue};
 use super::pack::round_to_bf16;
 use super::Kernel;
 use super::{bf16_bits_to_f32, PackedRhs};
@@ -211,6 +211,10 @@ impl PackedLinear<'_> {
         // The epilogue runs on each row segment of a task as soon as its products are done,
         // while the values are in the cache: f32 bias, activation or gated residual, then (bf16
         // input) the rounding into the output.
+        let product = |acc: &mut [MaybeUninit<f32>], epilogue: RowEpilogue| {
+            let weight = self.weight.view();
+            gemm_uninit(Kernel::detect(), a, m, weight, acc, n, true, Some(epilogue))
+        };
         let storage = if x.0.dtype() == DType::BF16 {
             let mut out: Vec<half::bf16> = Vec::with_capacity(m * n);
             let dst = Bf16Ptr(out.as_mut_ptr());
@@ -226,18 +230,7 @@ impl PackedLinear<'_> {
             // The f32 accumulator is scratch here: the thread's buffer, reused from call to
             // call, so that its pages are not faulted in afresh for every layer (a nested call
             // on this thread, while rayon waits, takes a fresh one).
-            with_scratch(m * n, |acc| {
-                gemm_uninit(
-                    Kernel::detect(),
-                    a,
-                    m,
-                    self.weight.view(),
-                    acc,
-                    n,
-                    true,
-                    Some(&epilogue),
-                )
-            })?;
+            with_scratch(m * n, |acc| product(acc, &epilogue))?;
             // SAFETY: the epilogue wrote all m × n values (each (row, column) once, no gaps).
             unsafe { out.set_len(m * n) };
             CpuStorage::BF16(out)
@@ -246,16 +239,7 @@ impl PackedLinear<'_> {
             let epilogue = |row: usize, col: usize, values: &mut [f32]| {
                 self.epilogue(values, row, col, n, residual)
             };
-            gemm_uninit(
-                Kernel::detect(),
-                a,
-                m,
-                self.weight.view(),
-                &mut acc.spare_capacity_mut()[..m * n],
-                n,
-                true,
-                Some(&epilogue),
-            )?;
+            product(&mut acc.spare_capacity_mut()[..m * n], &epilogue)?;
             // SAFETY: `gemm_uninit` initialised all m × n values (rows n apart, no gaps).
             unsafe { acc.set_len(m * n) };
             CpuStorage::F32(acc)

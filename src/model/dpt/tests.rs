@@ -196,7 +196,8 @@ fn bilinear_resize_aligns_corners() -> Result<()> {
 #[test]
 fn a_bf16_renderer_runs_the_packed_cpu_head_and_matches_f32() -> Result<()> {
     // The same bf16-valued weights loaded as bf16 and as f32: the bf16 renderer widens them
-    // into the channels-last head, so its RGB matches within f32 rounding (issue 34 asks 1e-2).
+    // into the channels-last f32 head, so on the same (bf16-valued) features it computes what
+    // the f32 renderer computes (issue 34 asks 1e-2 for the RGB).
     let dev = Device::Cpu;
     let vb = |dtype| crate::model::checkpoint::seeded_bf16_valued_var_builder(21, dtype, &dev);
     let r16 = NeuralRenderer::new(&DptConfig::tiny(), vb(DType::BF16).pp("neural_renderer"))?;
@@ -205,17 +206,11 @@ fn a_bf16_renderer_runs_the_packed_cpu_head_and_matches_f32() -> Result<()> {
         r16.cpu_head.is_some(),
         "a bf16 renderer on the CPU uses the packed head"
     );
-    let feats = Tensor::randn(0f32, 1.0, (1, 32, 28, 35), &dev)?;
-    let (want, _) = r32.forward(&feats)?;
-    for input in [
-        feats.clone(),
-        feats.to_dtype(DType::BF16)?.to_dtype(DType::F32)?,
-    ] {
-        let (got, _) = r16.forward(&input.to_dtype(DType::BF16)?)?;
-        assert_eq!(got.dtype(), DType::F32);
-        // bf16 features are rounded once on the way in; nothing else differs.
-        let d = max_abs_diff(&got, &want);
-        assert!(d <= 1e-2, "bf16 renderer RGB differs by {d}");
-    }
+    let feats = Tensor::randn(0f32, 1.0, (1, 32, 28, 35), &dev)?.to_dtype(DType::BF16)?;
+    let (want, _) = r32.forward(&feats.to_dtype(DType::F32)?)?;
+    let (got, _) = r16.forward(&feats)?;
+    assert_eq!(got.dtype(), DType::F32);
+    let d = max_abs_diff(&got, &want);
+    assert!(d <= 1e-6, "bf16 renderer RGB differs by {d}");
     Ok(())
 }

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use super::grid::pack_cell;
 use crate::kernels::bf16::gathered::{GatheredProducts, OffsetPairs};
+use crate::kernels::bf16::pack::Strided;
 use crate::kernels::bf16::PackedRhs;
 
 /// Index of the kernel offset `(dx, dy, dz)` ∈ {-1,0,1}³ in the flattened 27-entry kernel.
@@ -150,12 +151,14 @@ impl PackedBf16 {
     fn new(w: &Tensor, bias: &Tensor) -> Result<Self> {
         let (c_out, _, c_in) = w.dims3()?;
         let values = w.flatten_all()?.to_vec1::<half::bf16>()?;
+        // Offset k's weight `[out, in]`: row o from `(o·27 + k)·in`.
         let offset = |k: usize| -> Result<PackedRhs> {
-            let rows: Vec<half::bf16> = (0..c_out)
-                .flat_map(|o| &values[(o * 27 + k) * c_in..(o * 27 + k + 1) * c_in])
-                .copied()
-                .collect();
-            PackedRhs::from_rows(&rows, c_out, c_in)
+            let rows = Strided {
+                data: &values[k * c_in..],
+                col_stride: 27 * c_in,
+                k_stride: 1,
+            };
+            PackedRhs::pack(rows, c_out, c_in)
         };
         Ok(Self {
             centre: offset(CENTRE)?,
