@@ -436,7 +436,13 @@ impl NeuralRenderer {
         let (hh, ww) = (h / p, w / p);
         let widened;
         let features = if self.cpu_head.is_some() && features.dtype() == DType::BF16 {
-            widened = features.to_dtype(DType::F32)?;
+            // Widened in its own memory order: a channels-last view stays channels-last.
+            let nhwc = features.permute((0, 2, 3, 1))?;
+            widened = if nhwc.is_contiguous() {
+                crate::kernels::bf16::widened_to_f32(&nhwc)?.permute((0, 3, 1, 2))?
+            } else {
+                crate::kernels::bf16::widened_to_f32(features)?
+            };
             &widened
         } else {
             features

@@ -24,6 +24,7 @@ pub mod linear;
 pub mod pack;
 pub mod portable;
 
+use candle_core::{CpuStorage, DType, Tensor};
 pub use gemm::{gemm, gemm_with, Lhs};
 pub use pack::PackedRhs;
 
@@ -146,6 +147,33 @@ pub fn f32_to_bf16_bits(x: f32) -> u16 {
     }) as u16
 }
 
+/// `t` in f32: a contiguous bf16 CPU tensor is widened by a vectorised loop over its values
+/// in parallel chunks (exact: a bf16 value is the top half of its f32); any other tensor goes
+/// through candle's `to_dtype`, which widens one value at a time.
+pub fn widened_to_f32(t: &Tensor) -> candle_core::Result<Tensor> {
+    if t.dtype() != DType::BF16 || !t.device().is_cpu() || !t.is_contiguous() {
+        return t.to_dtype(DType::F32);
+    }
+    let mut out = vec![0f32; t.elem_count()];
+    {
+        let (guard, layout) = t.storage_and_layout();
+        let (candle_core::Storage::Cpu(CpuStorage::BF16(data)), Some((start, end))) =
+            (&*guard, layout.contiguous_offsets())
+        else {
+            return t.to_dtype(DType::F32);
+        };
+        let src: &[half::bf16] = &data[start..end];
+        const CHUNK: usize = 1 << 16;
+        crate::kernels::parallel::for_each_chunk(&mut out, CHUNK, |i, dst| {
+            let src = &src[i * CHUNK..i * CHUNK + dst.len()];
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d = bf16_bits_to_f32(s.to_bits());
+            }
+        });
+    }
+    Tensor::from_vec(out, t.shape(), t.device())
+}
+
 /// The f32 value of a bf16 bit pattern (exact).
 #[inline(always)]
 pub fn bf16_bits_to_f32(b: u16) -> f32 {
@@ -183,5 +211,25 @@ mod tests {
             assert_eq!(f32_to_bf16_bits(x), half::bf16::from_f32(x).to_bits());
         }
         assert_eq!(bf16_bits_to_f32(f32_to_bf16_bits(1.5)), 1.5);
+    }
+
+    #[test]
+    fn widening_equals_candles_conversion_in_any_layout() {
+        let dev = candle_core::Device::Cpu;
+        let x = Tensor::randn(0f32, 3.0, (2, 5, 70_000), &dev)
+            .unwrap()
+            .to_dtype(DType::BF16)
+            .unwrap();
+        for t in [
+            x.clone(),
+            x.transpose(1, 2).unwrap(),
+            x.narrow(2, 7, 1000).unwrap(),
+        ] {
+            let got = widened_to_f32(&t).unwrap();
+            let want = t.to_dtype(DType::F32).unwrap();
+            assert_eq!(got.dims(), want.dims());
+            let d = crate::testing::max_abs_diff(&got, &want);
+            assert_eq!(d, 0.0);
+        }
     }
 }
