@@ -9,7 +9,9 @@
 //! knows where a detection stands on the floor (calibrated cameras), position decides first: a
 //! person seen by another camera within [`TrackingConfig::floor_fresh`] seconds is the same
 //! person only if they stood within [`TrackingConfig::max_floor_gap`] of it, whatever their
-//! colours (a person's front and back rarely look alike). Only when no one matches does it
+//! colours (a person's front and back rarely look alike); and a box overlap in one camera does
+//! not continue a person whom the floor positions put more than
+//! [`TrackingConfig::max_track_floor_gap`] away. Only when no one matches does it
 //! start a new person. Persons unseen for
 //! [`TrackingConfig::forget_after`] are forgotten; past [`TrackingConfig::max_persons`] the
 //! least recently seen one is dropped (counted).
@@ -44,6 +46,10 @@ pub struct TrackingConfig {
     pub max_floor_gap: f32,
     /// How long (seconds) a person's floor position stays current for that comparison.
     pub floor_fresh: f64,
+    /// Distance on the floor (metres) beyond which a detection cannot continue a person's box
+    /// track, however well the boxes overlap: where two people cross in one camera's view,
+    /// their boxes overlap while the other camera still sees them apart.
+    pub max_track_floor_gap: f32,
 }
 
 impl Default for TrackingConfig {
@@ -55,6 +61,7 @@ impl Default for TrackingConfig {
             min_similarity: 0.8,
             max_floor_gap: 0.8,
             floor_fresh: 0.3,
+            max_track_floor_gap: 1.2,
         }
     }
 }
@@ -194,7 +201,10 @@ impl PersonTracks {
                 .moved(track.velocity, (stamp - track.stamp) as f32);
             for (d, det) in detections.iter().enumerate() {
                 let iou = predicted.iou(&det.bbox);
-                if iou >= self.config.min_iou {
+                let far = self
+                    .floor_gap(person, det, stamp)
+                    .is_some_and(|gap| gap > self.config.max_track_floor_gap);
+                if iou >= self.config.min_iou && !far {
                     pairs.push((iou, p, d));
                 }
             }

@@ -186,3 +186,35 @@ fn appearance_tells_colours_apart_and_boxes_overlap_as_expected() {
     let empty_mask = GrayImage::new(8, 8);
     assert!(Appearance::from_masked(&RgbImage::new(8, 8), &empty_mask, None).is_none());
 }
+
+#[test]
+fn a_box_overlap_does_not_continue_a_person_the_floor_puts_elsewhere() {
+    // A and B look alike. Both cameras see them 2 m apart; then camera 0 sees one person
+    // where B's box was, but standing where A stands (A has stepped in front of B).
+    let grey = [90, 90, 90];
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let cam0 = tracks.update(
+        "cam0",
+        0.0,
+        &[
+            on_floor(100.0, grey, [0.0, 0.0]),
+            on_floor(400.0, grey, [2.0, 0.0]),
+        ],
+    );
+    let cam1 = tracks.update(
+        "cam1",
+        0.01,
+        &[
+            on_floor(300.0, grey, [0.05, 0.0]),
+            on_floor(500.0, grey, [2.05, 0.0]),
+        ],
+    );
+    assert_eq!(cam1[0].person_id, cam0[0].person_id);
+    assert_eq!(cam1[1].person_id, cam0[1].person_id);
+    let crossing = &tracks.update("cam0", 0.1, &[on_floor(400.0, grey, [0.1, 0.0])])[0];
+    assert_eq!(
+        crossing.person_id, cam0[0].person_id,
+        "A, by where it stands"
+    );
+    assert_eq!(crossing.matched, Matched::Floor);
+}
