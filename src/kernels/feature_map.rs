@@ -93,14 +93,30 @@ impl FeatureMap {
 
     /// As a `[B, C, H, W]` f32 tensor on `device`.
     pub fn to_nchw(&self, device: &Device) -> Result<Tensor> {
-        Tensor::from_slice(
-            &self.data,
-            (self.batch, self.height, self.width, self.channels),
-            &Device::Cpu,
-        )?
-        .permute((0, 3, 1, 2))?
-        .contiguous()?
-        .to_device(device)
+        // One parallel pass over (image, channel, block of pixels): each task gathers its
+        // channel's values from the interleaved pixels (candle's strided copy of the permuted
+        // view runs on one thread).
+        let (c, hw) = (self.channels, self.height * self.width);
+        let mut out = vec![0f32; self.data.len()];
+        const BLOCK: usize = 1 << 14;
+        let plane = hw.max(1);
+        out.par_chunks_mut(plane)
+            .enumerate()
+            .flat_map(|(bc, chunk)| {
+                chunk
+                    .par_chunks_mut(BLOCK)
+                    .enumerate()
+                    .map(move |(i, dst)| (bc, i, dst))
+            })
+            .for_each(|(bc, i, dst)| {
+                let (b, ch) = (bc / c, bc % c);
+                let first = b * hw * c + i * BLOCK * c + ch;
+                for (j, v) in dst.iter_mut().enumerate() {
+                    *v = self.data[first + j * c];
+                }
+            });
+        Tensor::from_vec(out, (self.batch, c, self.height, self.width), &Device::Cpu)?
+            .to_device(device)
     }
 
     /// `max(x, 0)` in place.
@@ -170,6 +186,17 @@ impl FeatureMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nchw_of_a_large_map_equals_the_permuted_tensor() -> Result<()> {
+        // more pixels than one transpose block, several images and channels
+        let t = Tensor::randn(0f32, 1.0, (2, 3, 130, 150), &Device::Cpu)?;
+        let m = FeatureMap::from_nchw(&t)?;
+        let back = m.to_nchw(&Device::Cpu)?;
+        assert_eq!(back.dims(), t.dims());
+        assert_eq!(crate::testing::max_abs_diff(&back, &t), 0.0);
+        Ok(())
+    }
 
     #[test]
     fn nchw_round_trip_keeps_every_value_in_place() -> Result<()> {
