@@ -11,7 +11,8 @@
 //! person only if they stood within [`TrackingConfig::max_floor_gap`] of it, whatever their
 //! colours (a person's front and back rarely look alike); and a box overlap in one camera does
 //! not continue a person whom the floor positions put more than
-//! [`TrackingConfig::max_track_floor_gap`] away. Only when no one matches does it
+//! [`TrackingConfig::max_track_floor_gap`] away, or whose colours as this camera saw them differ
+//! ([`TrackingConfig::min_track_similarity`]). Only when no one matches does it
 //! start a new person. Persons unseen for
 //! [`TrackingConfig::forget_after`] are forgotten; past [`TrackingConfig::max_persons`] the
 //! least recently seen one is dropped (counted).
@@ -50,6 +51,10 @@ pub struct TrackingConfig {
     /// track, however well the boxes overlap: where two people cross in one camera's view,
     /// their boxes overlap while the other camera still sees them apart.
     pub max_track_floor_gap: f32,
+    /// Appearance similarity (as this camera saw the person) below which a detection cannot
+    /// continue a person's box track: a person coming out from behind another takes the box
+    /// the hidden one left, but not their colours.
+    pub min_track_similarity: f32,
 }
 
 impl Default for TrackingConfig {
@@ -62,6 +67,7 @@ impl Default for TrackingConfig {
             max_floor_gap: 0.8,
             floor_fresh: 0.3,
             max_track_floor_gap: 1.2,
+            min_track_similarity: 0.9,
         }
     }
 }
@@ -121,6 +127,8 @@ pub struct Assignment {
 #[derive(Debug, Clone)]
 struct CameraTrack {
     bbox: BoxPx,
+    /// The person's colours as this camera sees them.
+    appearance: Option<Appearance>,
     /// Box centre velocity, pixels per second.
     velocity: [f32; 2],
     stamp: f64,
@@ -204,7 +212,13 @@ impl PersonTracks {
                 let far = self
                     .floor_gap(person, det, stamp)
                     .is_some_and(|gap| gap > self.config.max_track_floor_gap);
-                if iou >= self.config.min_iou && !far {
+                let unlike = match (&det.appearance, &track.appearance) {
+                    (Some(look), Some(known)) => {
+                        look.similarity(known) < self.config.min_track_similarity
+                    }
+                    _ => false,
+                };
+                if iou >= self.config.min_iou && !far && !unlike {
                     pairs.push((iou, p, d));
                 }
             }
@@ -305,9 +319,18 @@ impl PersonTracks {
             }
             _ => [0.0, 0.0],
         };
+        let known_here = person
+            .cameras
+            .get(camera)
+            .and_then(|t| t.appearance.as_ref());
+        let seen_here = match (known_here, &det.appearance) {
+            (Some(known), Some(look)) => Some(known.blend(look, 0.2)),
+            (known, look) => look.clone().or_else(|| known.cloned()),
+        };
         person.cameras.insert(
             camera.to_owned(),
             CameraTrack {
+                appearance: seen_here,
                 bbox: det.bbox,
                 velocity,
                 stamp,

@@ -218,3 +218,15 @@ fn a_box_overlap_does_not_continue_a_person_the_floor_puts_elsewhere() {
     );
     assert_eq!(crossing.matched, Matched::Floor);
 }
+
+#[test]
+fn a_person_coming_out_from_behind_another_keeps_their_own_id() {
+    // One camera: red A stands still at x = 100, blue B walks behind A and comes out where A's
+    // box was while A is hidden behind B. B's colours, not A's box, decide.
+    let (red, blue) = ([200, 30, 30], [30, 30, 200]);
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let first = tracks.update("cam0", 0.0, &[det(100.0, red), det(400.0, blue)]);
+    let out = &tracks.update("cam0", 0.1, &[det(100.0, blue)])[0];
+    assert_eq!(out.person_id, first[1].person_id, "B, by its colours");
+    assert_eq!(out.matched, Matched::Appearance);
+}
