@@ -11,8 +11,8 @@
 //! person only if they stood within [`TrackingConfig::max_floor_gap`] of it, whatever their
 //! colours (a person's front and back rarely look alike); and a box overlap in one camera does
 //! not continue a person whom the floor positions put more than
-//! [`TrackingConfig::max_track_floor_gap`] away, or whose colours as this camera saw them differ
-//! ([`TrackingConfig::min_track_similarity`]). Only when no one matches does it
+//! [`TrackingConfig::max_track_floor_gap`] away, and continues one whose colours as this camera
+//! saw them differ ([`TrackingConfig::min_track_similarity`]) only when no one else matches. Only when no one matches does it
 //! start a new person. Persons unseen for
 //! [`TrackingConfig::forget_after`] are forgotten; past [`TrackingConfig::max_persons`] the
 //! least recently seen one is dropped (counted).
@@ -51,9 +51,10 @@ pub struct TrackingConfig {
     /// track, however well the boxes overlap: where two people cross in one camera's view,
     /// their boxes overlap while the other camera still sees them apart.
     pub max_track_floor_gap: f32,
-    /// Appearance similarity (as this camera saw the person) below which a detection cannot
-    /// continue a person's box track: a person coming out from behind another takes the box
-    /// the hidden one left, but not their colours.
+    /// Appearance similarity (as this camera saw the person) below which a box overlap
+    /// continues a person's track only if neither floor position nor colours give the
+    /// detection to someone else: a person coming out from behind another takes the box the
+    /// hidden one left, but not their colours.
     pub min_track_similarity: f32,
 }
 
@@ -198,8 +199,10 @@ impl PersonTracks {
         let mut out: Vec<Option<Assignment>> = vec![None; detections.len()];
         let mut taken = vec![false; self.persons.len()];
 
-        // 1. Box overlap with each person's predicted box in this camera, best pair first.
+        // 1. Box overlap with each person's predicted box in this camera, best pair first;
+        // overlaps whose colours differ wait until after step 2.
         let mut pairs = Vec::new();
+        let mut unlike_pairs = Vec::new();
         for (p, person) in self.persons.iter().enumerate() {
             let Some(track) = person.cameras.get(camera) else {
                 continue;
@@ -218,19 +221,16 @@ impl PersonTracks {
                     }
                     _ => false,
                 };
-                if iou >= self.config.min_iou && !far && !unlike {
-                    pairs.push((iou, p, d));
+                if iou >= self.config.min_iou && !far {
+                    if unlike {
+                        unlike_pairs.push((iou, p, d));
+                    } else {
+                        pairs.push((iou, p, d));
+                    }
                 }
             }
         }
-        pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-        for (_, p, d) in pairs {
-            if taken[p] || out[d].is_some() {
-                continue;
-            }
-            taken[p] = true;
-            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], Matched::Track));
-        }
+        self.assign_boxes(camera, stamp, detections, pairs, &mut out, &mut taken);
 
         // 2. Appearance against persons not matched in this frame, most similar first.
         let mut pairs = Vec::new();
@@ -279,6 +279,17 @@ impl PersonTracks {
             out[d] = Some(self.sighted(p, camera, stamp, &detections[d], how));
         }
 
+        // 2b. Box overlaps with other colours, where nobody else took the detection: the same
+        // person turned or half hidden rather than a new one.
+        self.assign_boxes(
+            camera,
+            stamp,
+            detections,
+            unlike_pairs,
+            &mut out,
+            &mut taken,
+        );
+
         // 3. New persons, in detection order.
         for (d, det) in detections.iter().enumerate() {
             if out[d].is_none() {
@@ -289,6 +300,27 @@ impl PersonTracks {
         out.into_iter()
             .map(|a| a.expect("every detection assigned"))
             .collect()
+    }
+
+    /// Gives each detection of `pairs` (box overlap, person, detection) the person it overlaps
+    /// most, best pair first, persons and detections once each.
+    fn assign_boxes(
+        &mut self,
+        camera: &str,
+        stamp: f64,
+        detections: &[Detection],
+        mut pairs: Vec<(f32, usize, usize)>,
+        out: &mut [Option<Assignment>],
+        taken: &mut [bool],
+    ) {
+        pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+        for (_, p, d) in pairs {
+            if taken[p] || out[d].is_some() {
+                continue;
+            }
+            taken[p] = true;
+            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], Matched::Track));
+        }
     }
 
     /// Floor distance (metres) between a detection and a person's fresh floor position, when
