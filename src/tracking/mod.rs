@@ -9,10 +9,11 @@
 //! knows where a detection stands on the floor (calibrated cameras), position decides first: a
 //! person seen by another camera within [`TrackingConfig::floor_fresh`] seconds is the same
 //! person only if they stood within [`TrackingConfig::max_floor_gap`] of it, whatever their
-//! colours (a person's front and back rarely look alike); and a box overlap in one camera does
-//! not continue a person whom the floor positions put more than
+//! colours (a person's front and back rarely look alike). A box overlap in one camera never
+//! continues a person whom the floor positions put more than
 //! [`TrackingConfig::max_track_floor_gap`] away, and continues one whose colours as this camera
-//! saw them differ ([`TrackingConfig::min_track_similarity`]) only when no one else matches. Only when no one matches does it
+//! saw them differ ([`TrackingConfig::min_track_similarity`]) only after the floor and colour
+//! matches, if they left the detection to no one. Only when no one matches does it
 //! start a new person. Persons unseen for
 //! [`TrackingConfig::forget_after`] are forgotten; past [`TrackingConfig::max_persons`] the
 //! least recently seen one is dropped (counted).
@@ -212,21 +213,23 @@ impl PersonTracks {
                 .moved(track.velocity, (stamp - track.stamp) as f32);
             for (d, det) in detections.iter().enumerate() {
                 let iou = predicted.iou(&det.bbox);
-                let far = self
-                    .floor_gap(person, det, stamp)
-                    .is_some_and(|gap| gap > self.config.max_track_floor_gap);
+                let far = || {
+                    self.floor_gap(person, det, stamp)
+                        .is_some_and(|gap| gap > self.config.max_track_floor_gap)
+                };
+                if iou < self.config.min_iou || far() {
+                    continue;
+                }
                 let unlike = match (&det.appearance, &track.appearance) {
                     (Some(look), Some(known)) => {
                         look.similarity(known) < self.config.min_track_similarity
                     }
                     _ => false,
                 };
-                if iou >= self.config.min_iou && !far {
-                    if unlike {
-                        unlike_pairs.push((iou, p, d));
-                    } else {
-                        pairs.push((iou, p, d));
-                    }
+                if unlike {
+                    unlike_pairs.push((iou, p, d));
+                } else {
+                    pairs.push((iou, p, d));
                 }
             }
         }
