@@ -166,10 +166,12 @@ pub enum ColourSource {
 
 /// What perception sees of the person in each input view (a fresh tracker per view, the
 /// `full` landmark model; the bag's mask where it has one, else perception's); `None` where
-/// it finds nobody.
+/// it finds nobody. A view whose camera the bag calibrates carries that camera and `pose`
+/// (the bag's pose topic), as the node's views do when it has CameraInfo, TF and a pose topic.
 fn perceive_inputs(
     path: &Path,
     inputs: &[InputView],
+    pose: &Pose,
 ) -> Result<Vec<Option<ViewEvidence>>, EvalError> {
     use crate::perception::{LandmarkModel, PersonTracker, PoseNetworks, TrackerConfig};
     let failed = |message: String| EvalError::MissingGroundTruth {
@@ -192,22 +194,24 @@ fn perceive_inputs(
                 .map_err(|e| failed(e.to_string()))?;
             Ok(seen.map(|p| {
                 let mask = v.mask.clone().unwrap_or_else(|| p.mask.to_mask(0.5, 0.1));
-                ViewEvidence {
-                    frame: v.rgb.clone(),
-                    mask,
-                    image_landmarks: p.landmarks.image,
-                    world_landmarks: p.landmarks.world,
+                let evidence =
+                    ViewEvidence::new(&v.rgb, &mask, &p.landmarks.image, &p.landmarks.world);
+                match v.camera {
+                    Some(camera) => evidence.with_calibration(camera, pose.clone()),
+                    None => evidence,
                 }
             }))
         })
         .collect()
 }
 
-/// One input view of the bag: its name, image and person mask (when the bag has one).
+/// One input view of the bag: its name, image, person mask (when the bag has one) and
+/// calibrated camera (when the bag has its CameraInfo and a `/tf_static` pose).
 struct InputView {
     name: String,
     rgb: image::RgbImage,
     mask: Option<image::GrayImage>,
+    camera: Option<Camera>,
 }
 
 struct GroundTruth {
@@ -312,6 +316,18 @@ fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
             let frames = decode_all_images(bag, &image_topic(&name))?;
             let mut masks = decode_all_masks(bag, &mask_topic(&name))?.into_iter();
             let several = frames.len() > 1;
+            // A fixed camera's calibration (a moving camera's poses are on /tf, not read here).
+            let camera = if several {
+                None
+            } else {
+                let info = first(bag, &info_topic(&name))
+                    .map(|m| bag.decode::<CameraInfo>(m))
+                    .transpose()?;
+                let pose = poses.get(&crate::synth::capture::optical_frame(&name));
+                info.zip(pose).map(|(info, pose)| {
+                    Camera::from_camera_info(info.k, info.width, info.height, *pose)
+                })
+            };
             for (i, rgb) in frames.into_iter().enumerate() {
                 let view = if several {
                     format!("{name}#{i}")
@@ -323,6 +339,7 @@ fn read_ground_truth(bag: &BagReader) -> Result<GroundTruth, EvalError> {
                     name: view,
                     rgb,
                     mask,
+                    camera,
                 });
             }
             continue;
@@ -392,7 +409,7 @@ pub fn evaluate_bag(
     let gt = read_ground_truth(&bag)?;
     let evidence = match colours {
         ColourSource::Network => Vec::new(),
-        ColourSource::Views => perceive_inputs(path, &gt.inputs)?,
+        ColourSource::Views => perceive_inputs(path, &gt.inputs, &gt.pose)?,
     };
     let mut recon = Reconstructor::new(model, gt.inputs.len())?;
     // Reconstruct on the person's body shape, as the node does when a shape topic is set.

@@ -12,12 +12,17 @@
 //! Gaussian seen in several photos takes the mean. The landmark the fit misses most is dropped
 //! while the fit misses by more than [`PhotoColourConfig::max_fit_error`] of the person's height
 //! (down to two thirds of them); a photo whose fit still misses is skipped.
+//!
+//! A calibrated view (its pinhole camera from CameraInfo and TF, the person's pose in the same
+//! world frame from the pose topic) needs no fit: the avatar is projected through the real
+//! camera, perspective included. Its projection is only checked against perception's
+//! landmarks (a stale pose or a wrong TF would paint the wrong Gaussians).
 
 use crate::avatar::Avatar;
 use crate::body::{BodyTemplate, Pose};
 use crate::perception::pose::{template_landmarks, PoseEstimator, PoseEstimatorConfig};
 use crate::perception::{Landmark, LandmarkId, BODY_LANDMARKS};
-use crate::splat::{rgb_to_sh_dc, sh_dc_to_rgb};
+use crate::splat::{rgb_to_sh_dc, sh_dc_to_rgb, Camera};
 use glam::{Mat4, Vec2, Vec3, Vec4};
 use image::{GrayImage, RgbImage};
 
@@ -57,8 +62,12 @@ pub struct PhotoSample<'a> {
     pub mask: &'a GrayImage,
     /// Perception's image landmarks (pixels).
     pub landmarks: &'a [Landmark; BODY_LANDMARKS],
-    /// The pose solved for the photo.
+    /// The pose solved for the photo (with [`PhotoSample::camera`], the person's pose in that
+    /// camera's world frame).
     pub pose: &'a Pose,
+    /// The photo's calibrated camera (intrinsics in the photo's pixels, pose in the world
+    /// frame of [`PhotoSample::pose`]), when known; else a camera is fitted to the landmarks.
+    pub camera: Option<Camera>,
 }
 
 /// What [`colour_from_photos`] did.
@@ -117,6 +126,34 @@ impl AffineCamera {
             .truncate()
             .cross(self.v.truncate())
             .normalize_or_zero()
+    }
+}
+
+/// How a photo's pixels are reached from posed points: an affine camera fitted to the
+/// landmarks, or the calibrated pinhole camera.
+#[derive(Debug, Clone, Copy)]
+enum Projection {
+    Affine(AffineCamera),
+    Pinhole {
+        camera_from_world: glam::Affine3A,
+        camera: Camera,
+    },
+}
+
+impl Projection {
+    /// The pixel of `p` and its depth along the viewing direction (`None` behind a pinhole
+    /// camera).
+    fn project(&self, p: Vec3) -> Option<(Vec2, f32)> {
+        match self {
+            Projection::Affine(camera) => Some((camera.project(p), camera.forward().dot(p))),
+            Projection::Pinhole {
+                camera_from_world,
+                camera,
+            } => {
+                let c = camera_from_world.transform_point3(p);
+                (c.z > 1e-3).then(|| (camera.project_camera_point(c), c.z))
+            }
+        }
     }
 }
 
@@ -192,31 +229,10 @@ fn photo_colours(
         (lo.min(p.y), hi.max(p.y))
     });
     let height = (hi - lo).max(1.0);
-    // The worst landmark is dropped while the fit misses and two thirds of them remain (a
-    // limb the pose got wrong must not tilt the camera).
-    let keep = (2 * pairs.len()).div_ceil(3).max(MIN_FIT_LANDMARKS);
-    let (camera, rms) = loop {
-        let camera = fit_camera(&pairs).ok_or("too few visible landmarks to place the camera")?;
-        let errors: Vec<f32> = pairs
-            .iter()
-            .map(|(x, p)| camera.project(*x).distance_squared(*p))
-            .collect();
-        let rms = (errors.iter().sum::<f32>() / pairs.len() as f32).sqrt() / height;
-        if rms <= cfg.max_fit_error || pairs.len() <= keep {
-            break (camera, rms);
-        }
-        let worst = (0..errors.len())
-            .max_by(|&a, &b| errors[a].total_cmp(&errors[b]))
-            .expect("pairs are not empty");
-        pairs.swap_remove(worst);
+    let (projection, rms) = match photo.camera {
+        Some(camera) => calibrated_projection(camera, &pairs, height, cfg)?,
+        None => fitted_projection(&mut pairs, height, cfg)?,
     };
-    if rms > cfg.max_fit_error {
-        return Err(format!(
-            "the camera fit misses the landmarks by {:.1} % of the person's height",
-            rms * 100.0
-        ));
-    }
-    let forward = camera.forward();
     let matrices = template.skeleton.skinning_matrices(photo.pose);
     let posed = avatar.animate(&matrices);
     let cell = (height / 64.0).max(1.0);
@@ -227,8 +243,10 @@ fn photo_colours(
     let mut front = vec![f32::MAX; gw * gh];
     let mut placed = Vec::with_capacity(posed.len());
     for (i, p) in posed.positions.iter().enumerate() {
-        let px = camera.project(*p);
-        let depth = forward.dot(*p);
+        let Some((px, depth)) = projection.project(*p) else {
+            placed.push(None);
+            continue;
+        };
         let (cx, cy) = ((px.x / cell).floor(), (px.y / cell).floor());
         if posed.opacities[i] < 0.05
             || cx < 0.0
@@ -258,6 +276,77 @@ fn photo_colours(
     }
     Ok(rms)
 }
+
+/// The affine camera through the landmark pairs and its RMS miss (share of `height`): the
+/// landmark the fit misses most is dropped while the fit misses and two thirds of them remain
+/// (a limb the pose got wrong must not tilt the camera).
+fn fitted_projection(
+    pairs: &mut Vec<(Vec3, Vec2)>,
+    height: f32,
+    cfg: &PhotoColourConfig,
+) -> Result<(Projection, f32), String> {
+    let keep = (2 * pairs.len()).div_ceil(3).max(MIN_FIT_LANDMARKS);
+    let (camera, rms) = loop {
+        let camera = fit_camera(pairs).ok_or("too few visible landmarks to place the camera")?;
+        let errors: Vec<f32> = pairs
+            .iter()
+            .map(|(x, p)| camera.project(*x).distance_squared(*p))
+            .collect();
+        let rms = (errors.iter().sum::<f32>() / pairs.len() as f32).sqrt() / height;
+        if rms <= cfg.max_fit_error || pairs.len() <= keep {
+            break (camera, rms);
+        }
+        let worst = (0..errors.len())
+            .max_by(|&a, &b| errors[a].total_cmp(&errors[b]))
+            .expect("pairs are not empty");
+        pairs.swap_remove(worst);
+    };
+    if rms > cfg.max_fit_error {
+        return Err(format!(
+            "the camera fit misses the landmarks by {:.1} % of the person's height",
+            rms * 100.0
+        ));
+    }
+    Ok((Projection::Affine(camera), rms))
+}
+
+/// The calibrated camera's projection, and how far (RMS, share of `height`) the posed
+/// template's landmarks land from perception's; refused past [`CALIBRATED_MAX_MISS`] times
+/// the fit's limit (the pose does not belong to this photo, or the camera is wrong).
+fn calibrated_projection(
+    camera: Camera,
+    pairs: &[(Vec3, Vec2)],
+    height: f32,
+    cfg: &PhotoColourConfig,
+) -> Result<(Projection, f32), String> {
+    let projection = Projection::Pinhole {
+        camera_from_world: camera.camera_from_world(),
+        camera,
+    };
+    let misses: Vec<f32> = pairs
+        .iter()
+        .map(|(x, p)| match projection.project(*x) {
+            Some((q, _)) => q.distance_squared(*p),
+            None => f32::INFINITY,
+        })
+        .collect();
+    let rms = if misses.is_empty() {
+        0.0
+    } else {
+        (misses.iter().sum::<f32>() / misses.len() as f32).sqrt() / height
+    };
+    if rms > CALIBRATED_MAX_MISS * cfg.max_fit_error {
+        return Err(format!(
+            "the calibrated camera and pose miss the landmarks by {:.1} % of the person's height",
+            rms * 100.0
+        ));
+    }
+    Ok((projection, rms))
+}
+
+/// How many times [`PhotoColourConfig::max_fit_error`] a calibrated projection may miss
+/// perception's landmarks (they carry perception's own error, which the fit absorbs).
+const CALIBRATED_MAX_MISS: f32 = 2.0;
 
 /// The affine colour transform (`out = M · (rgb, 1)`, one row per channel) that best maps
 /// `from` to `to`, pulled towards the identity by `ridge` per pair.
@@ -340,6 +429,10 @@ pub struct ViewEvidence {
     pub image_landmarks: [Landmark; BODY_LANDMARKS],
     /// World landmarks (metres, hip-centred, the camera's axes).
     pub world_landmarks: [Landmark; BODY_LANDMARKS],
+    /// The view's calibrated camera (intrinsics in the kept frame's pixels) and the person's
+    /// pose in its world frame at the view's time, when both are known
+    /// ([`ViewEvidence::with_calibration`]).
+    pub calibration: Option<(Camera, Pose)>,
 }
 
 impl ViewEvidence {
@@ -362,6 +455,7 @@ impl ViewEvidence {
                 mask: mask.clone(),
                 image_landmarks,
                 world_landmarks: *world_landmarks,
+                calibration: None,
             };
         }
         let (sw, sh) = (
@@ -381,12 +475,35 @@ impl ViewEvidence {
             mask: image::imageops::resize(mask, sw, sh, filter),
             image_landmarks,
             world_landmarks: *world_landmarks,
+            calibration: None,
         }
+    }
+
+    /// The evidence with the frame's calibrated `camera` (intrinsics of the original frame,
+    /// rescaled here to the kept one) and the person's `pose` in the camera's world frame:
+    /// colours are then projected through the camera rather than a camera fitted to the
+    /// landmarks.
+    pub fn with_calibration(mut self, mut camera: Camera, pose: Pose) -> Self {
+        let k = &mut camera.intrinsics;
+        let (sx, sy) = (
+            self.frame.width() as f32 / k.width.max(1) as f32,
+            self.frame.height() as f32 / k.height.max(1) as f32,
+        );
+        // Pixel centres sit at integer coordinates: scale about the corner at -0.5.
+        k.fx *= sx;
+        k.fy *= sy;
+        k.cx = (k.cx + 0.5) * sx - 0.5;
+        k.cy = (k.cy + 0.5) * sy - 0.5;
+        k.width = self.frame.width();
+        k.height = self.frame.height();
+        self.calibration = Some((camera, pose));
+        self
     }
 }
 
-/// Recolours `avatar` from the views perception saw the person in (each view's pose solved from
-/// its world landmarks on `template`); nothing without such views.
+/// Recolours `avatar` from the views perception saw the person in (a calibrated view through its
+/// camera and given pose, the others with their pose solved from their world landmarks on
+/// `template`); nothing without such views.
 pub fn colour_from_evidence(
     avatar: &mut Avatar,
     template: &BodyTemplate,
@@ -404,9 +521,12 @@ pub fn colour_from_evidence(
     };
     let poses: Vec<Pose> = seen
         .iter()
-        .map(|e| {
-            solver.reset();
-            solver.update(0.0, &e.world_landmarks)
+        .map(|e| match &e.calibration {
+            Some((_, pose)) => pose.clone(),
+            None => {
+                solver.reset();
+                solver.update(0.0, &e.world_landmarks)
+            }
         })
         .collect();
     let samples: Vec<PhotoSample<'_>> = seen
@@ -417,6 +537,7 @@ pub fn colour_from_evidence(
             mask: &e.mask,
             landmarks: &e.image_landmarks,
             pose,
+            camera: e.calibration.as_ref().map(|(camera, _)| *camera),
         })
         .collect();
     let report = colour_from_photos(avatar, template, &samples, &PhotoColourConfig::default());
@@ -461,6 +582,35 @@ mod tests {
             fit.forward()
         );
         assert!(fit_camera(&pairs[..3]).is_none());
+    }
+
+    /// A calibrated camera follows its frame when the evidence keeps it scaled down: a world
+    /// point lands on the same place of the person in the kept frame.
+    #[test]
+    fn calibration_is_rescaled_with_the_kept_frame() {
+        use crate::splat::Intrinsics;
+        let (w, h) = (1280, 960);
+        let camera = Camera::look_at(
+            Vec3::new(0.0, 1.0, 3.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::Y,
+            Intrinsics::from_fov_y(w, h, 0.8),
+        );
+        let none = [Landmark {
+            position: Vec3::ZERO,
+            visibility: 0.0,
+            presence: 0.0,
+        }; BODY_LANDMARKS];
+        let evidence = ViewEvidence::new(&RgbImage::new(w, h), &GrayImage::new(w, h), &none, &none)
+            .with_calibration(camera, Pose::default());
+        let (kept, _) = evidence.calibration.as_ref().unwrap();
+        assert_eq!(kept.intrinsics.width, 640);
+        assert_eq!(kept.intrinsics.height, 480);
+        let p = Vec3::new(0.3, 1.6, 0.2);
+        let full = camera.project_camera_point(camera.camera_from_world().transform_point3(p));
+        let small = kept.project_camera_point(kept.camera_from_world().transform_point3(p));
+        let expected = (full + 0.5) * 0.5 - 0.5;
+        assert!(small.distance(expected) < 1e-3, "{small} vs {expected}");
     }
 
     /// The colour transform learns a consistent colour cast and leaves the identity alone.

@@ -320,6 +320,7 @@ pub fn colour_from_views(
                 mask: &v.mask,
                 landmarks: &v.perceived.as_ref()?.landmarks.image,
                 pose: v.pose.as_ref()?,
+                camera: None,
             })
         })
         .collect();

@@ -78,6 +78,11 @@ impl Calibration {
         self.tf.insert(transforms);
     }
 
+    /// The world frame cameras are placed in.
+    pub fn world_frame(&self) -> &str {
+        &self.world_frame
+    }
+
     /// Whether the body shape is read here.
     pub fn reads_shape(&self) -> bool {
         self.reader.is_some()

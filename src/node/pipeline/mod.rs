@@ -66,6 +66,11 @@ const PERCEPTION_POLL: Duration = Duration::from_millis(5);
 const POSE_CAMERA_HOLD: Duration = Duration::from_millis(500);
 /// Camera poses kept for the end-of-replay animation.
 const POSE_TRACK_KEPT: usize = 240;
+/// A pose-topic pose places a view's colours when stamped at most this long before the view
+/// (a pose topic holds until the next pose; a static person may publish one pose).
+const POSE_SYNC_BEFORE_NS: i64 = 1_000_000_000;
+/// ... and at most this long after it.
+const POSE_SYNC_AFTER_NS: i64 = 100_000_000;
 
 /// Counters of one run, printed at the end and used by tests.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -617,6 +622,8 @@ impl Pipeline {
                 let state = self.person_mut(&person);
                 state.animation.topic_pose = Some(p);
                 state.animation.topic_pose_at = Some(arrival);
+                state.animation.topic_pose_stamp =
+                    Some((msg.header.stamp.as_nanos(), msg.header.frame_id.clone()));
             }
             Err(e) => self.reject_pose(topic, &e),
         }
@@ -845,16 +852,52 @@ impl Pipeline {
             if to_store {
                 self.stats.perception_masked += 1;
                 let evidence = self.colours_from_views.then(|| {
-                    Arc::new(ViewEvidence::new(
-                        &frame.image,
-                        &seen.mask,
-                        &seen.image,
-                        &seen.world,
-                    ))
+                    let evidence =
+                        ViewEvidence::new(&frame.image, &seen.mask, &seen.image, &seen.world);
+                    Arc::new(match self.calibrated_view(&person, &frame) {
+                        Some((camera, pose)) => evidence.with_calibration(camera, pose),
+                        None => evidence,
+                    })
                 });
                 self.on_frame(frame.clone(), Some(seen.mask), evidence, &person, now);
             }
         }
+    }
+
+    /// `frame`'s calibrated camera and `person`'s pose in the world frame at the frame's time,
+    /// when both are known: the camera calibrated (CameraInfo, TF to `outputs.world_frame`)
+    /// and the newest pose-topic pose given in the world frame and stamped at most
+    /// [`POSE_SYNC_BEFORE_NS`] before the frame (and not after it by more than
+    /// [`POSE_SYNC_AFTER_NS`]).
+    fn calibrated_view(
+        &self,
+        person: &str,
+        frame: &CameraFrame,
+    ) -> Option<(crate::splat::Camera, crate::body::Pose)> {
+        let animation = &self.persons.get(person)?.animation;
+        let pose = animation.topic_pose.as_ref()?;
+        let (stamp, pose_frame) = animation.topic_pose_stamp.as_ref()?;
+        let lag = frame.stamp_ns - stamp;
+        if pose_frame != self.calibration.world_frame()
+            || lag > POSE_SYNC_BEFORE_NS
+            || lag < -POSE_SYNC_AFTER_NS
+        {
+            return None;
+        }
+        let floor = self.calibration.floor_camera(frame)?;
+        let [fx, fy, cx, cy] = floor.intrinsics;
+        let camera = crate::splat::Camera {
+            intrinsics: crate::splat::Intrinsics {
+                fx,
+                fy,
+                cx,
+                cy,
+                width: frame.image.width(),
+                height: frame.image.height(),
+            },
+            world_from_camera: floor.world_from_camera,
+        };
+        Some((camera, pose.clone()))
     }
 
     /// Updates `person`'s camera pose from `camera`'s world landmarks when that camera drives

@@ -38,6 +38,8 @@ pub(super) struct Animation {
     pub(super) topic_pose: Option<Pose>,
     /// When the last one arrived (node clock).
     pub(super) topic_pose_at: Option<Duration>,
+    /// The last one's header stamp (ns) and frame.
+    pub(super) topic_pose_stamp: Option<(i64, String)>,
     /// Turns the pose camera's world landmarks into poses (`None`: no camera pose).
     pub(super) estimator: Option<PoseEstimator>,
     pub(super) camera_pose: Option<CameraPose>,
@@ -52,6 +54,7 @@ impl Animation {
             source,
             topic_pose: None,
             topic_pose_at: None,
+            topic_pose_stamp: None,
             estimator,
             camera_pose: None,
             track: VecDeque::new(),
