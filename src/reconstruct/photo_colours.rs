@@ -543,6 +543,7 @@ pub fn colour_from_evidence(
     let report = colour_from_photos(avatar, template, &samples, &PhotoColourConfig::default());
     tracing::debug!(
         views = report.photos_used,
+        calibrated = seen.iter().filter(|e| e.calibration.is_some()).count(),
         seen = report.seen,
         mapped = report.mapped,
         skipped = report.skipped.len(),

@@ -879,8 +879,7 @@ impl Pipeline {
         let (stamp, pose_frame) = animation.topic_pose_stamp.as_ref()?;
         let lag = frame.stamp_ns - stamp;
         if pose_frame != self.calibration.world_frame()
-            || lag > POSE_SYNC_BEFORE_NS
-            || lag < -POSE_SYNC_AFTER_NS
+            || !(-POSE_SYNC_AFTER_NS..=POSE_SYNC_BEFORE_NS).contains(&lag)
         {
             return None;
         }
