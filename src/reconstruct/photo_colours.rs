@@ -215,7 +215,7 @@ fn photo_colours(
     template: &BodyTemplate,
     photo: &PhotoSample<'_>,
     cfg: &PhotoColourConfig,
-    sums: &mut [(Vec3, u32)],
+    samples: &mut [Vec<Vec3>],
 ) -> Result<f32, String> {
     let posed_landmarks =
         template_landmarks(template, photo.pose).map_err(|e| format!("landmarks: {e}"))?;
@@ -270,8 +270,7 @@ fn photo_colours(
         }
         let (x, y) = (px.x.round() as i64, px.y.round() as i64);
         if inside_mask(photo.mask, x, y, cfg.min_mask) {
-            sums[i].0 += sample(photo.image, x, y);
-            sums[i].1 += 1;
+            samples[i].push(sample(photo.image, x, y));
         }
     }
     Ok(rms)
@@ -348,6 +347,31 @@ fn calibrated_projection(
 /// perception's landmarks (they carry perception's own error, which the fit absorbs).
 const CALIBRATED_MAX_MISS: f32 = 2.0;
 
+/// One Gaussian's colour from the photos that show it: the per-channel median of three or
+/// more (a photo that misplaces it, or shows what stands in front of it, is outvoted), else
+/// the mean; `None` when no photo shows it.
+fn combined(samples: &[Vec3]) -> Option<Vec3> {
+    match samples.len() {
+        0 => None,
+        1 | 2 => Some(samples.iter().copied().sum::<Vec3>() / samples.len() as f32),
+        _ => {
+            let median = |c: usize| {
+                let mut v: Vec<f32> = samples.iter().map(|s| s[c]).collect();
+                let mid = v.len() / 2;
+                let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
+                let upper = *m;
+                if v.len() % 2 == 1 {
+                    upper
+                } else {
+                    let lower = v[..mid].iter().copied().fold(f32::MIN, f32::max);
+                    0.5 * (lower + upper)
+                }
+            };
+            Some(Vec3::new(median(0), median(1), median(2)))
+        }
+    }
+}
+
 /// The affine colour transform (`out = M · (rgb, 1)`, one row per channel) that best maps
 /// `from` to `to`, pulled towards the identity by `ridge` per pair.
 fn fit_colour_transform(pairs: &[(Vec3, Vec3)], ridge: f32) -> [Vec4; 3] {
@@ -380,10 +404,10 @@ pub fn colour_from_photos(
     cfg: &PhotoColourConfig,
 ) -> PhotoColourReport {
     let n = avatar.canonical.len();
-    let mut sums = vec![(Vec3::ZERO, 0u32); n];
+    let mut samples = vec![Vec::new(); n];
     let mut report = PhotoColourReport::default();
     for (k, photo) in photos.iter().enumerate() {
-        match photo_colours(avatar, template, photo, cfg, &mut sums) {
+        match photo_colours(avatar, template, photo, cfg, &mut samples) {
             Ok(rms) => {
                 report.photos_used += 1;
                 report.fit_errors.push(rms);
@@ -395,17 +419,16 @@ pub fn colour_from_photos(
     let k = g.sh_per_gaussian();
     let network: Vec<Vec3> = (0..n).map(|i| sh_dc_to_rgb(g.sh[i * k])).collect();
     let pairs: Vec<(Vec3, Vec3)> = (0..n)
-        .filter(|&i| sums[i].1 > 0)
-        .map(|i| (network[i], sums[i].0 / sums[i].1 as f32))
+        .filter_map(|i| Some((network[i], combined(&samples[i])?)))
         .collect();
     if pairs.is_empty() {
         return report;
     }
     let m = fit_colour_transform(&pairs, cfg.ridge);
     for i in 0..n {
-        let rgb = if sums[i].1 > 0 {
+        let rgb = if let Some(rgb) = combined(&samples[i]) {
             report.seen += 1;
-            sums[i].0 / sums[i].1 as f32
+            rgb
         } else {
             report.mapped += 1;
             let h = network[i].extend(1.0);
