@@ -141,6 +141,14 @@ enum Projection {
 }
 
 impl Projection {
+    /// The unit direction from the camera towards `p`.
+    fn direction(&self, p: Vec3) -> Vec3 {
+        match self {
+            Projection::Affine(camera) => camera.forward(),
+            Projection::Pinhole { camera, .. } => (p - camera.center()).normalize_or_zero(),
+        }
+    }
+
     /// The pixel of `p` and its depth along the viewing direction (`None` behind a pinhole
     /// camera).
     fn project(&self, p: Vec3) -> Option<(Vec2, f32)> {
@@ -215,7 +223,8 @@ fn photo_colours(
     template: &BodyTemplate,
     photo: &PhotoSample<'_>,
     cfg: &PhotoColourConfig,
-    samples: &mut [Vec<Vec3>],
+    normals: &[Vec3],
+    samples: &mut [Vec<(f32, Vec3)>],
 ) -> Result<f32, String> {
     let posed_landmarks =
         template_landmarks(template, photo.pose).map_err(|e| format!("landmarks: {e}"))?;
@@ -269,9 +278,16 @@ fn photo_colours(
             continue;
         }
         let (x, y) = (px.x.round() as i64, px.y.round() as i64);
-        if inside_mask(photo.mask, x, y, cfg.min_mask) {
-            samples[i].push(sample(photo.image, x, y));
+        if !inside_mask(photo.mask, x, y, cfg.min_mask) {
+            continue;
         }
+        let normal = avatar
+            .skin
+            .blended(i, &matrices)
+            .transform_vector3(normals[i])
+            .normalize_or_zero();
+        let facing = -normal.dot(projection.direction(posed.positions[i]));
+        samples[i].push((facing.max(MIN_FACING), sample(photo.image, x, y)));
     }
     Ok(rms)
 }
@@ -347,25 +363,44 @@ fn calibrated_projection(
 /// perception's landmarks (they carry perception's own error, which the fit absorbs).
 const CALIBRATED_MAX_MISS: f32 = 2.0;
 
-/// One Gaussian's colour from the photos that show it: the per-channel median of three or
-/// more (a photo that misplaces it, or shows what stands in front of it, is outvoted), else
-/// the mean; `None` when no photo shows it.
-fn combined(samples: &[Vec3]) -> Option<Vec3> {
+/// Photos that see a Gaussian's surface more obliquely than this (cosine between its normal
+/// and the line of sight) do not colour it: at grazing angles a pixel spans a long stretch of
+/// surface and the edge of the mask.
+const MIN_FACING: f32 = 0.2;
+
+/// Each Gaussian's canonical surface normal: the template's vertex normal nearest to it.
+fn canonical_normals(avatar: &Avatar, template: &BodyTemplate) -> Vec<Vec3> {
+    let normals = crate::body::vertex_normals(&template.vertices, &template.triangles);
+    let grid = crate::body::PointGrid::for_surface(&template.vertices);
+    avatar
+        .canonical
+        .positions
+        .iter()
+        .map(|p| grid.nearest(*p).map_or(Vec3::ZERO, |v| normals[v]))
+        .collect()
+}
+
+/// One Gaussian's colour from the photos that show it, each weighted by how squarely it
+/// faces the camera: the per-channel weighted median of three or more (a photo that
+/// misplaces it, or shows what stands in front of it, is outvoted), else the weighted mean;
+/// `None` when no photo shows it.
+fn combined(samples: &[(f32, Vec3)]) -> Option<Vec3> {
+    let total: f32 = samples.iter().map(|(w, _)| w).sum();
     match samples.len() {
         0 => None,
-        1 | 2 => Some(samples.iter().copied().sum::<Vec3>() / samples.len() as f32),
+        1 | 2 => Some(samples.iter().map(|(w, c)| *c * *w).sum::<Vec3>() / total),
         _ => {
-            let median = |c: usize| {
-                let mut v: Vec<f32> = samples.iter().map(|s| s[c]).collect();
-                let mid = v.len() / 2;
-                let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
-                let upper = *m;
-                if v.len() % 2 == 1 {
-                    upper
-                } else {
-                    let lower = v[..mid].iter().copied().fold(f32::MIN, f32::max);
-                    0.5 * (lower + upper)
+            let median = |ch: usize| {
+                let mut v: Vec<(f32, f32)> = samples.iter().map(|(w, c)| (c[ch], *w)).collect();
+                v.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let mut acc = 0.0;
+                for (value, w) in &v {
+                    acc += w;
+                    if acc >= 0.5 * total {
+                        return *value;
+                    }
                 }
+                v[v.len() - 1].0
             };
             Some(Vec3::new(median(0), median(1), median(2)))
         }
@@ -404,10 +439,11 @@ pub fn colour_from_photos(
     cfg: &PhotoColourConfig,
 ) -> PhotoColourReport {
     let n = avatar.canonical.len();
+    let normals = canonical_normals(avatar, template);
     let mut samples = vec![Vec::new(); n];
     let mut report = PhotoColourReport::default();
     for (k, photo) in photos.iter().enumerate() {
-        match photo_colours(avatar, template, photo, cfg, &mut samples) {
+        match photo_colours(avatar, template, photo, cfg, &normals, &mut samples) {
             Ok(rms) => {
                 report.photos_used += 1;
                 report.fit_errors.push(rms);
