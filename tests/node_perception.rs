@@ -46,6 +46,29 @@ fn without_mask_topics_perception_crops_every_frame_to_the_person() {
     assert_eq!(summary.views_held, 4);
     assert_eq!(summary.revision, 1);
     assert!(s.camera_poses >= 1, "the cameras give the pose");
+    assert_eq!(
+        s.calibrated_views, 4,
+        "CameraInfo, /tf_static and the pose topic place every view's colours"
+    );
+}
+
+#[test]
+fn views_are_not_calibrated_in_another_world_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    // The bag's cameras and pose are in `world`: a node working in another frame cannot place
+    // them and falls back to cameras fitted to the landmarks.
+    let config = demo_config(
+        dir.path(),
+        &demo_bag(),
+        &[
+            "inputs.mask_topics=[]",
+            "outputs.virtual_cameras=1",
+            "outputs.world_frame=map",
+        ],
+    );
+    let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
+    assert_eq!(summary.stats.perception_masked, 4);
+    assert_eq!(summary.stats.calibrated_views, 0);
 }
 
 #[test]

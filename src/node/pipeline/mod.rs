@@ -116,6 +116,9 @@ pub struct PipelineStats {
     pub perceived: u64,
     /// Frames cropped by a mask from perception.
     pub perception_masked: u64,
+    /// Of those, views kept with their calibrated camera and the pose topic's pose, whose
+    /// colours are projected through that camera (`perception.colours_from_views`).
+    pub calibrated_views: u64,
     /// Perceived frames that showed nobody (they never reach the frame store).
     pub no_person: u64,
     /// Time perception took per frame.
@@ -855,7 +858,10 @@ impl Pipeline {
                     let evidence =
                         ViewEvidence::new(&frame.image, &seen.mask, &seen.image, &seen.world);
                     Arc::new(match self.calibrated_view(&person, &frame) {
-                        Some((camera, pose)) => evidence.with_calibration(camera, pose),
+                        Some((camera, pose)) => {
+                            self.stats.calibrated_views += 1;
+                            evidence.with_calibration(camera, pose)
+                        }
                         None => evidence,
                     })
                 });
