@@ -28,15 +28,18 @@ fn demo_bag() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("bags/demo.mcap")
 }
 
+/// The demo bag through perception (no mask topics), one virtual camera, with `extra`.
+fn run_perceived_demo(extra: &[&str]) -> lhmpp::node::run::RunSummary {
+    let dir = tempfile::tempdir().unwrap();
+    let mut overrides = vec!["inputs.mask_topics=[]", "outputs.virtual_cameras=1"];
+    overrides.extend_from_slice(extra);
+    let config = demo_config(dir.path(), &demo_bag(), &overrides);
+    lhmpp::node::run::run(&config, BTreeMap::new()).unwrap()
+}
+
 #[test]
 fn without_mask_topics_perception_crops_every_frame_to_the_person() {
-    let dir = tempfile::tempdir().unwrap();
-    let config = demo_config(
-        dir.path(),
-        &demo_bag(),
-        &["inputs.mask_topics=[]", "outputs.virtual_cameras=1"],
-    );
-    let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
+    let summary = run_perceived_demo(&[]);
     let s = &summary.stats;
     assert_eq!(s.frames, 4);
     assert_eq!(s.perceived, 4, "every frame goes through perception");
@@ -54,19 +57,9 @@ fn without_mask_topics_perception_crops_every_frame_to_the_person() {
 
 #[test]
 fn views_are_not_calibrated_in_another_world_frame() {
-    let dir = tempfile::tempdir().unwrap();
     // The bag's cameras and pose are in `world`: a node working in another frame cannot place
     // them and falls back to cameras fitted to the landmarks.
-    let config = demo_config(
-        dir.path(),
-        &demo_bag(),
-        &[
-            "inputs.mask_topics=[]",
-            "outputs.virtual_cameras=1",
-            "outputs.world_frame=map",
-        ],
-    );
-    let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
+    let summary = run_perceived_demo(&["outputs.world_frame=map"]);
     assert_eq!(summary.stats.perception_masked, 4);
     assert_eq!(summary.stats.calibrated_views, 0);
 }

@@ -9,9 +9,11 @@
 //! point z-buffer over the photo (cells of 1/64 of the person's height) keeps the Gaussians
 //! within [`PhotoColourConfig::depth_tolerance`] of the front-most one in their cell; those
 //! that land on the person's mask (eroded, away from its edge) sample the photo there. A
-//! Gaussian seen in several photos takes the mean. The landmark the fit misses most is dropped
-//! while the fit misses by more than [`PhotoColourConfig::max_fit_error`] of the person's height
-//! (down to two thirds of them); a photo whose fit still misses is skipped.
+//! Gaussian seen in several photos takes their colours weighted by how squarely it faces each
+//! camera (the weighted median of three or more, else the weighted mean). The landmark the fit
+//! misses most is dropped while the fit misses by more than
+//! [`PhotoColourConfig::max_fit_error`] of the person's height (down to two thirds of them); a
+//! photo whose fit still misses is skipped.
 //!
 //! A calibrated view (its pinhole camera from CameraInfo and TF, the person's pose in the same
 //! world frame from the pose topic) needs no fit: the avatar is projected through the real
@@ -133,7 +135,11 @@ impl AffineCamera {
 /// landmarks, or the calibrated pinhole camera.
 #[derive(Debug, Clone, Copy)]
 enum Projection {
-    Affine(AffineCamera),
+    Affine {
+        camera: AffineCamera,
+        /// [`AffineCamera::forward`], computed once.
+        forward: Vec3,
+    },
     Pinhole {
         camera_from_world: glam::Affine3A,
         camera: Camera,
@@ -144,7 +150,7 @@ impl Projection {
     /// The unit direction from the camera towards `p`.
     fn direction(&self, p: Vec3) -> Vec3 {
         match self {
-            Projection::Affine(camera) => camera.forward(),
+            Projection::Affine { forward, .. } => *forward,
             Projection::Pinhole { camera, .. } => (p - camera.center()).normalize_or_zero(),
         }
     }
@@ -153,7 +159,7 @@ impl Projection {
     /// camera).
     fn project(&self, p: Vec3) -> Option<(Vec2, f32)> {
         match self {
-            Projection::Affine(camera) => Some((camera.project(p), camera.forward().dot(p))),
+            Projection::Affine { camera, forward } => Some((camera.project(p), forward.dot(p))),
             Projection::Pinhole {
                 camera_from_world,
                 camera,
@@ -322,7 +328,8 @@ fn fitted_projection(
             rms * 100.0
         ));
     }
-    Ok((Projection::Affine(camera), rms))
+    let forward = camera.forward();
+    Ok((Projection::Affine { camera, forward }, rms))
 }
 
 /// The calibrated camera's projection, and how far (RMS, share of `height`) the posed
@@ -363,9 +370,9 @@ fn calibrated_projection(
 /// perception's landmarks (they carry perception's own error, which the fit absorbs).
 const CALIBRATED_MAX_MISS: f32 = 2.0;
 
-/// Photos that see a Gaussian's surface more obliquely than this (cosine between its normal
-/// and the line of sight) do not colour it: at grazing angles a pixel spans a long stretch of
-/// surface and the edge of the mask.
+/// Least weight of a photo's colour of a Gaussian (the cosine between its normal and the line
+/// of sight): at grazing angles a pixel spans a long stretch of surface and the edge of the
+/// mask, so such photos count less, but they still count (leaving them out lost on the dev set).
 const MIN_FACING: f32 = 0.2;
 
 /// Each Gaussian's canonical surface normal: the template's vertex normal nearest to it.
@@ -454,15 +461,16 @@ pub fn colour_from_photos(
     let g = &mut avatar.canonical;
     let k = g.sh_per_gaussian();
     let network: Vec<Vec3> = (0..n).map(|i| sh_dc_to_rgb(g.sh[i * k])).collect();
+    let seen: Vec<Option<Vec3>> = samples.iter().map(|s| combined(s)).collect();
     let pairs: Vec<(Vec3, Vec3)> = (0..n)
-        .filter_map(|i| Some((network[i], combined(&samples[i])?)))
+        .filter_map(|i| Some((network[i], seen[i]?)))
         .collect();
     if pairs.is_empty() {
         return report;
     }
     let m = fit_colour_transform(&pairs, cfg.ridge);
     for i in 0..n {
-        let rgb = if let Some(rgb) = combined(&samples[i]) {
+        let rgb = if let Some(rgb) = seen[i] {
             report.seen += 1;
             rgb
         } else {
