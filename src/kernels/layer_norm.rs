@@ -51,11 +51,12 @@ impl Module for LayerNorm {
         };
         if x.device().is_cpu() && x.dtype() == DType::F32 {
             let x = x.contiguous()?;
+            // (A bf16 model's f32 residual stream meets bf16 weights here: widened, C values.)
             return match &self.affine {
-                Some((w, b)) if w.dtype() == DType::F32 && b.dtype() == DType::F32 => {
-                    x.apply_op3_no_bwd(&w.contiguous()?, &b.contiguous()?, &op)
+                Some((w, b)) => {
+                    let f = |t: &Tensor| t.to_dtype(DType::F32)?.contiguous();
+                    x.apply_op3_no_bwd(&f(w)?, &f(b)?, &op)
                 }
-                Some(_) => reference(&x, self.affine.as_ref(), self.eps),
                 None => x.apply_op1_no_bwd(&op),
             };
         }

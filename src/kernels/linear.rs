@@ -155,7 +155,8 @@ impl Linear {
     }
 
     /// `residual + gate ⊙ (x Wᵀ + b)` (gate `[out]` or `[1, out]`, broadcast over rows; none =
-    /// ones): the residual branch of a transformer block in one output buffer.
+    /// ones): the residual branch of a transformer block in one output buffer, in the
+    /// residual's dtype (an f32 residual stream around bf16 layers stays f32).
     pub fn forward_residual(
         &self,
         x: &Tensor,
@@ -189,10 +190,10 @@ impl Linear {
         }
         let y = self.plain(x)?;
         let y = match gate {
-            Some(g) => y.broadcast_mul(g)?,
+            Some(g) => y.broadcast_mul(&g.to_dtype(y.dtype())?)?,
             None => y,
         };
-        residual + y
+        residual + y.to_dtype(residual.dtype())?
     }
 
     /// The candle-ops path: `x Wᵀ + b`.

@@ -175,13 +175,21 @@ impl FrameBlock {
     }
 
     /// `x [V, 5+h·w, C]` → (updated tokens, keys metric `[V, 5+h·w, D]`).
+    ///
+    /// The residual stream inside the block is f32 whatever `x`'s dtype: a bf16 model rounds
+    /// it once, at the block's output.
     pub fn forward(&self, x: &Tensor, rope: &RopeTables) -> Result<(Tensor, Tensor)> {
-        let (x, metric) =
+        let dtype = x.dtype();
+        let stream = x.to_dtype(DType::F32)?;
+        let normed = self.norm1.forward(&stream)?.to_dtype(dtype)?;
+        let (stream, metric) =
             self.attn
-                .forward_residual(&self.norm1.forward(x)?, rope, x, self.ls1.gamma())?;
+                .forward_residual(&normed, rope, &stream, self.ls1.gamma())?;
+        let normed = self.norm2.forward(&stream)?.to_dtype(dtype)?;
         let x = self
             .mlp
-            .forward_residual(&self.norm2.forward(&x)?, &x, Some(self.ls2.gamma()))?;
+            .forward_residual(&normed, &stream, Some(self.ls2.gamma()))?
+            .to_dtype(dtype)?;
         Ok((x, metric))
     }
 }

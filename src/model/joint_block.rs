@@ -13,7 +13,7 @@
 //! ```
 //! `temb` is the mean over views of `motion_embed_mlp(cls)`.
 
-use candle_core::{Module, Result, Tensor};
+use candle_core::{DType, Module, Result, Tensor};
 use candle_nn::{Init, RmsNorm, VarBuilder};
 
 use crate::kernels::linear::{linear, Activation, Linear};
@@ -241,26 +241,31 @@ impl JointBlock {
         image: &Tensor,
         temb: &Tensor,
     ) -> Result<(Tensor, Option<Tensor>)> {
-        let x = self.ff_proj.forward(points)?;
-        let c = self.ff_context_proj.forward(image)?;
+        // The residual streams `x` and `c` are f32 whatever the model's dtype: a bf16 model
+        // rounds them once, at the block's outputs, not after each residual add.
+        let dtype = points.dtype();
+        let f32 = |t: Tensor| t.to_dtype(DType::F32);
+        let x = f32(self.ff_proj.forward(points)?)?;
+        let c = f32(self.ff_context_proj.forward(image)?)?;
         let m = self.norm1.forward(temb)?;
         let (shift_msa, scale_msa, gate_msa, shift_mlp, scale_mlp, gate_mlp) =
             (&m[0], &m[1], &m[2], &m[3], &m[4], &m[5]);
-        let nx = modulate(&x, shift_msa, scale_msa, ADALN_EPS)?;
+        let nx = modulate(&x, shift_msa, scale_msa, ADALN_EPS)?.to_dtype(dtype)?;
         let mc = self.norm1_context.forward(temb)?;
         let nc = if self.spec.context_pre_only {
             // AdaLN-Continuous: chunk order (scale, shift).
             modulate(&c, &mc[1], &mc[0], ADALN_EPS)?
         } else {
             modulate(&c, &mc[0], &mc[1], ADALN_EPS)?
-        };
+        }
+        .to_dtype(dtype)?;
         // Pre-only blocks have no context gate; the gate is then unused.
         let c_gate_msa = mc.get(2).unwrap_or(gate_msa);
         let (x, c_new) = self
             .attn
             .forward(&nx, &nc, (&x, gate_msa), (&c, c_gate_msa))?;
         let x = self.ff.forward_residual(
-            &modulate(&x, shift_mlp, scale_mlp, FF_NORM_EPS)?,
+            &modulate(&x, shift_mlp, scale_mlp, FF_NORM_EPS)?.to_dtype(dtype)?,
             &x,
             gate_mlp,
         )?;
@@ -269,15 +274,20 @@ impl JointBlock {
                 let (c_shift_mlp, c_scale_mlp, c_gate_mlp) = (&mc[3], &mc[4], &mc[5]);
                 // Official double add of the context feed-forward (kept for weight parity):
                 // c + g ⊙ f + f = c + (g + 1) ⊙ f.
-                Some(ff_context.forward_residual(
-                    &modulate(&c, c_shift_mlp, c_scale_mlp, FF_NORM_EPS)?,
-                    &c,
-                    &(c_gate_mlp + 1.0)?,
-                )?)
+                Some(
+                    ff_context
+                        .forward_residual(
+                            &modulate(&c, c_shift_mlp, c_scale_mlp, FF_NORM_EPS)?
+                                .to_dtype(dtype)?,
+                            &c,
+                            &(c_gate_mlp + 1.0)?,
+                        )?
+                        .to_dtype(dtype)?,
+                )
             }
             _ => None,
         };
-        Ok((self.inv_ff_proj.forward(&x)?, c))
+        Ok((self.inv_ff_proj.forward(&x)?.to_dtype(dtype)?, c))
     }
 }
 

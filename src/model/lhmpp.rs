@@ -451,6 +451,16 @@ mod tests {
             / range
     }
 
+    /// RMS of `a − b` over the range of `a`.
+    fn rms_relative_to_range(a: &Tensor, b: &Tensor) -> f32 {
+        let f = |t: &Tensor| t.to_dtype(DType::F32).unwrap().flatten_all().unwrap();
+        let (a, b) = (f(a), f(b));
+        let scalar = |t: Tensor| t.to_scalar::<f32>().unwrap();
+        let range = (scalar(a.max(0).unwrap()) - scalar(a.min(0).unwrap())).max(1e-12);
+        let mean_square = scalar((&a - &b).unwrap().sqr().unwrap().mean_all().unwrap());
+        mean_square.sqrt() / range
+    }
+
     #[test]
     fn bf16_forward_matches_f32_on_the_same_weights() {
         let dev = Device::Cpu;
@@ -496,14 +506,14 @@ mod tests {
             ("opacities", &a.opacities, &b.opacities),
             ("colors", &a.colors, &b.colors),
         ] {
-            let rel = relative_to_range(x, y);
-            eprintln!("bf16 vs f32 {name}: {rel:.2e} of the range");
+            let (rel, rms) = (relative_to_range(x, y), rms_relative_to_range(x, y));
+            eprintln!("bf16 vs f32 {name}: {rel:.2e} of the range (RMS {rms:.2e})");
             worst.push((name, rel));
         }
-        // Issue 34 asks for 1e-2 of the range; measured 1.9e-3 (positions) to 1.5e-2 (scales,
-        // opacities) with ToMe off and the Gaussian head's activations in f32: bf16
-        // activations (8-bit mantissa) between the ops of ~20 blocks. The limit below guards
-        // that level.
+        // Issue 34 asks for 1e-2 of the range; measured 1.5e-3 (positions) to 1.5e-2 (scales,
+        // opacities) with ToMe off, f32 residual streams and the Gaussian head's activations in
+        // f32: each product's bf16 inputs (8-bit mantissa) over ~20 blocks. The limit below
+        // guards that level.
         assert!(worst.iter().all(|&(_, rel)| rel <= 2e-2), "{worst:?}");
     }
 }

@@ -215,7 +215,14 @@ impl PackedLinear<'_> {
             let weight = self.weight.view();
             gemm_uninit(Kernel::detect(), a, m, weight, acc, n, true, Some(epilogue))
         };
-        let storage = if x.0.dtype() == DType::BF16 {
+        // The output takes the residual's dtype (an f32 residual stream stays f32, rounded
+        // nowhere), else the input's.
+        let bf16_out = match &residual {
+            Some(Residual::F32(_)) => false,
+            Some(Residual::Bf16(_)) => true,
+            None => x.0.dtype() == DType::BF16,
+        };
+        let storage = if bf16_out {
             let mut out: Vec<half::bf16> = Vec::with_capacity(m * n);
             let dst = Bf16Ptr(out.as_mut_ptr());
             let epilogue = |row: usize, col: usize, values: &mut [f32]| {

@@ -2,7 +2,7 @@
 //! (`cpe` = SubMConv3d → Linear → LayerNorm, residual), serialized patch attention (`norm1`,
 //! `attn.qkv`, `attn.proj`, residual) and an MLP (`norm2`, `mlp.0.fc1`, GELU, `mlp.0.fc2`, residual).
 
-use candle_core::{Result, Tensor};
+use candle_core::{DType, Result, Tensor};
 use candle_nn::{Module, VarBuilder};
 
 use crate::kernels::layer_norm::{layer_norm, LayerNorm};
@@ -146,21 +146,27 @@ impl PtBlock {
     }
 
     /// `x [M, C]` → `[M, C]` on the level described by `orders` and `neighbours`.
+    ///
+    /// The residual stream inside the block is f32 whatever `x`'s dtype: a bf16 model rounds
+    /// it once, at the block's output, instead of after each of its three residual adds.
     pub fn forward(
         &self,
         x: &Tensor,
         orders: &[Serialized],
         neighbours: &NeighbourMap,
     ) -> Result<Tensor> {
+        let dtype = x.dtype();
         let cpe = self.cpe_conv.forward(x, neighbours)?;
         let cpe = self.cpe_norm.forward(&self.cpe_linear.forward(&cpe)?)?;
-        let x = (x + cpe)?;
+        let stream = (x.to_dtype(DType::F32)? + cpe.to_dtype(DType::F32)?)?;
         let order = &orders[self.order_index % orders.len()];
-        let x = self
-            .attn
-            .forward_residual(&self.norm1.forward(&x)?, order, &x)?;
-        let hdn = self.fc1.forward_gelu(&self.norm2.forward(&x)?)?;
-        self.fc2.forward_residual(&hdn, &x, None)
+        let normed = self.norm1.forward(&stream)?.to_dtype(dtype)?;
+        let stream = self.attn.forward_residual(&normed, order, &stream)?;
+        let normed = self.norm2.forward(&stream)?.to_dtype(dtype)?;
+        let hdn = self.fc1.forward_gelu(&normed)?;
+        self.fc2
+            .forward_residual(&hdn, &stream, None)?
+            .to_dtype(dtype)
     }
 }
 
