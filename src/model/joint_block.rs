@@ -287,7 +287,9 @@ impl JointBlock {
             }
             _ => None,
         };
-        Ok((self.inv_ff_proj.forward(&x)?.to_dtype(dtype)?, c))
+        // Rounded into the model's dtype before the projection back (its product rounds its
+        // input anyway): its wide hidden activations then stay in that dtype too.
+        Ok((self.inv_ff_proj.forward(&x.to_dtype(dtype)?)?, c))
     }
 }
 
