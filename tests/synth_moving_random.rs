@@ -22,6 +22,7 @@ fn small(seed: u64, camera: CameraMode, pose: SynthPose) -> SynthOptions {
         pose,
         camera,
         publish_shape: false,
+        contrasting_back: false,
     }
 }
 

@@ -40,6 +40,11 @@ pub struct SynthArgs {
     /// held-out views unlit (albedo).
     #[arg(long, value_enum, default_value_t = RealismArg::Plain)]
     realism: RealismArg,
+    /// Give the person's upper garments a back of another colour (plain: the shirt's back;
+    /// dressed: a back panel on tops, one-pieces and coats), so that views from behind show
+    /// what the front does not.
+    #[arg(long)]
+    contrasting_back: bool,
     /// Several people walking across a room on crossing paths instead of one person: dressed,
     /// lit, over a backdrop, seen by `--cameras` fixed cameras for `--frames` frames, with the
     /// true person id of every pixel on `<camera>/person_ids` (mono8, `k + 1` for
@@ -142,6 +147,7 @@ pub fn run(args: SynthArgs) -> Result<()> {
             CameraArg::Moving => CameraMode::Moving,
         },
         publish_shape: args.publish_shape,
+        contrasting_back: args.contrasting_back,
     };
     let summary = write_bag(&args.output, &options, args.realism.into())
         .with_context(|| format!("writing {}", args.output.display()))?;

@@ -7,6 +7,7 @@ use super::camera_fx::CameraEffects;
 use super::dataset::Realism;
 use super::dressed::DressedPerson;
 use super::lighting::Lighting;
+use super::outfit::Outfit;
 use super::person::{SynthError, SyntheticPerson};
 use super::random_pose::grounded_random_pose;
 use super::scene::{Rig, RigCamera};
@@ -71,6 +72,10 @@ pub struct SynthOptions {
     /// Also write the ground-truth `BodyShape` (`makehuman-cc0` [height_scale, girth_scale])
     /// on [`SHAPE_TOPIC`]; off by default so existing fixtures keep their bytes.
     pub publish_shape: bool,
+    /// Give the person's upper garments a back of another colour (a shirt back for plain
+    /// people, a back panel on dressed people's tops, one-pieces and coats): people whose
+    /// back differs from their front, for measuring what more views add.
+    pub contrasting_back: bool,
 }
 
 /// The pose of the synthetic person.
@@ -104,6 +109,7 @@ impl Default for SynthOptions {
             pose: SynthPose::Walk(8.0),
             camera: CameraMode::Ring,
             publish_shape: false,
+            contrasting_back: false,
         }
     }
 }
@@ -335,13 +341,22 @@ pub fn write_bag(
     realism: Realism,
 ) -> Result<SynthSummary, SynthError> {
     let subject = match realism {
-        Realism::Plain => Subject::Plain(Box::new(SyntheticPerson::new(
+        Realism::Plain => {
+            let mut outfit = Outfit::random(options.seed);
+            if options.contrasting_back {
+                outfit = outfit.with_contrasting_back(options.seed);
+            }
+            Subject::Plain(Box::new(SyntheticPerson::wearing(
+                options.seed,
+                options.points,
+                outfit,
+            )?))
+        }
+        Realism::Dressed => Subject::Dressed(Box::new(DressedPerson::new_with(
             options.seed,
             options.points,
+            options.contrasting_back,
         )?)),
-        Realism::Dressed => {
-            Subject::Dressed(Box::new(DressedPerson::new(options.seed, options.points)?))
-        }
     };
     let template = subject.template();
     let (seed, views, heldout, size) = (options.seed, options.views, options.heldout, options.size);

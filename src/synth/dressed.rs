@@ -108,13 +108,22 @@ impl DressedPerson {
     /// The dressed person of `seed` (body shape as [`SyntheticPerson::new`] draws it for the
     /// same seed) with `points` Gaussians on the surfaces that show.
     pub fn new(seed: u64, points: usize) -> Result<Self, SynthError> {
+        Self::new_with(seed, points, false)
+    }
+
+    /// [`Self::new`]; with `contrasting_backs`, every upper garment gets a back panel of
+    /// another colour ([`Wardrobe::with_contrasting_backs`]).
+    pub fn new_with(seed: u64, points: usize, contrasting_backs: bool) -> Result<Self, SynthError> {
         let room = DressingRoom::shared()?;
         let (height_scale, girth_scale) = SyntheticPerson::shape_of(seed);
         let shape = MakeHumanShape {
             height_scale,
             girth_scale,
         };
-        let wardrobe = Wardrobe::random(seed, &room.library);
+        let mut wardrobe = Wardrobe::random(seed, &room.library);
+        if contrasting_backs {
+            wardrobe = wardrobe.with_contrasting_backs(seed, &room.library);
+        }
         Self::dress(room, seed, shape, wardrobe, points)
     }
 

@@ -25,6 +25,9 @@ pub struct Outfit {
     pub shoes: Rgb,
     /// Short sleeves (forearms show skin).
     pub short_sleeves: bool,
+    /// The shirt's back (points behind the body's mid-plane, z < 0), when it differs from
+    /// the front.
+    pub shirt_back: Option<Rgb>,
 }
 
 const SKIN_TONES: [Rgb; 5] = [
@@ -76,7 +79,24 @@ impl Outfit {
             trousers,
             shoes: [s, s, s],
             short_sleeves: rng.gen_bool(0.5),
+            shirt_back: None,
         }
+    }
+
+    /// This outfit with a shirt whose back is another vivid colour, seeded by `seed`: a person
+    /// whose back differs from their front.
+    pub fn with_contrasting_back(mut self, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6261_636b);
+        let far = |c: Rgb| (0..3).map(|i| (c[i] - self.shirt[i]).abs()).sum::<f32>() > 0.6;
+        let mut back = vivid(&mut rng);
+        for _ in 0..16 {
+            if far(back) {
+                break;
+            }
+            back = vivid(&mut rng);
+        }
+        self.shirt_back = Some(back);
+        self
     }
 
     /// Colour of a canonical point with body-part name `part` at position `p` (metres, +Y up,
@@ -102,8 +122,9 @@ impl Outfit {
                 } else if h > 0.83 || (self.short_sleeves && p.x.abs() > 0.24 * height) {
                     self.skin // neck, or forearms below short sleeves
                 } else {
-                    match self.stripes {
-                        Some((c, period)) if (p.y / period).rem_euclid(1.0) < 0.5 => c,
+                    match (self.stripes, self.shirt_back) {
+                        (_, Some(back)) if p.z < 0.0 => back,
+                        (Some((c, period)), _) if (p.y / period).rem_euclid(1.0) < 0.5 => c,
                         _ => self.shirt,
                     }
                 }
@@ -138,5 +159,21 @@ mod tests {
         let torso = o.color("body", Vec3::new(0.0, 1.2, 0.1), h);
         assert!(torso == o.shirt || o.stripes.is_some_and(|(c, _)| c == torso));
         assert!(o.color("head", Vec3::new(0.0, 1.69, 0.0), h) == o.hair);
+    }
+
+    #[test]
+    fn a_contrasting_back_paints_only_the_back_of_the_shirt() {
+        let o = Outfit::random(3).with_contrasting_back(3);
+        let back = o.shirt_back.unwrap();
+        let h = 1.7;
+        assert_eq!(o.color("body", Vec3::new(0.0, 1.2, -0.1), h), back);
+        assert_ne!(o.color("body", Vec3::new(0.0, 1.2, 0.1), h), back);
+        assert_eq!(o.color("body", Vec3::new(0.0, 0.5, -0.1), h), o.trousers);
+        let d: f32 = (0..3).map(|i| (back[i] - o.shirt[i]).abs()).sum();
+        assert!(
+            d > 0.3,
+            "back {back:?} too close to the front {:?}",
+            o.shirt
+        );
     }
 }

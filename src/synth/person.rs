@@ -53,6 +53,11 @@ pub enum SynthError {
 impl SyntheticPerson {
     /// Makes the person for `seed` with `points` Gaussians on the body surface.
     pub fn new(seed: u64, points: usize) -> Result<Self, SynthError> {
+        Self::wearing(seed, points, Outfit::random(seed))
+    }
+
+    /// [`Self::new`] in `outfit` instead of the seed's own.
+    pub fn wearing(seed: u64, points: usize, outfit: Outfit) -> Result<Self, SynthError> {
         let (height_scale, girth_scale) = Self::shape_of(seed);
         let mut template = BodyTemplate::load_default()?;
         MakeHumanShape {
@@ -60,7 +65,6 @@ impl SyntheticPerson {
             girth_scale,
         }
         .apply(&mut template);
-        let outfit = Outfit::random(seed);
         let anchors = template.sample_anchors(points, seed);
         let height = template.height();
         let area: f32 = template

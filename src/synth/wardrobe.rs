@@ -152,6 +152,24 @@ impl Wardrobe {
         }
     }
 
+    /// This wardrobe with a back panel of another colour on every upper garment (tops,
+    /// one-pieces, coats) that has none: people whose back differs from their front, seeded by
+    /// `seed`.
+    pub fn with_contrasting_backs(mut self, seed: u64, library: &GarmentLibrary) -> Self {
+        let mut rng = material_rng(seed ^ 0x6261_636b);
+        for worn in &mut self.garments {
+            let upper = matches!(
+                library.garments[worn.index].kind,
+                GarmentKind::Top | GarmentKind::OnePiece | GarmentKind::Coat
+            );
+            let top = &mut worn.materials[GarmentRegion::Top as usize];
+            if upper && top.back.is_none() {
+                top.back = Some(contrast_color(&mut rng, top.base));
+            }
+        }
+        self
+    }
+
     /// Albedo of the skin at rest point `p` of body part `part` on a body of rest height
     /// `height`.
     pub fn body_albedo(&self, part: &str, p: Vec3, height: f32) -> Rgb {
@@ -260,5 +278,39 @@ mod tests {
         }
         assert_eq!(dressed, 60);
         assert!((40..60).contains(&hair), "{hair}");
+    }
+
+    #[test]
+    fn contrasting_backs_differ_from_the_front_on_every_upper_garment() {
+        let library = GarmentLibrary::load_default().unwrap();
+        for seed in 0..20 {
+            let plain = Wardrobe::random(seed, &library);
+            let backed = plain.clone().with_contrasting_backs(seed, &library);
+            assert_eq!(plain.garments.len(), backed.garments.len());
+            let mut uppers = 0;
+            for (a, b) in plain.garments.iter().zip(&backed.garments) {
+                let kind = library.garments[b.index].kind;
+                let top = &b.materials[GarmentRegion::Top as usize];
+                if matches!(
+                    kind,
+                    GarmentKind::Top | GarmentKind::OnePiece | GarmentKind::Coat
+                ) {
+                    uppers += 1;
+                    let back = top.back.expect("an upper garment without a back panel");
+                    let d: f32 = (0..3).map(|i| (back[i] - top.base[i]).abs()).sum();
+                    assert!(d > 0.2 || a.materials[GarmentRegion::Top as usize].back.is_some());
+                    // Front and back albedo differ somewhere on the chest (stripes and checks
+                    // keep their second colour on both sides).
+                    let differ = (0..40).any(|k| {
+                        let p = glam::Vec3::new(0.1, 1.1 + 0.005 * k as f32, 0.0);
+                        top.albedo(p, glam::Vec3::Z) != top.albedo(p, -glam::Vec3::Z)
+                    });
+                    assert!(differ, "seed {seed}: the back looks like the front");
+                } else {
+                    assert_eq!(a, b, "seed {seed}: a non-upper garment changed");
+                }
+            }
+            assert!(uppers >= 1, "seed {seed}: nobody wears an upper garment");
+        }
     }
 }
