@@ -10,8 +10,8 @@ mod table;
 mod validate;
 
 pub use choices::{
-    Choice, ComputeDevice, Dtype, FrameQos, ImageQos, LandmarkModelChoice, PersonMask, PoseSource,
-    RenderDevice, RendererChoice, UnknownDevice,
+    Choice, ComputeDevice, Delight, Dtype, FrameQos, ImageQos, LandmarkModelChoice, PersonMask,
+    PoseSource, RenderDevice, RendererChoice, UnknownDevice,
 };
 pub use people::{owner, ClusterConfig, TrackingSettings};
 pub use table::{markdown_table, parameters, Parameter};
@@ -248,6 +248,9 @@ pub struct PerceptionConfig {
     /// The Gaussians a perceived view shows take their colours from that view, the others the
     /// network's colours matched to them (`crate::reconstruct::photo_colours`).
     pub colours_from_views: bool,
+    /// Which views' colours have a fitted key light divided out before they colour the avatar
+    /// (`crate::reconstruct::delight`).
+    pub delight: Delight,
 }
 
 impl PerceptionConfig {
@@ -420,6 +423,7 @@ impl Default for PerceptionConfig {
             threads: 1,
             estimate_shape: true,
             colours_from_views: true,
+            delight: Delight::Calibrated,
         }
     }
 }

@@ -4,7 +4,7 @@
 //! the demo bag it reads the person's own clothes (a yellow sweater, blue trousers) well
 //! enough to clear a floor that a model rendering the training average does not.
 
-use lhmpp::config::ModelConfig;
+use lhmpp::config::{Delight, ModelConfig};
 use lhmpp::eval::heldout::{evaluate_bag, InputCrop};
 use std::path::Path;
 
@@ -91,7 +91,10 @@ fn recoloured_gain(bag: &str) -> (f64, f64) {
         .unwrap();
         rows[0].means().0
     };
-    (score(ColourSource::Network), score(ColourSource::Views))
+    (
+        score(ColourSource::Network),
+        score(ColourSource::Views(Delight::default())),
+    )
 }
 
 /// Calibrated views (CameraInfo, TF, a pose topic) recolour the avatar through their real
@@ -107,4 +110,47 @@ fn calibrated_views_recolour_the_avatar_better_than_the_network() {
             "{bag}: recoloured {views:.2} dB against the network's {network:.2} dB"
         );
     }
+}
+
+/// A dressed person lit by a key light (shadowed on one side, darker than their garments'
+/// own colours: the held-out truth is the unlit albedo) and seen by 8 calibrated cameras: with
+/// the fitted key light divided out (`perception.delight: calibrated`, the default) the
+/// recoloured avatar scores at least 1 dB above the same avatar coloured by the lit views as
+/// they are (`never`). Measured on this person: 16.96 → 19.28 dB (16 views, 8 used); on six
+/// such people 17.14 → 19.41 dB at 8 views.
+#[test]
+fn dividing_out_the_key_light_brings_a_lit_person_closer_to_their_garments() {
+    use lhmpp::eval::heldout::{ColourSource, ShapeSource};
+    use lhmpp::synth::{write_bag, Realism, SynthOptions, SynthPose};
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("dressed31.mcap");
+    let options = SynthOptions {
+        seed: 31,
+        views: 16,
+        heldout: 4,
+        size: 192,
+        pose: SynthPose::Walk(155.0),
+        publish_shape: true,
+        contrasting_back: true,
+        ..SynthOptions::default()
+    };
+    write_bag(&bag, &options, Realism::Dressed).unwrap();
+    let score = |delight| {
+        let rows = evaluate_bag(
+            &bag,
+            &ModelConfig::default(),
+            &[8],
+            InputCrop::Mask,
+            ShapeSource::Estimate,
+            ColourSource::Views(delight),
+        )
+        .unwrap();
+        rows[0].means().0
+    };
+    let (lit, delit) = (score(Delight::Never), score(Delight::Calibrated));
+    println!("as seen {lit:.2} dB, key light divided out {delit:.2} dB");
+    assert!(
+        delit >= lit + 1.0,
+        "de-lit {delit:.2} dB against {lit:.2} dB as seen"
+    );
 }

@@ -54,7 +54,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             InputCrop::Mask
         };
         let colours = match args.colours_from_views {
-            true => ColourSource::Views,
+            true => ColourSource::Views(config.perception.delight),
             false => ColourSource::Network,
         };
         let rows = evaluate_bag(bag, &config.model, &args.views, crop, shape, colours)?;

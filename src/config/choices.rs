@@ -26,6 +26,7 @@ display_choice!(
     ImageQos,
     Dtype,
     RenderDevice,
+    Delight,
     RendererChoice,
     FrameQos,
     PersonMask,
@@ -85,6 +86,32 @@ impl Dtype {
             Self::F32 => candle_core::DType::F32,
             Self::F16 => candle_core::DType::F16,
             Self::Bf16 => candle_core::DType::BF16,
+        }
+    }
+}
+
+/// `perception.delight`: which views' colours have a fitted key light divided out
+/// (`crate::reconstruct::delight`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Delight {
+    /// Keep the colours as the views show them.
+    Never,
+    /// The calibrated views together (one world frame, the person seen from several sides, so
+    /// the light's direction is seen); views placed by a fitted camera keep their colours.
+    #[default]
+    Calibrated,
+    /// Every view: the calibrated ones together, each other view alone.
+    Always,
+}
+
+impl Choice for Delight {
+    const ALL: &'static [Self] = &[Self::Never, Self::Calibrated, Self::Always];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Never => "never",
+            Self::Calibrated => "calibrated",
+            Self::Always => "always",
         }
     }
 }

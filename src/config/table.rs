@@ -3,9 +3,9 @@
 //! uses. `lhmpp config --markdown` prints it as docs/configuration.md's table (a test keeps them equal).
 
 use super::{
-    Choice, ClusterConfig, ComputeDevice, Dtype, FrameQos, FrameStoreConfig, ImageQos, InputConfig,
-    LandmarkModelChoice, ModelConfig, NodeConfig, OutputConfig, PerceptionConfig, PersonMask,
-    PoseSource, RenderDevice, RendererChoice, TrackingSettings, RATE_RANGE,
+    Choice, ClusterConfig, ComputeDevice, Delight, Dtype, FrameQos, FrameStoreConfig, ImageQos,
+    InputConfig, LandmarkModelChoice, ModelConfig, NodeConfig, OutputConfig, PerceptionConfig,
+    PersonMask, PoseSource, RenderDevice, RendererChoice, TrackingSettings, RATE_RANGE,
 };
 use crate::model::LhmppConfig;
 use std::fmt::Display;
@@ -268,6 +268,14 @@ pub fn parameters() -> Vec<Parameter> {
             "the Gaussians a perceived view shows take their colours from that frame (an affine \
              camera fitted to the landmarks, a point z-buffer, inside the person's mask), the \
              others the network's colours through the colour transform fitted to them",
+        ),
+        p(
+            "perception.delight",
+            choice::<Delight>(),
+            "which views' colours have a key light divided out before they colour the avatar \
+             (ambient plus one directional light, fitted to how brightness follows the posed \
+             normals; every point then looks as it would facing the light): `calibrated` (the \
+             calibrated views together), `always` (also each uncalibrated view alone), `never`",
         ),
         p(
             "outputs.dir",

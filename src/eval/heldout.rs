@@ -5,7 +5,7 @@
 use super::metrics::{mask_iou, psnr, ssim, ImageRef};
 use crate::bag::{BagError, BagReader};
 use crate::body::Pose;
-use crate::config::ModelConfig;
+use crate::config::{Delight, ModelConfig};
 use crate::msgs::{BodyPose, BodyShape, CameraInfo, Image, TFMessage};
 use crate::reconstruct::image_decode::{decode_raw, RawImage};
 use crate::reconstruct::photo_colours::{colour_from_evidence, ViewEvidence};
@@ -160,8 +160,9 @@ pub enum ColourSource {
     #[default]
     Network,
     /// The input views perception reads the person in, as `perception.colours_from_views`
-    /// in the node ([`crate::reconstruct::photo_colours`]).
-    Views,
+    /// in the node ([`crate::reconstruct::photo_colours`]), with the node's
+    /// `perception.delight`.
+    Views(Delight),
 }
 
 /// What perception sees of the person in each input view (a fresh tracker per view, the
@@ -409,7 +410,7 @@ pub fn evaluate_bag(
     let gt = read_ground_truth(&bag)?;
     let evidence = match colours {
         ColourSource::Network => Vec::new(),
-        ColourSource::Views => perceive_inputs(path, &gt.inputs, &gt.pose)?,
+        ColourSource::Views(_) => perceive_inputs(path, &gt.inputs, &gt.pose)?,
     };
     let mut recon = Reconstructor::new(model, gt.inputs.len())?;
     // Reconstruct on the person's body shape, as the node does when a shape topic is set.
@@ -474,12 +475,12 @@ pub fn evaluate_bag(
             .map(|i| (i as u64 + 1, &images[i]))
             .collect();
         let mut avatar = recon.reconstruct(&views)?;
-        if colours == ColourSource::Views {
+        if let ColourSource::Views(delight) = colours {
             let chosen: Vec<&ViewEvidence> = spread(images.len(), k)
                 .into_iter()
                 .filter_map(|i| evidence[i].as_ref())
                 .collect();
-            colour_from_evidence(&mut avatar, recon.template(), &chosen);
+            colour_from_evidence(&mut avatar, recon.template(), &chosen, delight);
         }
         let posed = avatar.animate(&matrices);
         let mut first_render = None;

@@ -9,6 +9,7 @@
 //! [`photos`] is the photos → masked views → avatar → front render path of `lhmpp avatar` and
 //! `lhmpp eval-photos` (camera-only perception for the masks and poses).
 
+pub mod delight;
 pub mod image_decode;
 pub mod part_rules;
 pub mod photo_colours;

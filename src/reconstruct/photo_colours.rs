@@ -19,9 +19,15 @@
 //! world frame from the pose topic) needs no fit: the avatar is projected through the real
 //! camera, perspective included. Its projection is only checked against perception's
 //! landmarks (a stale pose or a wrong TF would paint the wrong Gaussians).
+//!
+//! Before the colours are combined, a key light fitted to them can be divided out
+//! ([`super::delight`], [`PhotoColourConfig::delight`]): by default over the calibrated views,
+//! which share one world frame and see the person from several sides.
 
+use super::delight::{fit_key_light, hue_bin, KeyLight, ShadedSample};
 use crate::avatar::Avatar;
 use crate::body::{BodyTemplate, Pose};
+use crate::config::Delight;
 use crate::perception::pose::{template_landmarks, PoseEstimator, PoseEstimatorConfig};
 use crate::perception::{Landmark, LandmarkId, BODY_LANDMARKS};
 use crate::splat::{rgb_to_sh_dc, sh_dc_to_rgb, Camera};
@@ -42,6 +48,8 @@ pub struct PhotoColourConfig {
     pub min_mask: u8,
     /// Pull of the colour transform towards the identity (ridge weight per Gaussian seen).
     pub ridge: f32,
+    /// Which photos' colours have a fitted key light divided out ([`super::delight`]).
+    pub delight: Delight,
 }
 
 impl Default for PhotoColourConfig {
@@ -52,6 +60,7 @@ impl Default for PhotoColourConfig {
             depth_tolerance: 0.03,
             min_mask: 200,
             ridge: 0.05,
+            delight: Delight::Calibrated,
         }
     }
 }
@@ -85,6 +94,21 @@ pub struct PhotoColourReport {
     pub mapped: usize,
     /// RMS landmark error of each used photo's camera fit, as a share of the person's height.
     pub fit_errors: Vec<f32>,
+    /// Key lights divided out (one per set of views sharing a frame), when de-lighting.
+    pub lights: Vec<KeyLight>,
+}
+
+/// One photo's colour of one Gaussian.
+#[derive(Debug, Clone, Copy)]
+struct Seen {
+    /// How squarely the Gaussian faces the camera (the combination's weight).
+    weight: f32,
+    /// The colour sampled (sRGB, 0–1).
+    colour: Vec3,
+    /// The Gaussian's posed normal in the photo's frame.
+    normal: Vec3,
+    /// The photo.
+    photo: u32,
 }
 
 /// Landmarks that place the camera: the body joints (shoulders to feet) and the nose.
@@ -230,7 +254,8 @@ fn photo_colours(
     photo: &PhotoSample<'_>,
     cfg: &PhotoColourConfig,
     normals: &[Vec3],
-    samples: &mut [Vec<(f32, Vec3)>],
+    index: u32,
+    samples: &mut [Vec<Seen>],
 ) -> Result<f32, String> {
     let posed_landmarks =
         template_landmarks(template, photo.pose).map_err(|e| format!("landmarks: {e}"))?;
@@ -293,7 +318,12 @@ fn photo_colours(
             .transform_vector3(normals[i])
             .normalize_or_zero();
         let facing = -normal.dot(projection.direction(posed.positions[i]));
-        samples[i].push((facing.max(MIN_FACING), sample(photo.image, x, y)));
+        samples[i].push(Seen {
+            weight: facing.max(MIN_FACING),
+            colour: sample(photo.image, x, y),
+            normal,
+            photo: index,
+        });
     }
     Ok(rms)
 }
@@ -375,30 +405,120 @@ const CALIBRATED_MAX_MISS: f32 = 2.0;
 /// mask, so such photos count less, but they still count (leaving them out lost on the dev set).
 const MIN_FACING: f32 = 0.2;
 
-/// Each Gaussian's canonical surface normal: the template's vertex normal nearest to it.
-fn canonical_normals(avatar: &Avatar, template: &BodyTemplate) -> Vec<Vec3> {
+/// Each Gaussian's canonical surface normal and body part: those of the template's vertex
+/// nearest to it.
+fn canonical_normals(avatar: &Avatar, template: &BodyTemplate) -> (Vec<Vec3>, Vec<u8>) {
     let normals = crate::body::vertex_normals(&template.vertices, &template.triangles);
     let grid = crate::body::PointGrid::for_surface(&template.vertices);
     avatar
         .canonical
         .positions
         .iter()
-        .map(|p| grid.nearest(*p).map_or(Vec3::ZERO, |v| normals[v]))
-        .collect()
+        .map(|p| {
+            grid.nearest(*p).map_or((Vec3::ZERO, 0), |v| {
+                (
+                    normals[v],
+                    template.part_labels.get(v).copied().unwrap_or(0),
+                )
+            })
+        })
+        .unzip()
+}
+
+/// Height band (metres) of the groups taken to share an albedo when de-lighting.
+const DELIGHT_BAND: f32 = 0.1;
+
+/// Divides a key light out of the colours in `samples`, one light per set of photos that share
+/// a frame (the calibrated ones together; with [`Delight::Always`] also each other photo
+/// alone); returns the lights.
+fn delight(
+    samples: &mut [Vec<Seen>],
+    parts: &[u8],
+    heights: &[f32],
+    calibrated: &[bool],
+    mode: Delight,
+) -> Vec<KeyLight> {
+    // Groups: body part × height band × hue of the Gaussian's colour over its photos.
+    let mut keys: Vec<(u8, i32, u32)> = Vec::new();
+    let group_of: Vec<u32> = samples
+        .iter()
+        .enumerate()
+        .map(|(i, seen)| {
+            let mean = seen.iter().map(|s| s.colour).sum::<Vec3>() / seen.len().max(1) as f32;
+            let key = (
+                parts[i],
+                (heights[i] / DELIGHT_BAND).floor() as i32,
+                hue_bin(mean),
+            );
+            match keys.iter().position(|k| *k == key) {
+                Some(g) => g as u32,
+                None => {
+                    keys.push(key);
+                    keys.len() as u32 - 1
+                }
+            }
+        })
+        .collect();
+    let frame_of = |photo: u32| {
+        if calibrated[photo as usize] {
+            0
+        } else {
+            1 + photo as usize
+        }
+    };
+    let mut frames: Vec<usize> = (0..calibrated.len() as u32)
+        .filter(|&k| match mode {
+            Delight::Never => false,
+            Delight::Calibrated => calibrated[k as usize],
+            Delight::Always => true,
+        })
+        .map(frame_of)
+        .collect();
+    frames.sort_unstable();
+    frames.dedup();
+    let mut lights = Vec::new();
+    for frame in frames {
+        let shaded: Vec<ShadedSample> = samples
+            .iter()
+            .enumerate()
+            .flat_map(|(i, seen)| {
+                let group = group_of[i];
+                seen.iter()
+                    .filter(move |s| frame_of(s.photo) == frame)
+                    .map(move |s| ShadedSample {
+                        group,
+                        view: s.photo,
+                        normal: s.normal,
+                        colour: s.colour,
+                    })
+            })
+            .collect();
+        let light = fit_key_light(&shaded);
+        if light.key != Vec3::ZERO {
+            for s in samples.iter_mut().flatten() {
+                if frame_of(s.photo) == frame {
+                    s.colour = (s.colour * light.gain(s.normal)).min(Vec3::ONE);
+                }
+            }
+        }
+        lights.push(light);
+    }
+    lights
 }
 
 /// One Gaussian's colour from the photos that show it, each weighted by how squarely it
 /// faces the camera: the per-channel weighted median of three or more (a photo that
 /// misplaces it, or shows what stands in front of it, is outvoted), else the weighted mean;
 /// `None` when no photo shows it.
-fn combined(samples: &[(f32, Vec3)]) -> Option<Vec3> {
-    let total: f32 = samples.iter().map(|(w, _)| w).sum();
+fn combined(samples: &[Seen]) -> Option<Vec3> {
+    let total: f32 = samples.iter().map(|s| s.weight).sum();
     match samples.len() {
         0 => None,
-        1 | 2 => Some(samples.iter().map(|(w, c)| *c * *w).sum::<Vec3>() / total),
+        1 | 2 => Some(samples.iter().map(|s| s.colour * s.weight).sum::<Vec3>() / total),
         _ => {
             let median = |ch: usize| {
-                let mut v: Vec<(f32, f32)> = samples.iter().map(|(w, c)| (c[ch], *w)).collect();
+                let mut v: Vec<(f32, f32)> =
+                    samples.iter().map(|s| (s.colour[ch], s.weight)).collect();
                 v.sort_by(|a, b| a.0.total_cmp(&b.0));
                 let mut acc = 0.0;
                 for (value, w) in &v {
@@ -446,16 +566,36 @@ pub fn colour_from_photos(
     cfg: &PhotoColourConfig,
 ) -> PhotoColourReport {
     let n = avatar.canonical.len();
-    let normals = canonical_normals(avatar, template);
+    let (normals, parts) = canonical_normals(avatar, template);
     let mut samples = vec![Vec::new(); n];
     let mut report = PhotoColourReport::default();
     for (k, photo) in photos.iter().enumerate() {
-        match photo_colours(avatar, template, photo, cfg, &normals, &mut samples) {
+        match photo_colours(
+            avatar,
+            template,
+            photo,
+            cfg,
+            &normals,
+            k as u32,
+            &mut samples,
+        ) {
             Ok(rms) => {
                 report.photos_used += 1;
                 report.fit_errors.push(rms);
             }
             Err(why) => report.skipped.push(format!("photo {k}: {why}")),
+        }
+    }
+    if cfg.delight != Delight::Never {
+        let heights: Vec<f32> = avatar.canonical.positions.iter().map(|p| p.y).collect();
+        let calibrated: Vec<bool> = photos.iter().map(|p| p.camera.is_some()).collect();
+        report.lights = delight(&mut samples, &parts, &heights, &calibrated, cfg.delight);
+        for light in &report.lights {
+            tracing::debug!(
+                key = ?light.key,
+                residual = ?light.residual,
+                "key light divided out of the photos' colours"
+            );
         }
     }
     let g = &mut avatar.canonical;
@@ -570,11 +710,13 @@ impl ViewEvidence {
 
 /// Recolours `avatar` from the views perception saw the person in (a calibrated view through its
 /// camera and given pose, the others with their pose solved from their world landmarks on
-/// `template`); nothing without such views.
+/// `template`), dividing a fitted key light out of the views `delight` names; nothing without
+/// such views.
 pub fn colour_from_evidence(
     avatar: &mut Avatar,
     template: &BodyTemplate,
     seen: &[&ViewEvidence],
+    delight: Delight,
 ) -> PhotoColourReport {
     if seen.is_empty() {
         return PhotoColourReport::default();
@@ -607,7 +749,11 @@ pub fn colour_from_evidence(
             camera: e.calibration.as_ref().map(|(camera, _)| *camera),
         })
         .collect();
-    let report = colour_from_photos(avatar, template, &samples, &PhotoColourConfig::default());
+    let cfg = PhotoColourConfig {
+        delight,
+        ..PhotoColourConfig::default()
+    };
+    let report = colour_from_photos(avatar, template, &samples, &cfg);
     tracing::debug!(
         views = report.photos_used,
         calibrated = seen.iter().filter(|e| e.calibration.is_some()).count(),

@@ -14,7 +14,7 @@ pub mod render;
 
 use crate::avatar::Avatar;
 use crate::body::Pose;
-use crate::config::{LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
+use crate::config::{Delight, LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
 use crate::msgs::{BodyPose, BodyShape, Header, ReconstructionStatus, Time};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::inputs::{CameraFrame, InputEvent};
@@ -176,6 +176,8 @@ pub struct Pipeline {
     publish_masks: bool,
     /// Recolour avatars from the perceived views (`perception.colours_from_views`).
     colours_from_views: bool,
+    /// Which perceived views have a fitted key light divided out (`perception.delight`).
+    delight: Delight,
     animation: AnimationSetup,
     /// Camera calibration (and the shape reader).
     calibration: Calibration,
@@ -348,6 +350,7 @@ impl Pipeline {
             perception_due: Duration::ZERO,
             publish_masks: config.outputs.masks,
             colours_from_views: config.perception.colours_from_views,
+            delight: config.perception.delight,
             animation: AnimationSetup {
                 source: config.inputs.pose_source,
                 estimator,
@@ -1247,7 +1250,7 @@ impl Pipeline {
                         .iter()
                         .filter_map(|v| v.evidence.as_deref())
                         .collect();
-                    colour_from_evidence(&mut avatar, self.recon.template(), &seen);
+                    colour_from_evidence(&mut avatar, self.recon.template(), &seen, self.delight);
                 }
                 let stamp = set.views.iter().map(|v| v.stamp_ns).max().unwrap_or(0);
                 self.publish_avatar(&job, &avatar, set.views.len(), stamp);
