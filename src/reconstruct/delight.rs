@@ -53,7 +53,7 @@ pub const MIN_GAIN: f32 = 0.03;
 const MAX_STRENGTH: f32 = 4.0;
 
 /// Most samples the search looks at (spread evenly over the input).
-const MAX_SAMPLES: usize = 6000;
+const MAX_SAMPLES: usize = 3000;
 
 /// Smallest group (samples) whose albedo is fitted; smaller groups are left out of the fit.
 const MIN_GROUP: usize = 6;
@@ -208,7 +208,7 @@ pub fn fit_key_light(samples: &[ShadedSample]) -> KeyLight {
     let unlit = fitter.cost(Vec3::ZERO);
     let mut best = (unlit, Vec3::ZERO);
     let strengths = [0.25, 0.5, 0.8, 1.2, 1.7, 2.4, 3.2, MAX_STRENGTH];
-    for d in directions(96) {
+    for d in directions(64) {
         for s in strengths {
             let c = fitter.cost(d * s);
             if c < best.0 {
