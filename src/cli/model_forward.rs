@@ -31,6 +31,10 @@ pub struct ForwardArgs {
     /// preset or official config.json expresses (the official fixture's reduced DINOv2 and DPT).
     #[arg(long, conflicts_with = "preset")]
     config_json: Option<PathBuf>,
+    /// Dtype of the weights and activations (`f32` or `bf16`, as `model.dtype`); outputs are
+    /// written in f32 either way.
+    #[arg(long, default_value = "f32", value_parser = parse_dtype)]
+    dtype: DType,
     /// Input safetensors: `images` [V,3,H,W] in [0,1], `anchors` [N,3], `normals` [N,3];
     /// optional part masks `is_rhand`, `is_lhand`, `is_upper_body`, `is_constrain_body` [N]
     /// (BOOL or u8), draws `pooling_orders` [P,4] and `tome_destinations` [B,cells] (integers),
@@ -64,8 +68,8 @@ pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
     };
     let dev = Device::Cpu;
     let model = match &args.config_json {
-        Some(file) => build_with_config(spec, file, &dev)?,
-        None => build(spec, args.preset.as_deref(), &dev)?,
+        Some(file) => build_with_config(spec, file, args.dtype, &dev)?,
+        None => build(spec, args.preset.as_deref(), args.dtype, &dev)?,
     };
     let tensors = tensor_file::read_safetensors(input, &dev)?;
     let get = |name: &str| -> anyhow::Result<Tensor> {
@@ -108,11 +112,11 @@ pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
         ("positions", g.positions),
     ]
     .into_iter()
-    .map(|(k, t)| (k.to_string(), t))
-    .collect();
+    .map(|(k, t)| Ok((k.to_string(), t.to_dtype(DType::F32)?)))
+    .collect::<candle_core::Result<_>>()?;
     if let Some((rgb, mask, _)) = &neural {
-        out.insert("neural_rgb".into(), rgb.clone());
-        out.insert("neural_mask".into(), mask.clone());
+        out.insert("neural_rgb".into(), rgb.to_dtype(DType::F32)?);
+        out.insert("neural_mask".into(), mask.to_dtype(DType::F32)?);
     }
     candle_core::safetensors::save(&out, &args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
@@ -130,8 +134,17 @@ pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The network for `spec` (`random:SEED` or a checkpoint path) in f32 on `dev`.
-fn build(spec: &str, preset: Option<&str>, dev: &Device) -> anyhow::Result<Lhmpp> {
+/// `--dtype` values.
+fn parse_dtype(s: &str) -> Result<DType, String> {
+    match s {
+        "f32" => Ok(DType::F32),
+        "bf16" => Ok(DType::BF16),
+        _ => Err(format!("`{s}`: expected `f32` or `bf16`")),
+    }
+}
+
+/// The network for `spec` (`random:SEED` or a checkpoint path) in `dtype` on `dev`.
+fn build(spec: &str, preset: Option<&str>, dtype: DType, dev: &Device) -> anyhow::Result<Lhmpp> {
     if let Some(seed) = spec.strip_prefix("random:") {
         let seed: u64 = seed
             .parse()
@@ -139,7 +152,7 @@ fn build(spec: &str, preset: Option<&str>, dev: &Device) -> anyhow::Result<Lhmpp
         let cfg = LhmppConfig::preset(preset.unwrap_or("tiny"))?;
         return Ok(Lhmpp::new(
             &cfg,
-            checkpoint::seeded_var_builder(seed, DType::F32, dev),
+            checkpoint::seeded_var_builder(seed, dtype, dev),
         )?);
     }
     let path = Path::new(spec);
@@ -150,18 +163,24 @@ fn build(spec: &str, preset: Option<&str>, dev: &Device) -> anyhow::Result<Lhmpp
             .unwrap_or_else(|| "tiny".into()),
         None => "tiny".into(),
     };
-    let loaded = hub::load_checkpoint(path, &LhmppConfig::preset(&name)?, DType::F32, dev)
+    let loaded = hub::load_checkpoint(path, &LhmppConfig::preset(&name)?, dtype, dev)
         .with_context(|| format!("loading {spec}"))?;
     Ok(Lhmpp::new(&loaded.config, loaded.var_builder)?)
 }
 
-/// The network of `config` (an `LhmppConfig` JSON file) with the weights of file `spec`.
-fn build_with_config(spec: &str, config: &Path, dev: &Device) -> anyhow::Result<Lhmpp> {
+/// The network of `config` (an `LhmppConfig` JSON file) with the weights of file `spec`, in
+/// `dtype`.
+fn build_with_config(
+    spec: &str,
+    config: &Path,
+    dtype: DType,
+    dev: &Device,
+) -> anyhow::Result<Lhmpp> {
     let text =
         std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
     let cfg: LhmppConfig =
         serde_json::from_str(&text).with_context(|| format!("parsing {}", config.display()))?;
-    let loaded = hub::load_checkpoint(Path::new(spec), &cfg, DType::F32, dev)
+    let loaded = hub::load_checkpoint(Path::new(spec), &cfg, dtype, dev)
         .with_context(|| format!("loading {spec}"))?;
     Ok(Lhmpp::new(&loaded.config, loaded.var_builder)?)
 }
