@@ -16,7 +16,8 @@
 //! light warmer or cooler than the ambient light). Removing the light ([`KeyLight::gain`])
 //! scales each seen colour channel by `(1 + s) / (1 + s · max(0, n · k̂))`: every point as it
 //! would look facing the key light, so shadowed sides are lifted to their lit sides' level and
-//! colour, and the avatar has one brightness all round.
+//! colour, and the avatar has one brightness all round; each view's fitted exposure offset
+//! ([`KeyLight::exposure`]) is divided out with it.
 
 use glam::Vec3;
 
@@ -36,7 +37,7 @@ pub struct ShadedSample {
 /// A fitted key light: shading `1 + max(0, n · key)` in luminance, and per colour channel `c`
 /// `1 + strength[c] · max(0, n · key / |key|)` (a key light of another colour than the
 /// ambient one).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct KeyLight {
     /// Direction towards the light times its strength relative to the ambient light.
     pub key: Vec3,
@@ -44,6 +45,8 @@ pub struct KeyLight {
     pub strength: Vec3,
     /// Mean absolute log-luminance residual with this light, and with none.
     pub residual: (f32, f32),
+    /// Each view's exposure offset (log luminance, by [`ShadedSample::view`]) in the fit.
+    pub exposure: Vec<f32>,
 }
 
 /// Least share of the no-light residual a light must explain to be kept.
@@ -256,10 +259,12 @@ pub fn fit_key_light(samples: &[ShadedSample]) -> KeyLight {
         }
         strengths[c] = best_c.1;
     }
+    fitter.cost(best.1);
     KeyLight {
         key: best.1,
         strength: strengths,
         residual: (best.0, unlit),
+        exposure: fitter.view_offset.clone(),
     }
 }
 
@@ -333,6 +338,19 @@ mod tests {
             fit.key
         );
         assert!(fit.residual.0 < 0.5 * fit.residual.1, "{:?}", fit.residual);
+        // Each view's exposure is partly divided out: the spread between views shrinks.
+        let corrected: Vec<f32> = exposure
+            .iter()
+            .zip(&fit.exposure)
+            .map(|(e, offset)| e * (-offset).exp())
+            .collect();
+        let spread = |v: &[f32]| {
+            v.iter().cloned().fold(f32::MIN, f32::max) / v.iter().cloned().fold(f32::MAX, f32::min)
+        };
+        assert!(
+            spread(&corrected) < spread(&exposure) - 0.05,
+            "exposures {exposure:?} corrected to {corrected:?}"
+        );
         // The shadowed side is lifted to the lit side's level and colour.
         let lit = key.normalize();
         let dark = -lit;

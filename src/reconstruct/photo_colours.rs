@@ -497,7 +497,8 @@ fn delight(
         if light.key != Vec3::ZERO {
             for s in samples.iter_mut().flatten() {
                 if frame_of(s.photo) == frame {
-                    s.colour = (s.colour * light.gain(s.normal)).min(Vec3::ONE);
+                    let exposure = light.exposure.get(s.photo as usize).copied().unwrap_or(0.0);
+                    s.colour = (s.colour * light.gain(s.normal) * (-exposure).exp()).min(Vec3::ONE);
                 }
             }
         }
