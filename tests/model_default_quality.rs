@@ -116,8 +116,8 @@ fn calibrated_views_recolour_the_avatar_better_than_the_network() {
 /// own colours: the held-out truth is the unlit albedo) and seen by 8 calibrated cameras: with
 /// the fitted key light divided out (`perception.delight: calibrated`, the default) the
 /// recoloured avatar scores at least 1 dB above the same avatar coloured by the lit views as
-/// they are (`never`). Measured on this person: 16.96 → 19.02 dB (16 views, 8 used); on six
-/// such people 17.14 → 19.61 dB at 8 views.
+/// they are (`never`). Measured on this person: 16.96 → 20.13 dB (16 views, 8 used); on six
+/// such people 17.14 → 20.12 dB at 8 views.
 #[test]
 fn dividing_out_the_key_light_brings_a_lit_person_closer_to_their_garments() {
     use lhmpp::eval::heldout::{ColourSource, ShapeSource};

@@ -32,6 +32,8 @@ pub struct ShadedSample {
     pub normal: Vec3,
     /// The colour seen (sRGB, 0–1).
     pub colour: Vec3,
+    /// How much of the key light reaches it (0 in a cast shadow, else 1).
+    pub lit: f32,
 }
 
 /// A fitted key light: shading `1 + max(0, n · key)` in luminance, and per colour channel `c`
@@ -75,7 +77,12 @@ impl KeyLight {
     /// Per-channel factor that takes a colour seen at normal `n` to the colour of the same
     /// surface facing the light.
     pub fn gain(&self, n: Vec3) -> Vec3 {
-        let facing = n.dot(self.key.normalize_or_zero()).max(0.0);
+        self.gain_lit(n, 1.0)
+    }
+
+    /// [`Self::gain`] for a point that `lit` of the key light reaches (0 in a cast shadow).
+    pub fn gain_lit(&self, n: Vec3, lit: f32) -> Vec3 {
+        let facing = n.dot(self.key.normalize_or_zero()).max(0.0) * lit;
         (Vec3::ONE + self.strength) / (Vec3::ONE + self.strength * facing)
     }
 }
@@ -152,7 +159,7 @@ impl<'a> Fitter<'a> {
             .iter_mut()
             .zip(self.samples.iter().zip(&self.logs))
         {
-            *r = y - (1.0 + s.normal.dot(key).max(0.0)).ln();
+            *r = y - (1.0 + s.normal.dot(key).max(0.0) * s.lit).ln();
         }
         self.view_offset.iter_mut().for_each(|v| *v = 0.0);
         for _ in 0..2 {
@@ -184,8 +191,9 @@ impl<'a> Fitter<'a> {
 }
 
 /// The key light that best explains `samples` (see the module docs); [`KeyLight::none`] when
-/// there are too few samples or no light explains enough.
-pub fn fit_key_light(samples: &[ShadedSample]) -> KeyLight {
+/// there are too few samples or no light explains enough. With `near`, the search starts from
+/// that light (a fit of the same views) instead of every direction and strength.
+pub fn fit_key_light(samples: &[ShadedSample], near: Option<Vec3>) -> KeyLight {
     // Keep groups large enough to tell light from albedo, then thin evenly.
     let groups = samples
         .iter()
@@ -211,11 +219,16 @@ pub fn fit_key_light(samples: &[ShadedSample]) -> KeyLight {
     let unlit = fitter.cost(Vec3::ZERO);
     let mut best = (unlit, Vec3::ZERO);
     let strengths = [0.25, 0.5, 0.8, 1.2, 1.7, 2.4, 3.2, MAX_STRENGTH];
-    for d in directions(64) {
-        for s in strengths {
-            let c = fitter.cost(d * s);
-            if c < best.0 {
-                best = (c, d * s);
+    match near {
+        Some(key) if key != Vec3::ZERO => best = (best.0.min(fitter.cost(key)), key),
+        _ => {
+            for d in directions(64) {
+                for s in strengths {
+                    let c = fitter.cost(d * s);
+                    if c < best.0 {
+                        best = (c, d * s);
+                    }
+                }
             }
         }
     }
@@ -318,6 +331,7 @@ mod tests {
                         view: v as u32,
                         normal: n,
                         colour,
+                        lit: 1.0,
                     });
                 }
             }
@@ -331,7 +345,7 @@ mod tests {
         let exposure = [1.0, 0.9, 1.1, 1.0, 0.95, 1.05, 1.0, 0.9];
         let warm = Vec3::new(1.2, 1.0, 0.75);
         let samples = lit_samples(key, warm, &exposure);
-        let fit = fit_key_light(&samples);
+        let fit = fit_key_light(&samples, None);
         assert!(
             (fit.key - key).length() < 0.3,
             "fitted {:?}, true {key:?}",
@@ -366,7 +380,7 @@ mod tests {
     #[test]
     fn unlit_samples_keep_no_light() {
         let samples = lit_samples(Vec3::ZERO, Vec3::ONE, &[1.0; 8]);
-        let fit = fit_key_light(&samples);
+        let fit = fit_key_light(&samples, None);
         assert_eq!(fit.key, Vec3::ZERO);
         assert_eq!(fit.gain(Vec3::X), Vec3::ONE);
     }

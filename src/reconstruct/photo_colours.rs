@@ -31,8 +31,9 @@ use crate::config::Delight;
 use crate::perception::pose::{template_landmarks, PoseEstimator, PoseEstimatorConfig};
 use crate::perception::{Landmark, LandmarkId, BODY_LANDMARKS};
 use crate::splat::{rgb_to_sh_dc, sh_dc_to_rgb, Camera};
-use glam::{Mat4, Vec2, Vec3, Vec4};
+use glam::{IVec3, Mat4, Vec2, Vec3, Vec4};
 use image::{GrayImage, RgbImage};
+use std::collections::HashSet;
 
 /// Settings of [`colour_from_photos`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -107,6 +108,8 @@ struct Seen {
     colour: Vec3,
     /// The Gaussian's posed normal in the photo's frame.
     normal: Vec3,
+    /// The Gaussian's posed position in the photo's frame.
+    position: Vec3,
     /// The photo.
     photo: u32,
 }
@@ -246,8 +249,9 @@ fn sample(image: &RgbImage, x: i64, y: i64) -> Vec3 {
     sum / (9.0 * 255.0)
 }
 
-/// Per Gaussian, the sum of the colours the photo shows it with (and how many), when the
-/// camera fit is good enough; else why not.
+/// Adds to `samples` each Gaussian's colour as the photo shows it, when the camera fit is good
+/// enough (returns the fit's RMS miss and the avatar's Gaussians posed as in the photo); else
+/// why not.
 fn photo_colours(
     avatar: &Avatar,
     template: &BodyTemplate,
@@ -256,7 +260,7 @@ fn photo_colours(
     normals: &[Vec3],
     index: u32,
     samples: &mut [Vec<Seen>],
-) -> Result<f32, String> {
+) -> Result<(f32, Vec<Vec3>), String> {
     let posed_landmarks =
         template_landmarks(template, photo.pose).map_err(|e| format!("landmarks: {e}"))?;
     let mut pairs: Vec<(Vec3, Vec2)> = FIT_LANDMARKS
@@ -322,10 +326,11 @@ fn photo_colours(
             weight: facing.max(MIN_FACING),
             colour: sample(photo.image, x, y),
             normal,
+            position: posed.positions[i],
             photo: index,
         });
     }
-    Ok(rms)
+    Ok((rms, posed.positions))
 }
 
 /// The affine camera through the landmark pairs and its RMS miss (share of `height`): the
@@ -425,17 +430,43 @@ fn canonical_normals(avatar: &Avatar, template: &BodyTemplate) -> (Vec<Vec3>, Ve
         .unzip()
 }
 
+/// Side (metres) of the cells that block the key light.
+const SHADOW_CELL: f32 = 0.03;
+
+/// Cells holding a posed Gaussian.
+fn occupied_cells(positions: &[Vec3]) -> HashSet<IVec3> {
+    positions
+        .iter()
+        .filter(|p| p.is_finite())
+        .map(|p| (*p / SHADOW_CELL).floor().as_ivec3())
+        .collect()
+}
+
+/// Whether the ray from `from` towards unit `dir` meets an occupied cell: stepped every 2 cm
+/// from 6 cm (clear of the surface the point lies on) to 1.2 m.
+fn in_shadow(cells: &HashSet<IVec3>, from: Vec3, dir: Vec3) -> bool {
+    let start = (from / SHADOW_CELL).floor().as_ivec3();
+    (3..60).any(|k| {
+        let q = ((from + dir * (k as f32 * 0.02)) / SHADOW_CELL)
+            .floor()
+            .as_ivec3();
+        q != start && cells.contains(&q)
+    })
+}
+
 /// Height band (metres) of the groups taken to share an albedo when de-lighting.
 const DELIGHT_BAND: f32 = 0.1;
 
 /// Divides a key light out of the colours in `samples`, one light per set of photos that share
 /// a frame (the calibrated ones together; with [`Delight::Always`] also each other photo
-/// alone); returns the lights.
+/// alone), with the cast shadows of the avatar posed in each photo (`posed`, its Gaussians'
+/// positions per photo); returns the lights.
 fn delight(
     samples: &mut [Vec<Seen>],
     parts: &[u8],
     heights: &[f32],
     calibrated: &[bool],
+    posed: &[Vec<Vec3>],
     mode: Delight,
 ) -> Vec<KeyLight> {
     // Groups: body part × height band × hue of the Gaussian's colour over its photos.
@@ -478,27 +509,57 @@ fn delight(
     frames.dedup();
     let mut lights = Vec::new();
     for frame in frames {
-        let shaded: Vec<ShadedSample> = samples
-            .iter()
-            .enumerate()
-            .flat_map(|(i, seen)| {
-                let group = group_of[i];
-                seen.iter()
-                    .filter(move |s| frame_of(s.photo) == frame)
-                    .map(move |s| ShadedSample {
-                        group,
-                        view: s.photo,
-                        normal: s.normal,
-                        colour: s.colour,
-                    })
-            })
-            .collect();
-        let light = fit_key_light(&shaded);
+        let gather = |samples: &[Vec<Seen>], lit: &dyn Fn(&Seen) -> f32| {
+            samples
+                .iter()
+                .enumerate()
+                .flat_map(|(i, seen)| {
+                    let group = group_of[i];
+                    seen.iter()
+                        .filter(|s| frame_of(s.photo) == frame)
+                        .map(|s| ShadedSample {
+                            group,
+                            view: s.photo,
+                            normal: s.normal,
+                            colour: s.colour,
+                            lit: lit(s),
+                        })
+                        .collect::<Vec<_>>()
+                })
+                .collect::<Vec<ShadedSample>>()
+        };
+        // A first fit without cast shadows gives the light's direction; the avatar posed in
+        // each photo then tells which points the key light cannot reach, and the light is
+        // fitted again with those.
+        let mut light = fit_key_light(&gather(samples, &|_| 1.0), None);
+        let shadows = light.key != Vec3::ZERO;
+        let blockers: Vec<HashSet<IVec3>> = if shadows {
+            posed.iter().map(|p| occupied_cells(p)).collect()
+        } else {
+            Vec::new()
+        };
+        let dir = light.key.normalize_or_zero();
+        let lit_of = |s: &Seen| -> f32 {
+            let blocked = shadows
+                && blockers
+                    .get(s.photo as usize)
+                    .is_some_and(|cells| in_shadow(cells, s.position + s.normal * 0.02, dir));
+            if blocked {
+                0.0
+            } else {
+                1.0
+            }
+        };
+        if shadows {
+            light = fit_key_light(&gather(samples, &lit_of), Some(light.key));
+        }
         if light.key != Vec3::ZERO {
             for s in samples.iter_mut().flatten() {
                 if frame_of(s.photo) == frame {
                     let exposure = light.exposure.get(s.photo as usize).copied().unwrap_or(0.0);
-                    s.colour = (s.colour * light.gain(s.normal) * (-exposure).exp()).min(Vec3::ONE);
+                    let lit = lit_of(s);
+                    s.colour = (s.colour * light.gain_lit(s.normal, lit) * (-exposure).exp())
+                        .min(Vec3::ONE);
                 }
             }
         }
@@ -569,6 +630,7 @@ pub fn colour_from_photos(
     let n = avatar.canonical.len();
     let (normals, parts) = canonical_normals(avatar, template);
     let mut samples = vec![Vec::new(); n];
+    let mut posed_positions: Vec<Vec<Vec3>> = Vec::with_capacity(photos.len());
     let mut report = PhotoColourReport::default();
     for (k, photo) in photos.iter().enumerate() {
         match photo_colours(
@@ -580,17 +642,28 @@ pub fn colour_from_photos(
             k as u32,
             &mut samples,
         ) {
-            Ok(rms) => {
+            Ok((rms, posed)) => {
                 report.photos_used += 1;
                 report.fit_errors.push(rms);
+                posed_positions.push(posed);
             }
-            Err(why) => report.skipped.push(format!("photo {k}: {why}")),
+            Err(why) => {
+                report.skipped.push(format!("photo {k}: {why}"));
+                posed_positions.push(Vec::new());
+            }
         }
     }
     if cfg.delight != Delight::Never {
         let heights: Vec<f32> = avatar.canonical.positions.iter().map(|p| p.y).collect();
         let calibrated: Vec<bool> = photos.iter().map(|p| p.camera.is_some()).collect();
-        report.lights = delight(&mut samples, &parts, &heights, &calibrated, cfg.delight);
+        report.lights = delight(
+            &mut samples,
+            &parts,
+            &heights,
+            &calibrated,
+            &posed_positions,
+            cfg.delight,
+        );
         for light in &report.lights {
             tracing::debug!(
                 key = ?light.key,
@@ -768,6 +841,26 @@ pub fn colour_from_evidence(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_point_behind_a_blocker_is_in_the_key_lights_shadow() {
+        use super::{in_shadow, occupied_cells};
+        use glam::Vec3;
+        // A slab of points 30 cm above the origin.
+        let slab: Vec<Vec3> = (-5..=5)
+            .flat_map(|x| (-5..=5).map(move |z| Vec3::new(x as f32 * 0.02, 0.3, z as f32 * 0.02)))
+            .collect();
+        let cells = occupied_cells(&slab);
+        assert!(in_shadow(&cells, Vec3::ZERO, Vec3::Y));
+        assert!(!in_shadow(&cells, Vec3::ZERO, Vec3::X));
+        assert!(!in_shadow(&cells, Vec3::new(0.5, 0.0, 0.0), Vec3::Y));
+        // The point's own surface does not shadow it.
+        assert!(!in_shadow(
+            &occupied_cells(&[Vec3::ZERO]),
+            Vec3::ZERO,
+            Vec3::Y
+        ));
+    }
+
     use super::*;
 
     /// An affine camera is recovered from its own projections, and looks along its rows'
