@@ -7,7 +7,7 @@ beside our avatar from the front and from the side (`lhmpp avatar` turntable fra
 
 import sys
 
-from PIL import Image, ImageDraw
+from PIL import Image, ImageChops, ImageDraw
 
 H = 300  # row height
 
@@ -27,9 +27,9 @@ def fit(img, height):
 
 
 def trim_white(img):
-    bg = Image.new("RGB", img.size, (255, 255, 255))
-    diff = Image.eval(Image.composite(img, bg, Image.new("L", img.size, 255)), lambda v: 255 - v)
-    box = diff.convert("L").point(lambda v: 255 if v > 8 else 0).getbbox()
+    """`img` cropped to what is not (nearly) white."""
+    ink = ImageChops.invert(img).convert("L").point(lambda v: 255 if v > 8 else 0)
+    box = ink.getbbox()
     return img.crop(box) if box else img
 
 

@@ -33,7 +33,7 @@ pub struct ForwardArgs {
     config_json: Option<PathBuf>,
     /// Dtype of the weights and activations (`f32` or `bf16`, as `model.dtype`); outputs are
     /// written in f32 either way.
-    #[arg(long, default_value = "f32", value_parser = parse_dtype)]
+    #[arg(long, default_value = "f32", value_parser = dtype_arg)]
     dtype: DType,
     /// Input safetensors: `images` [V,3,H,W] in [0,1], `anchors` [N,3], `normals` [N,3];
     /// optional part masks `is_rhand`, `is_lhand`, `is_upper_body`, `is_constrain_body` [N]
@@ -134,13 +134,9 @@ pub fn run(args: ForwardArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--dtype` values.
-fn parse_dtype(s: &str) -> Result<DType, String> {
-    match s {
-        "f32" => Ok(DType::F32),
-        "bf16" => Ok(DType::BF16),
-        _ => Err(format!("`{s}`: expected `f32` or `bf16`")),
-    }
+/// `--dtype` values, as `lhmpp model parity --dtype` reads them.
+fn dtype_arg(s: &str) -> Result<DType, String> {
+    crate::cli::model_parity::parse_dtype(s).map_err(|e| e.to_string())
 }
 
 /// The network for `spec` (`random:SEED` or a checkpoint path) in `dtype` on `dev`.

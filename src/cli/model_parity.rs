@@ -398,7 +398,8 @@ fn parse_device(name: &str) -> anyhow::Result<Device> {
     })
 }
 
-fn parse_dtype(name: &str) -> anyhow::Result<DType> {
+/// A `--dtype` value: `f32` or `bf16`.
+pub(crate) fn parse_dtype(name: &str) -> anyhow::Result<DType> {
     Ok(match name {
         "f32" => DType::F32,
         "bf16" => DType::BF16,

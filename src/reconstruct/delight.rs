@@ -220,6 +220,8 @@ pub fn fit_key_light(samples: &[ShadedSample], near: Option<Vec3>) -> KeyLight {
     let mut best = (unlit, Vec3::ZERO);
     let strengths = [0.25, 0.5, 0.8, 1.2, 1.7, 2.4, 3.2, MAX_STRENGTH];
     match near {
+        // The refinement below searches around `near` even where `near` itself explains less
+        // than no light; the bar stays the no-light residual then.
         Some(key) if key != Vec3::ZERO => best = (best.0.min(fitter.cost(key)), key),
         _ => {
             for d in directions(64) {

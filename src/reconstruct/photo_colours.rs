@@ -33,7 +33,7 @@ use crate::perception::{Landmark, LandmarkId, BODY_LANDMARKS};
 use crate::splat::{rgb_to_sh_dc, sh_dc_to_rgb, Camera};
 use glam::{IVec3, Mat4, Vec2, Vec3, Vec4};
 use image::{GrayImage, RgbImage};
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 /// Settings of [`colour_from_photos`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -110,6 +110,9 @@ struct Seen {
     normal: Vec3,
     /// The Gaussian's posed position in the photo's frame.
     position: Vec3,
+    /// How much of the fitted key light reaches it there (0 in a cast shadow; 1 until a light
+    /// is fitted).
+    lit: f32,
     /// The photo.
     photo: u32,
 }
@@ -327,6 +330,7 @@ fn photo_colours(
             colour: sample(photo.image, x, y),
             normal,
             position: posed.positions[i],
+            lit: 1.0,
             photo: index,
         });
     }
@@ -470,7 +474,7 @@ fn delight(
     mode: Delight,
 ) -> Vec<KeyLight> {
     // Groups: body part × height band × hue of the Gaussian's colour over its photos.
-    let mut keys: Vec<(u8, i32, u32)> = Vec::new();
+    let mut keys: HashMap<(u8, i32, u32), u32> = HashMap::new();
     let group_of: Vec<u32> = samples
         .iter()
         .enumerate()
@@ -481,13 +485,8 @@ fn delight(
                 (heights[i] / DELIGHT_BAND).floor() as i32,
                 hue_bin(mean),
             );
-            match keys.iter().position(|k| *k == key) {
-                Some(g) => g as u32,
-                None => {
-                    keys.push(key);
-                    keys.len() as u32 - 1
-                }
-            }
+            let next = keys.len() as u32;
+            *keys.entry(key).or_insert(next)
         })
         .collect();
     let frame_of = |photo: u32| {
@@ -507,9 +506,11 @@ fn delight(
         .collect();
     frames.sort_unstable();
     frames.dedup();
+    // Cells the avatar occupies in each photo's pose, made once a light is found.
+    let mut blockers: Option<Vec<HashSet<IVec3>>> = None;
     let mut lights = Vec::new();
     for frame in frames {
-        let gather = |samples: &[Vec<Seen>], lit: &dyn Fn(&Seen) -> f32| {
+        let gather = |samples: &[Vec<Seen>]| {
             samples
                 .iter()
                 .enumerate()
@@ -517,48 +518,39 @@ fn delight(
                     let group = group_of[i];
                     seen.iter()
                         .filter(|s| frame_of(s.photo) == frame)
-                        .map(|s| ShadedSample {
+                        .map(move |s| ShadedSample {
                             group,
                             view: s.photo,
                             normal: s.normal,
                             colour: s.colour,
-                            lit: lit(s),
+                            lit: s.lit,
                         })
-                        .collect::<Vec<_>>()
                 })
                 .collect::<Vec<ShadedSample>>()
         };
         // A first fit without cast shadows gives the light's direction; the avatar posed in
         // each photo then tells which points the key light cannot reach, and the light is
-        // fitted again with those.
-        let mut light = fit_key_light(&gather(samples, &|_| 1.0), None);
-        let shadows = light.key != Vec3::ZERO;
-        let blockers: Vec<HashSet<IVec3>> = if shadows {
-            posed.iter().map(|p| occupied_cells(p)).collect()
-        } else {
-            Vec::new()
-        };
-        let dir = light.key.normalize_or_zero();
-        let lit_of = |s: &Seen| -> f32 {
-            let blocked = shadows
-                && blockers
-                    .get(s.photo as usize)
-                    .is_some_and(|cells| in_shadow(cells, s.position + s.normal * 0.02, dir));
-            if blocked {
-                0.0
-            } else {
-                1.0
+        // fitted again from the first one with those.
+        let mut light = fit_key_light(&gather(samples), None);
+        if light.key != Vec3::ZERO {
+            let cells =
+                blockers.get_or_insert_with(|| posed.iter().map(|p| occupied_cells(p)).collect());
+            let dir = light.key.normalize();
+            for s in samples.iter_mut().flatten() {
+                if frame_of(s.photo) == frame {
+                    let blocked = cells
+                        .get(s.photo as usize)
+                        .is_some_and(|c| in_shadow(c, s.position + s.normal * 0.02, dir));
+                    s.lit = if blocked { 0.0 } else { 1.0 };
+                }
             }
-        };
-        if shadows {
-            light = fit_key_light(&gather(samples, &lit_of), Some(light.key));
+            light = fit_key_light(&gather(samples), Some(light.key));
         }
         if light.key != Vec3::ZERO {
             for s in samples.iter_mut().flatten() {
                 if frame_of(s.photo) == frame {
                     let exposure = light.exposure.get(s.photo as usize).copied().unwrap_or(0.0);
-                    let lit = lit_of(s);
-                    s.colour = (s.colour * light.gain_lit(s.normal, lit) * (-exposure).exp())
+                    s.colour = (s.colour * light.gain_lit(s.normal, s.lit) * (-exposure).exp())
                         .min(Vec3::ONE);
                 }
             }
@@ -841,10 +833,10 @@ pub fn colour_from_evidence(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn a_point_behind_a_blocker_is_in_the_key_lights_shadow() {
-        use super::{in_shadow, occupied_cells};
-        use glam::Vec3;
         // A slab of points 30 cm above the origin.
         let slab: Vec<Vec3> = (-5..=5)
             .flat_map(|x| (-5..=5).map(move |z| Vec3::new(x as f32 * 0.02, 0.3, z as f32 * 0.02)))
@@ -860,8 +852,6 @@ mod tests {
             Vec3::Y
         ));
     }
-
-    use super::*;
 
     /// An affine camera is recovered from its own projections, and looks along its rows'
     /// cross product (a camera in front of the person, +Z towards it, looks along −Z).
