@@ -10,6 +10,8 @@
 //! `lhmpp eval-photos` (camera-only perception for the masks and poses).
 
 pub mod delight;
+pub mod head_fit;
+pub mod landmark_warp;
 pub mod image_decode;
 pub mod part_rules;
 pub mod photo_colours;

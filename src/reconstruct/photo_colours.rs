@@ -25,6 +25,10 @@
 //! which share one world frame and see the person from several sides.
 
 use super::delight::{fit_key_light, hue_bin, KeyLight, ShadedSample};
+use super::landmark_warp::{landmark_misses, LandmarkTies};
+use super::head_fit::{
+    fit_head_warp, head_weights, projected_landmarks, HeadEvidence, HeadWarp,
+};
 use crate::avatar::Avatar;
 use crate::body::{BodyTemplate, Pose};
 use crate::config::Delight;
@@ -261,6 +265,8 @@ fn photo_colours(
     photo: &PhotoSample<'_>,
     cfg: &PhotoColourConfig,
     normals: &[Vec3],
+    head_weights: &[f32],
+    ties: &LandmarkTies,
     index: u32,
     samples: &mut [Vec<Seen>],
 ) -> Result<(f32, Vec<Vec3>), String> {
@@ -282,6 +288,30 @@ fn photo_colours(
     };
     let matrices = template.skeleton.skinning_matrices(photo.pose);
     let posed = avatar.animate(&matrices);
+    let mut projected: Vec<Option<(Vec2, f32)>> = posed
+        .positions
+        .iter()
+        .map(|p| projection.project(*p))
+        .collect();
+    let warp = match projection {
+        // A calibrated camera and pose place the person as they stand.
+        Projection::Pinhole { .. } => HeadWarp::IDENTITY,
+        Projection::Affine { .. } => follow_landmarks(
+            &FittedPhoto {
+                template,
+                photo,
+                projection: &projection,
+                posed_landmarks: &posed_landmarks,
+                matrices: &matrices,
+                height,
+                min_visibility: cfg.min_visibility,
+            },
+            ties,
+            head_weights,
+            &mut projected,
+        ),
+    };
+    tracing::debug!(photo = index, ?warp, "head warp");
     let cell = (height / 64.0).max(1.0);
     let (gw, gh) = (
         (photo.image.width() as f32 / cell).ceil() as usize + 1,
@@ -289,11 +319,12 @@ fn photo_colours(
     );
     let mut front = vec![f32::MAX; gw * gh];
     let mut placed = Vec::with_capacity(posed.len());
-    for (i, p) in posed.positions.iter().enumerate() {
-        let Some((px, depth)) = projection.project(*p) else {
+    for (i, at) in projected.iter().enumerate() {
+        let Some((px, depth)) = *at else {
             placed.push(None);
             continue;
         };
+        let px = warp.apply(px, head_weights[i]);
         let (cx, cy) = ((px.x / cell).floor(), (px.y / cell).floor());
         if posed.opacities[i] < 0.05
             || cx < 0.0
@@ -335,6 +366,69 @@ fn photo_colours(
         });
     }
     Ok((rms, posed.positions))
+}
+
+/// A photo whose camera was fitted to the landmarks, posed.
+struct FittedPhoto<'a> {
+    template: &'a BodyTemplate,
+    photo: &'a PhotoSample<'a>,
+    projection: &'a Projection,
+    posed_landmarks: &'a [Vec3; BODY_LANDMARKS],
+    matrices: &'a [Mat4],
+    /// The person's height on the photo, pixels.
+    height: f32,
+    min_visibility: f32,
+}
+
+/// Moves where each Gaussian samples a photo whose camera was fitted: by the misses of the
+/// landmarks it is tied to ([`super::landmark_warp`]), then the head's points scaled to the
+/// head's mask ([`super::head_fit`]; returned, to apply by head weight).
+fn follow_landmarks(
+    fitted: &FittedPhoto<'_>,
+    ties: &LandmarkTies,
+    head_weights: &[f32],
+    projected: &mut [Option<(Vec2, f32)>],
+) -> HeadWarp {
+    let FittedPhoto {
+        template,
+        photo,
+        projection,
+        ..
+    } = fitted;
+    let template_px = projected_landmarks(fitted.posed_landmarks, |p| {
+        projection.project(p).map(|(q, _)| q)
+    });
+    let misses = landmark_misses(
+        photo.landmarks,
+        &template_px,
+        fitted.min_visibility,
+        fitted.height,
+    );
+    let shifts = ties.shifts(&misses, projected.len());
+    for (p, s) in projected.iter_mut().zip(shifts) {
+        if let Some((px, _)) = p {
+            *px += s;
+        }
+    }
+    let Some(head) = template.skeleton.bone_index("head") else {
+        return HeadWarp::IDENTITY;
+    };
+    let joint = fitted.matrices[head].transform_point3(template.skeleton.joints[head]);
+    let Some((pivot, _)) = projection.project(joint) else {
+        return HeadWarp::IDENTITY;
+    };
+    let pixels: Vec<Option<Vec2>> = projected.iter().map(|p| p.map(|(q, _)| q)).collect();
+    fit_head_warp(
+        &HeadEvidence {
+            landmarks: photo.landmarks,
+            template_landmarks: &template_px,
+            mask: photo.mask,
+            pivot,
+            height: fitted.height,
+        },
+        &pixels,
+        head_weights,
+    )
 }
 
 /// The affine camera through the landmark pairs and its RMS miss (share of `height`): the
@@ -621,6 +715,8 @@ pub fn colour_from_photos(
 ) -> PhotoColourReport {
     let n = avatar.canonical.len();
     let (normals, parts) = canonical_normals(avatar, template);
+    let head_weights = head_weights(avatar, template);
+    let ties = LandmarkTies::new(avatar, template);
     let mut samples = vec![Vec::new(); n];
     let mut posed_positions: Vec<Vec<Vec3>> = Vec::with_capacity(photos.len());
     let mut report = PhotoColourReport::default();
@@ -631,6 +727,8 @@ pub fn colour_from_photos(
             photo,
             cfg,
             &normals,
+            &head_weights,
+            &ties,
             k as u32,
             &mut samples,
         ) {
