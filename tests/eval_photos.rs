@@ -6,7 +6,7 @@
 //! swapped, and an avatar that renders nothing (scored against the white background). The
 //! command runs end to end on a folder of renders and on a two-view manifest, and each
 //! person's avatar comes from their own photos only. Colours taken from the photos carry over
-//! to a view the avatar never saw.
+//! to a view the avatar never saw, and a bun painted above the skull reaches the crown.
 
 use glam::Vec3;
 use lhmpp::body::Pose;
@@ -430,5 +430,83 @@ fn colours_from_the_photos_carry_over_to_a_held_out_view() {
     assert!(
         from_photos < 12.0 && from_photos < 0.6 * network,
         "held-out ΔE00: colours from the photos {from_photos:.1}, network colours {network:.1}"
+    );
+}
+
+#[test]
+fn a_bun_above_the_skull_colours_the_crown() {
+    // Hair and caps stand off the template's skull: a green bun painted on the photo above
+    // the person's head (and added to the mask) must reach the avatar's crown, whose
+    // Gaussians would otherwise sample the top of the skull where it projects.
+    use lhmpp::reconstruct::photo_colours::PhotoColourConfig;
+    use lhmpp::reconstruct::photos::{colour_from_views, photo_view};
+    let p = front();
+    let (mut image, mut mask) = (p.image.clone(), p.mask.clone());
+    let top = (0..SIZE)
+        .find(|&y| (0..SIZE).any(|x| mask.get_pixel(x, y).0[0] > 128))
+        .expect("the mask has a person");
+    let xs: Vec<u32> = (0..SIZE)
+        .filter(|&x| mask.get_pixel(x, top + 6).0[0] > 128)
+        .collect();
+    let centre = (xs[0] + xs[xs.len() - 1]) as f32 / 2.0;
+    let half_width = (xs[xs.len() - 1] - xs[0]) as f32 / 2.0 + 2.0;
+    let bun = [40u8, 190, 70];
+    let bun_height = 14.0;
+    for y in top.saturating_sub(bun_height as u32)..top + 2 {
+        for x in 0..SIZE {
+            let (dx, dy) = (
+                (x as f32 - centre) / half_width,
+                (y as f32 - top as f32 - 2.0) / bun_height,
+            );
+            if dx * dx + dy * dy <= 1.0 {
+                image.put_pixel(x, y, image::Rgb(bun));
+                mask.put_pixel(x, y, image::Luma([255]));
+            }
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (photo_path, mask_path) = (dir.path().join("bun.png"), dir.path().join("bun_mask.png"));
+    image.save(&photo_path).unwrap();
+    mask.save(&mask_path).unwrap();
+    let mut recon = Reconstructor::new(&ModelConfig::default(), 2).unwrap();
+    let prep = preprocess_config(&recon);
+    let template = recon.template().clone();
+    let view = photo_view(
+        &photo_path,
+        Some(&mask_path),
+        None,
+        &networks(),
+        &template,
+        &prep,
+    )
+    .unwrap()
+    .expect("perception reads the person");
+    let views = [view];
+    let mut avatar = reconstruct_photos(&mut recon, &views).unwrap();
+    colour_from_views(
+        &mut avatar,
+        &template,
+        &views,
+        &PhotoColourConfig::default(),
+    );
+    // The crown: the Gaussians within 2 cm of the avatar's top.
+    let g = &avatar.canonical;
+    let k = g.sh_per_gaussian();
+    let top_y = g.positions.iter().map(|p| p.y).fold(f32::MIN, f32::max);
+    let crown: Vec<Srgb8> = (0..g.len())
+        .filter(|&i| g.positions[i].y > top_y - 0.02)
+        .map(|i| {
+            let c = lhmpp::splat::sh_dc_to_rgb(g.sh[i * k]);
+            rgb8([c.x, c.y, c.z])
+        })
+        .collect();
+    assert!(crown.len() >= 10, "{} crown Gaussians", crown.len());
+    // Half the crown faces the front camera; the rest is hidden behind it and keeps the
+    // network's colour.
+    let green = crown.iter().filter(|c| ciede2000(**c, bun) < 10.0).count();
+    assert!(
+        green * 3 >= crown.len(),
+        "{green} of {} crown Gaussians wear the bun: {crown:?}",
+        crown.len()
     );
 }
