@@ -233,9 +233,8 @@ mod tests {
             })
             .collect();
         let weights = vec![1.0; pixels.len()];
-        let template: [Option<Vec2>; BODY_LANDMARKS] = std::array::from_fn(|i| {
-            (i < FACE_LANDMARKS).then(|| template_c + Vec2::X * i as f32)
-        });
+        let template: [Option<Vec2>; BODY_LANDMARKS] =
+            std::array::from_fn(|i| (i < FACE_LANDMARKS).then(|| template_c + Vec2::X * i as f32));
         let photo: Vec<Vec2> = (0..FACE_LANDMARKS)
             .map(|i| template_c + Vec2::new(10.0 + i as f32, -10.0))
             .collect();
@@ -252,13 +251,19 @@ mod tests {
             &pixels,
             &weights,
         );
-        assert!(warp.pivot.distance(Vec2::new(110.0, 90.0)) < 0.5, "{warp:?}");
+        assert!(
+            warp.pivot.distance(Vec2::new(110.0, 90.0)) < 0.5,
+            "{warp:?}"
+        );
         // Skull top 40 px above the joint; the mask's top 50 px above it.
         assert!((warp.scale - 1.25).abs() < 0.1, "{warp:?}");
         let top = warp.apply(Vec2::new(110.0, 50.0), 1.0);
         assert!(top.distance(Vec2::new(110.0, 40.0)) < 5.0, "{top}");
         // A point with no head weight (the neck, the body) stays where it was.
-        assert_eq!(warp.apply(Vec2::new(100.0, 120.0), 0.0), Vec2::new(100.0, 120.0));
+        assert_eq!(
+            warp.apply(Vec2::new(100.0, 120.0), 0.0),
+            Vec2::new(100.0, 120.0)
+        );
     }
 
     #[test]

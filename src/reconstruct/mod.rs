@@ -11,8 +11,8 @@
 
 pub mod delight;
 pub mod head_fit;
-pub mod landmark_warp;
 pub mod image_decode;
+pub mod landmark_warp;
 pub mod part_rules;
 pub mod photo_colours;
 pub mod photos;

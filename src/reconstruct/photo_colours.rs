@@ -25,10 +25,8 @@
 //! which share one world frame and see the person from several sides.
 
 use super::delight::{fit_key_light, hue_bin, KeyLight, ShadedSample};
+use super::head_fit::{fit_head_warp, head_weights, projected_landmarks, HeadEvidence, HeadWarp};
 use super::landmark_warp::{landmark_misses, LandmarkTies};
-use super::head_fit::{
-    fit_head_warp, head_weights, projected_landmarks, HeadEvidence, HeadWarp,
-};
 use crate::avatar::Avatar;
 use crate::body::{BodyTemplate, Pose};
 use crate::config::Delight;
@@ -256,6 +254,30 @@ fn sample(image: &RgbImage, x: i64, y: i64) -> Vec3 {
     sum / (9.0 * 255.0)
 }
 
+/// What each of the avatar's Gaussians is on the canonical body, worked out once per recolour.
+struct CanonicalFacts {
+    /// The surface normal of the template vertex nearest to it.
+    normals: Vec<Vec3>,
+    /// That vertex's body part.
+    parts: Vec<u8>,
+    /// Its skinning weight on the head ([`super::head_fit`]).
+    head_weights: Vec<f32>,
+    /// The landmarks it follows on uncalibrated photos ([`super::landmark_warp`]).
+    ties: LandmarkTies,
+}
+
+impl CanonicalFacts {
+    fn new(avatar: &Avatar, template: &BodyTemplate) -> Self {
+        let (normals, parts) = canonical_normals(avatar, template);
+        Self {
+            normals,
+            parts,
+            head_weights: head_weights(avatar, template),
+            ties: LandmarkTies::new(avatar, template),
+        }
+    }
+}
+
 /// Adds to `samples` each Gaussian's colour as the photo shows it, when the camera fit is good
 /// enough (returns the fit's RMS miss and the avatar's Gaussians posed as in the photo); else
 /// why not.
@@ -264,12 +286,16 @@ fn photo_colours(
     template: &BodyTemplate,
     photo: &PhotoSample<'_>,
     cfg: &PhotoColourConfig,
-    normals: &[Vec3],
-    head_weights: &[f32],
-    ties: &LandmarkTies,
+    canonical: &CanonicalFacts,
     index: u32,
     samples: &mut [Vec<Seen>],
 ) -> Result<(f32, Vec<Vec3>), String> {
+    let CanonicalFacts {
+        normals,
+        head_weights,
+        ties,
+        ..
+    } = canonical;
     let posed_landmarks =
         template_landmarks(template, photo.pose).map_err(|e| format!("landmarks: {e}"))?;
     let mut pairs: Vec<(Vec3, Vec2)> = FIT_LANDMARKS
@@ -714,9 +740,7 @@ pub fn colour_from_photos(
     cfg: &PhotoColourConfig,
 ) -> PhotoColourReport {
     let n = avatar.canonical.len();
-    let (normals, parts) = canonical_normals(avatar, template);
-    let head_weights = head_weights(avatar, template);
-    let ties = LandmarkTies::new(avatar, template);
+    let canonical = CanonicalFacts::new(avatar, template);
     let mut samples = vec![Vec::new(); n];
     let mut posed_positions: Vec<Vec<Vec3>> = Vec::with_capacity(photos.len());
     let mut report = PhotoColourReport::default();
@@ -726,9 +750,7 @@ pub fn colour_from_photos(
             template,
             photo,
             cfg,
-            &normals,
-            &head_weights,
-            &ties,
+            &canonical,
             k as u32,
             &mut samples,
         ) {
@@ -748,7 +770,7 @@ pub fn colour_from_photos(
         let calibrated: Vec<bool> = photos.iter().map(|p| p.camera.is_some()).collect();
         report.lights = delight(
             &mut samples,
-            &parts,
+            &canonical.parts,
             &heights,
             &calibrated,
             &posed_positions,
