@@ -213,11 +213,38 @@ pub struct ModelConfig {
     pub prior_dir: String,
     /// SMPL-X model file overriding `<prior_dir>/human_model_files/smplx/SMPLX_NEUTRAL.npz`.
     pub smplx_model: String,
+    /// Most views the network reads in one reconstruction, in [`ModelConfig::MAX_VIEWS`]:
+    /// when more are given, the most different ones by their image tokens (all of them still
+    /// colour the avatar with `perception.colours_from_views`); 0 = as many as the weights
+    /// were trained on ([`ModelConfig::network_views`]).
+    pub max_views: usize,
 }
 
 impl ModelConfig {
     /// Accepted `model.num_points` values.
     pub const NUM_POINTS: RangeInclusive<usize> = 64..=400_000;
+
+    /// Accepted `model.max_views` values (0 = as trained).
+    pub const MAX_VIEWS: RangeInclusive<usize> = 0..=64;
+
+    /// Views the embedded default was trained on at most (`scripts/train/run`: the data set's
+    /// `--max-views`).
+    pub const EMBEDDED_TRAINED_VIEWS: usize = 8;
+
+    /// Views the official LHM++ models were trained on at most (1–16 views in their second
+    /// stage), and the default for any checkpoint but the embedded one.
+    pub const OFFICIAL_TRAINED_VIEWS: usize = 16;
+
+    /// The most views the network reads: `max_views`, or when 0, as many as the weights were
+    /// trained on ([`Self::EMBEDDED_TRAINED_VIEWS`] for the embedded default, else
+    /// [`Self::OFFICIAL_TRAINED_VIEWS`]).
+    pub fn network_views(&self) -> usize {
+        match (self.max_views, self.checkpoint.is_empty()) {
+            (0, true) => Self::EMBEDDED_TRAINED_VIEWS,
+            (0, false) => Self::OFFICIAL_TRAINED_VIEWS,
+            (n, _) => n,
+        }
+    }
 }
 
 /// Camera-only perception (MediaPipe BlazePose on the CPU).
@@ -385,6 +412,7 @@ impl Default for ModelConfig {
             seed: 1,
             prior_dir: String::new(),
             smplx_model: String::new(),
+            max_views: 0,
         }
     }
 }

@@ -212,6 +212,13 @@ pub fn parameters() -> Vec<Parameter> {
              `<prior_dir>/human_model_files/smplx/SMPLX_NEUTRAL.npz`",
         ),
         p(
+            "model.max_views",
+            int_in(&ModelConfig::MAX_VIEWS),
+            "most views the network reads in one reconstruction (the most different ones by \
+             their image tokens; every view still colours the avatar); 0 = as many as the \
+             weights were trained on: 8 for the embedded default, 16 for other checkpoints",
+        ),
+        p(
             "perception.landmark_model",
             choice::<LandmarkModelChoice>(),
             "BlazePose landmark model: `lite` and `full` are embedded; `heavy` is read from \

@@ -105,6 +105,10 @@ impl NodeConfig {
             "model.num_points",
             in_range(self.model.num_points, &ModelConfig::NUM_POINTS),
         )?;
+        check(
+            "model.max_views",
+            in_range(self.model.max_views, &ModelConfig::MAX_VIEWS),
+        )?;
         if !self.model.smplx_model.is_empty() && self.model.prior_dir.is_empty() {
             return Err(bad(
                 "model.smplx_model",

@@ -90,6 +90,8 @@ pub struct Reconstructor {
     renderer_kind: String,
     rgb_kind: RgbKind,
     checkpoint_kind: String,
+    /// Most views the network reads ([`ModelConfig::network_views`]).
+    network_views: usize,
 }
 
 impl Reconstructor {
@@ -218,6 +220,7 @@ impl Reconstructor {
             },
             shape: None,
             betas_noted: false,
+            network_views: config.network_views(),
             predicted_shape: None,
             renderer_kind: renderer_type
                 .clone()
@@ -446,6 +449,25 @@ impl Reconstructor {
             let t = self.image_tensor(image)?;
             tokens.push(self.cache.get_or_encode(&self.model, *id, &t)?);
         }
+        if tokens.len() > self.network_views {
+            // Each view described by its mean patch token.
+            let descriptors = tokens
+                .iter()
+                .map(|t| {
+                    t.patch_tokens
+                        .to_dtype(DType::F32)?
+                        .mean(0)?
+                        .to_vec1::<f32>()
+                })
+                .collect::<candle_core::Result<Vec<_>>>()?;
+            let keep = most_different(&descriptors, self.network_views);
+            tracing::debug!(
+                given = tokens.len(),
+                read = keep.len(),
+                "the network reads the most different views (model.max_views)"
+            );
+            tokens = keep.into_iter().map(|i| tokens[i].clone()).collect();
+        }
         let (feat, betas) =
             self.model
                 .fuse_with_betas(&self.anchor_positions, &self.anchor_normals, &tokens)?;
@@ -542,4 +564,55 @@ fn load_prior(
         prior.len()
     );
     Ok(Some(prior))
+}
+
+/// The indices (ascending) of `k` of the views whose descriptors differ most: the first view,
+/// then each time the view least similar (cosine) to its most similar chosen one.
+pub fn most_different(descriptors: &[Vec<f32>], k: usize) -> Vec<usize> {
+    let n = descriptors.len();
+    if k >= n {
+        return (0..n).collect();
+    }
+    let cosine = |a: &[f32], b: &[f32]| {
+        let dot: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+        let norm = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>().sqrt();
+        dot / (norm(a) * norm(b)).max(1e-12)
+    };
+    let mut chosen = vec![0];
+    // Each view's highest similarity to a chosen view.
+    let mut nearest: Vec<f32> = descriptors
+        .iter()
+        .map(|d| cosine(d, &descriptors[0]))
+        .collect();
+    while chosen.len() < k.max(1) {
+        let next = (0..n)
+            .filter(|i| !chosen.contains(i))
+            .min_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
+            .expect("fewer chosen than views");
+        chosen.push(next);
+        for (i, d) in descriptors.iter().enumerate() {
+            nearest[i] = nearest[i].max(cosine(d, &descriptors[next]));
+        }
+    }
+    chosen.sort_unstable();
+    chosen
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_network_reads_the_most_different_views() {
+        // Views 0–2 nearly alike, 3 and 4 apart: two of five are the first and the one
+        // furthest from it; three add the remaining outlier.
+        let d = vec![
+            vec![1.0, 0.0, 0.0],
+            vec![0.99, 0.05, 0.0],
+            vec![0.98, 0.0, 0.05],
+            vec![0.0, 1.0, 0.0],
+            vec![0.0, 0.0, 1.0],
+        ];
+        assert_eq!(super::most_different(&d, 2), vec![0, 3]);
+        assert_eq!(super::most_different(&d, 3), vec![0, 3, 4]);
+        assert_eq!(super::most_different(&d, 9), vec![0, 1, 2, 3, 4]);
+    }
 }
