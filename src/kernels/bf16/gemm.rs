@@ -447,6 +447,10 @@ unsafe fn run_task(
                                 add,
                             )
                         }
+                        // SAFETY: `gemm_with` checked that the CPU runs the AVX2 kernel;
+                        // `kc ≤ KC_PAIRS` for every kernel but AMX.
+                        #[cfg(target_arch = "x86_64")]
+                        Kernel::Avx2 => super::avx2::tile(r, kc, a, lda, b, c, ldc, cols, add),
                         _ => portable::tile(r, kc, a, lda, b, c, ldc, cols, add),
                     }
                     ir += r;

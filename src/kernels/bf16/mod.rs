@@ -9,13 +9,16 @@
 //! micro-kernel ([`avx512`]) multiplies with `vdpbf16ps`: one
 //! instruction takes 16 output columns × one pair of `k` (the packed layout stores the two
 //! `k` of a pair next to each other), 6 rows × 64 columns are held in 24 accumulators. On
-//! other CPUs the portable kernel ([`portable`]) computes the same sums — products of
-//! bf16-rounded values accumulated in f32 — with plain loops. [`Kernel::detect`] picks one at
+//! x86-64 CPUs with AVX2 and FMA but no AVX512-BF16 the [`avx2`] kernel computes the same
+//! sums — products of bf16-rounded values accumulated in f32 — with eight-lane fused
+//! multiply-adds; elsewhere the portable kernel ([`portable`]) with plain loops. [`Kernel::detect`] picks one at
 //! run time; [`gemm`] runs the blocked product ([`gemm::gemm_with`] with an explicit kernel).
 
 #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
 pub mod amx;
 pub mod attention;
+#[cfg(target_arch = "x86_64")]
+pub mod avx2;
 #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
 pub mod avx512;
 pub mod gathered;
@@ -46,12 +49,14 @@ pub enum Kernel {
     Amx,
     /// AVX512-BF16 `vdpbf16ps` (x86-64 CPUs reporting `avx512f` and `avx512bf16`).
     Avx512Bf16,
+    /// AVX2 + FMA: f32 fused multiply-adds of the bf16 values widened in registers ([`avx2`]).
+    Avx2,
     /// Plain loops: f32 products of the bf16-rounded values, f32 sums.
     Portable,
 }
 
 /// The environment variable that picks a slower kernel than [`Kernel::detect`] would
-/// (`avx512` or `portable`), to compare kernels on one machine.
+/// (`avx512`, `avx2` or `portable`), to compare kernels on one machine.
 pub const KERNEL_ENV: &str = "LHMPP_BF16_KERNEL";
 
 impl Kernel {
@@ -94,6 +99,10 @@ impl Kernel {
         if avx512::available() {
             kernels.push(Kernel::Avx512Bf16);
         }
+        #[cfg(target_arch = "x86_64")]
+        if avx2::available() {
+            kernels.push(Kernel::Avx2);
+        }
         kernels.push(Kernel::Portable);
         kernels
     }
@@ -103,6 +112,7 @@ impl Kernel {
         match self {
             Kernel::Amx => "amx",
             Kernel::Avx512Bf16 => "avx512",
+            Kernel::Avx2 => "avx2",
             Kernel::Portable => "portable",
         }
     }
@@ -112,6 +122,10 @@ impl Kernel {
         match self {
             Kernel::Amx => amx::available(),
             Kernel::Avx512Bf16 => avx512::available(),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => avx2::available(),
+            #[cfg(not(target_arch = "x86_64"))]
+            Kernel::Avx2 => false,
             Kernel::Portable => true,
         }
     }

@@ -148,8 +148,11 @@ impl PackedRhs {
 /// CPU has AVX512-BF16 (the same rounding as [`convert_portable`]).
 pub fn round_to_bf16(src: &[f32], dst: &mut [u16]) {
     #[cfg(all(target_arch = "x86_64", lhmpp_bf16_intrinsics))]
-    if super::Kernel::detect() != super::Kernel::Portable {
-        // SAFETY: a kernel other than the portable one runs only where AVX512-BF16 does.
+    if matches!(
+        super::Kernel::detect(),
+        super::Kernel::Avx512Bf16 | super::Kernel::Amx
+    ) {
+        // SAFETY: those kernels run only where AVX512-BF16 does.
         unsafe { super::avx512::convert(src, dst) };
         return;
     }
