@@ -5,7 +5,7 @@
 //! ([`layer_norm`]); softmax ([`softmax`]); and the vectorisable exponential and GELU they use
 //! ([`fast_exp`], [`gelu`]). Each falls back to candle's ops off the CPU or for dtypes other
 //! than f32, except bf16: [`bf16`] holds the bf16 products with f32 accumulation (AVX512-BF16
-//! `vdpbf16ps` or a portable kernel) that bf16 linear layers and attention run on, LayerNorm
+//! `vdpbf16ps`, AVX2 + FMA or a portable kernel) that bf16 linear layers and attention run on, LayerNorm
 //! widens bf16 rows to f32. The DPT neural renderer's CPU path works on channels-last maps ([`feature_map`])
 //! with tiled-gemm convolutions ([`conv2d`], 3×3 ones by Winograd F(4×4, 3×3) in
 //! [`winograd`], [`conv_transpose`]) and a bilinear resize ([`upsample`]). All of them reach the

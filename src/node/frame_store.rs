@@ -11,6 +11,7 @@
 
 use crate::reconstruct::photo_colours::ViewEvidence;
 use crate::reconstruct::preprocess::Preprocessed;
+pub use crate::reconstruct::reconstructor::cosine_similarity;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
@@ -133,23 +134,6 @@ struct PersonViews {
 pub struct FrameStore {
     cfg: StoreLimits,
     persons: BTreeMap<String, PersonViews>,
-}
-
-/// Cosine similarity; zero vectors and length mismatches count as dissimilar (0).
-pub fn cosine_similarity(a: &[f32], b: &[f32]) -> f32 {
-    if a.len() != b.len() || a.is_empty() {
-        return 0.0;
-    }
-    let (mut dot, mut na, mut nb) = (0.0f64, 0.0f64, 0.0f64);
-    for (x, y) in a.iter().zip(b) {
-        dot += f64::from(*x) * f64::from(*y);
-        na += f64::from(*x) * f64::from(*x);
-        nb += f64::from(*y) * f64::from(*y);
-    }
-    if na == 0.0 || nb == 0.0 {
-        return 0.0;
-    }
-    (dot / (na.sqrt() * nb.sqrt())) as f32
 }
 
 impl FrameStore {

@@ -10,15 +10,12 @@
 
 use crate::avatar::Avatar;
 use crate::body::BodyTemplate;
-use crate::perception::{Landmark, BODY_LANDMARKS};
-use glam::{Vec2, Vec3};
+use crate::perception::BODY_LANDMARKS;
+use glam::Vec2;
 use image::GrayImage;
 
 /// Face landmarks (nose, eyes, ears, mouth): the first eleven of the body landmarks.
 const FACE_LANDMARKS: usize = 11;
-
-/// Largest move of the head joint, as a share of the person's height on the photo.
-const MAX_SHIFT: f32 = 0.1;
 
 /// Range of the head's scale on the photo (hair and caps only add; a mask may fall short of
 /// the head, so it may shrink a little).
@@ -80,10 +77,9 @@ pub fn head_weights(avatar: &Avatar, template: &BodyTemplate) -> Vec<f32> {
 
 /// What [`fit_head_warp`] looks at on one photo.
 pub struct HeadEvidence<'a> {
-    /// Perception's landmarks on the photo.
-    pub landmarks: &'a [Landmark; BODY_LANDMARKS],
-    /// The posed template's landmarks, projected to the photo.
-    pub template_landmarks: &'a [Option<Vec2>; BODY_LANDMARKS],
+    /// Each landmark's miss on the photo, where usable
+    /// ([`super::landmark_warp::landmark_misses`]).
+    pub misses: &'a [Option<Vec2>; BODY_LANDMARKS],
     /// The person's mask on the photo.
     pub mask: &'a GrayImage,
     /// The posed head joint, projected (before the landmark misses move it).
@@ -137,15 +133,12 @@ pub fn fit_head_warp(
     HeadWarp { pivot, scale }
 }
 
-/// The median miss of the face landmarks (perception's minus the template's), at most
-/// [`MAX_SHIFT`] of the person's height: where the head joint moves.
+/// The median miss of the usable face landmarks: where the head joint moves.
 fn landmark_shift(evidence: &HeadEvidence<'_>) -> Vec2 {
-    let misses: Vec<Vec2> = (0..FACE_LANDMARKS)
-        .filter_map(|i| {
-            let t = evidence.template_landmarks[i]?;
-            let p = evidence.landmarks[i].position.truncate();
-            p.is_finite().then_some(p - t)
-        })
+    let misses: Vec<Vec2> = evidence.misses[..FACE_LANDMARKS]
+        .iter()
+        .flatten()
+        .copied()
         .collect();
     if misses.is_empty() {
         return Vec2::ZERO;
@@ -155,8 +148,7 @@ fn landmark_shift(evidence: &HeadEvidence<'_>) -> Vec2 {
         v.sort_by(f32::total_cmp);
         v[v.len() / 2]
     };
-    let shift = Vec2::new(median(|m| m.x), median(|m| m.y));
-    shift.clamp_length_max(MAX_SHIFT * evidence.height)
+    Vec2::new(median(|m| m.x), median(|m| m.y))
 }
 
 /// How far from `from` along unit `dir` the mask goes on (pixels) before three pixels in a row
@@ -188,25 +180,9 @@ fn mask_extent(mask: &GrayImage, from: Vec2, dir: Vec2, height: f32) -> Option<f
     None
 }
 
-/// The projected position of a posed point, for [`HeadEvidence::template_landmarks`].
-pub fn projected_landmarks(
-    posed: &[Vec3; BODY_LANDMARKS],
-    project: impl Fn(Vec3) -> Option<Vec2>,
-) -> [Option<Vec2>; BODY_LANDMARKS] {
-    std::array::from_fn(|i| project(posed[i]))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn landmarks_at(points: &[Vec2]) -> [Landmark; BODY_LANDMARKS] {
-        std::array::from_fn(|i| Landmark {
-            position: points.get(i).copied().unwrap_or(Vec2::ZERO).extend(0.0),
-            visibility: 1.0,
-            presence: 1.0,
-        })
-    }
 
     /// A disc of mask (the head, radius `r` about `c`) over a body below it.
     fn head_mask(c: Vec2, r: f32) -> GrayImage {
@@ -217,14 +193,30 @@ mod tests {
         })
     }
 
+    /// The warp of a skull sampled at `pixels` (all head weight 1), its joint at (100, 100),
+    /// with the face landmarks missing by `face_miss` on a person `mask`.
+    fn warp_of(pixels: &[Option<Vec2>], face_miss: Vec2, mask: &GrayImage) -> HeadWarp {
+        let misses: [Option<Vec2>; BODY_LANDMARKS] =
+            std::array::from_fn(|i| (i < FACE_LANDMARKS).then_some(face_miss));
+        fit_head_warp(
+            &HeadEvidence {
+                misses: &misses,
+                mask,
+                pivot: Vec2::new(100.0, 100.0),
+                height: 300.0,
+            },
+            pixels,
+            &vec![1.0; pixels.len()],
+        )
+    }
+
     #[test]
     fn the_head_grows_to_the_masks_top_about_the_joint_the_face_landmarks_place() {
         // Template skull: a disc of radius 20, its joint 20 px below its centre; face
         // landmarks 10 px right of and 10 px above the template's, and the skull's sampling
         // points already moved with them to about (110, 70). The person's head (hair): a
         // disc of radius 30 about (110, 70).
-        let template_c = Vec2::new(100.0, 80.0);
-        let skull_c = template_c + Vec2::new(10.0, -10.0);
+        let skull_c = Vec2::new(110.0, 70.0);
         let pixels: Vec<Option<Vec2>> = (0..200)
             .map(|k| {
                 let a = k as f32 * 0.0314;
@@ -232,25 +224,7 @@ mod tests {
                 Some(skull_c + Vec2::from_angle(a) * r)
             })
             .collect();
-        let weights = vec![1.0; pixels.len()];
-        let template: [Option<Vec2>; BODY_LANDMARKS] =
-            std::array::from_fn(|i| (i < FACE_LANDMARKS).then(|| template_c + Vec2::X * i as f32));
-        let photo: Vec<Vec2> = (0..FACE_LANDMARKS)
-            .map(|i| template_c + Vec2::new(10.0 + i as f32, -10.0))
-            .collect();
-        let landmarks = landmarks_at(&photo);
-        let mask = head_mask(skull_c, 30.0);
-        let warp = fit_head_warp(
-            &HeadEvidence {
-                landmarks: &landmarks,
-                template_landmarks: &template,
-                mask: &mask,
-                pivot: Vec2::new(100.0, 100.0),
-                height: 300.0,
-            },
-            &pixels,
-            &weights,
-        );
+        let warp = warp_of(&pixels, Vec2::new(10.0, -10.0), &head_mask(skull_c, 30.0));
         assert!(
             warp.pivot.distance(Vec2::new(110.0, 90.0)) < 0.5,
             "{warp:?}"
@@ -272,22 +246,7 @@ mod tests {
         let pixels: Vec<Option<Vec2>> = (0..100)
             .map(|k| Some(skull_c + Vec2::from_angle(k as f32 * 0.0628) * 20.0))
             .collect();
-        let weights = vec![1.0; pixels.len()];
-        let template: [Option<Vec2>; BODY_LANDMARKS] =
-            std::array::from_fn(|i| (i < FACE_LANDMARKS).then_some(skull_c));
-        let landmarks = landmarks_at(&[skull_c; FACE_LANDMARKS]);
-        let mask = head_mask(skull_c, 20.0);
-        let warp = fit_head_warp(
-            &HeadEvidence {
-                landmarks: &landmarks,
-                template_landmarks: &template,
-                mask: &mask,
-                pivot: Vec2::new(100.0, 100.0),
-                height: 300.0,
-            },
-            &pixels,
-            &weights,
-        );
+        let warp = warp_of(&pixels, Vec2::ZERO, &head_mask(skull_c, 20.0));
         assert_eq!(warp.pivot, Vec2::new(100.0, 100.0));
         assert!((warp.scale - 1.0).abs() < 0.08, "{warp:?}");
     }

@@ -25,7 +25,7 @@
 //! which share one world frame and see the person from several sides.
 
 use super::delight::{fit_key_light, hue_bin, KeyLight, ShadedSample};
-use super::head_fit::{fit_head_warp, head_weights, projected_landmarks, HeadEvidence, HeadWarp};
+use super::head_fit::{fit_head_warp, head_weights, HeadEvidence, HeadWarp};
 use super::landmark_warp::{landmark_misses, LandmarkTies};
 use crate::avatar::Avatar;
 use crate::body::{BodyTemplate, Pose};
@@ -421,8 +421,10 @@ fn follow_landmarks(
         projection,
         ..
     } = fitted;
-    let template_px = projected_landmarks(fitted.posed_landmarks, |p| {
-        projection.project(p).map(|(q, _)| q)
+    let template_px: [Option<Vec2>; BODY_LANDMARKS] = std::array::from_fn(|i| {
+        projection
+            .project(fitted.posed_landmarks[i])
+            .map(|(q, _)| q)
     });
     let misses = landmark_misses(
         photo.landmarks,
@@ -446,8 +448,7 @@ fn follow_landmarks(
     let pixels: Vec<Option<Vec2>> = projected.iter().map(|p| p.map(|(q, _)| q)).collect();
     fit_head_warp(
         &HeadEvidence {
-            landmarks: photo.landmarks,
-            template_landmarks: &template_px,
+            misses: &misses,
             mask: photo.mask,
             pivot,
             height: fitted.height,

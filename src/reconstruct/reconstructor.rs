@@ -566,6 +566,23 @@ fn load_prior(
     Ok(Some(prior))
 }
 
+/// Cosine similarity; zero vectors and length mismatches count as dissimilar (0).
+pub fn cosine_similarity(a: &[f32], b: &[f32]) -> f32 {
+    if a.len() != b.len() || a.is_empty() {
+        return 0.0;
+    }
+    let (mut dot, mut na, mut nb) = (0.0f64, 0.0f64, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        dot += f64::from(*x) * f64::from(*y);
+        na += f64::from(*x) * f64::from(*x);
+        nb += f64::from(*y) * f64::from(*y);
+    }
+    if na == 0.0 || nb == 0.0 {
+        return 0.0;
+    }
+    (dot / (na.sqrt() * nb.sqrt())) as f32
+}
+
 /// The indices (ascending) of `k` of the views whose descriptors differ most: the first view,
 /// then each time the view least similar (cosine) to its most similar chosen one.
 pub fn most_different(descriptors: &[Vec<f32>], k: usize) -> Vec<usize> {
@@ -573,16 +590,11 @@ pub fn most_different(descriptors: &[Vec<f32>], k: usize) -> Vec<usize> {
     if k >= n {
         return (0..n).collect();
     }
-    let cosine = |a: &[f32], b: &[f32]| {
-        let dot: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
-        let norm = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>().sqrt();
-        dot / (norm(a) * norm(b)).max(1e-12)
-    };
     let mut chosen = vec![0];
     // Each view's highest similarity to a chosen view.
     let mut nearest: Vec<f32> = descriptors
         .iter()
-        .map(|d| cosine(d, &descriptors[0]))
+        .map(|d| cosine_similarity(d, &descriptors[0]))
         .collect();
     while chosen.len() < k.max(1) {
         let next = (0..n)
@@ -591,7 +603,7 @@ pub fn most_different(descriptors: &[Vec<f32>], k: usize) -> Vec<usize> {
             .expect("fewer chosen than views");
         chosen.push(next);
         for (i, d) in descriptors.iter().enumerate() {
-            nearest[i] = nearest[i].max(cosine(d, &descriptors[next]));
+            nearest[i] = nearest[i].max(cosine_similarity(d, &descriptors[next]));
         }
     }
     chosen.sort_unstable();
