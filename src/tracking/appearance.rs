@@ -1,23 +1,33 @@
 //! A person's appearance for re-identification across cameras and absences: a normalised
-//! colour histogram of their pixels (4 levels per channel, 64 bins), compared with the
-//! Bhattacharyya coefficient (1 for equal distributions, 0 for disjoint ones).
+//! colour histogram (4 levels per channel, 64 bins) of their pixels in each of [`BANDS`]
+//! horizontal bands of their box (head and shoulders, torso, legs), compared band by band
+//! with the Bhattacharyya coefficient (1 for equal distributions, 0 for disjoint ones). Bands
+//! tell a red shirt over blue trousers from a blue shirt over red trousers.
 
 use image::{GrayImage, RgbImage};
 
 /// Levels per colour channel.
 const LEVELS: usize = 4;
-/// Histogram bins.
+/// Histogram bins per band.
 const BINS: usize = LEVELS * LEVELS * LEVELS;
+/// Horizontal bands of the box, top to bottom.
+pub const BANDS: usize = 3;
+/// Where each band ends, as a fraction of the box height from its top.
+const BAND_ENDS: [f32; BANDS] = [0.3, 0.55, 1.0];
+/// Pixels a band needs before its colours count.
+const MIN_BAND_PIXELS: f32 = 16.0;
 
-/// A normalised colour histogram of a person's pixels.
+/// Normalised colour histograms of a person's pixels, one per band of their box.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Appearance {
-    bins: [f32; BINS],
+    /// Per band: the histogram (sums to 1) and how much it counts (0 when the band showed too
+    /// few pixels, else 1; blends in between).
+    bands: [([f32; BINS], f32); BANDS],
 }
 
 impl Appearance {
-    /// The histogram of the pixels of `image` where `mask` is at least 128 (same size), inside
-    /// `bbox` when given; `None` when no pixel qualifies.
+    /// The histograms of the pixels of `image` where `mask` is at least 128 (same size), in
+    /// the bands of `bbox` (the whole image when `None`); `None` when no band has pixels.
     pub fn from_masked(
         image: &RgbImage,
         mask: &GrayImage,
@@ -36,49 +46,72 @@ impl Appearance {
             ),
             None => (0, 0, w, h),
         };
-        let mut bins = [0.0f32; BINS];
-        let mut count = 0.0f32;
+        let top = bbox.map_or(0.0, |b| b.min[1]);
+        let height = bbox.map_or(h as f32, |b| b.max[1] - b.min[1]).max(1.0);
+        let mut counts = [[0.0f32; BINS]; BANDS];
         for y in y0..y1 {
+            let along = (y as f32 + 0.5 - top) / height;
+            let band = BAND_ENDS.iter().position(|&end| along < end).unwrap_or(BANDS - 1);
             for x in x0..x1 {
                 if mask.get_pixel(x, y)[0] < 128 {
                     continue;
                 }
                 let p = image.get_pixel(x, y);
                 let q = |c: u8| c as usize * LEVELS / 256;
-                bins[(q(p[0]) * LEVELS + q(p[1])) * LEVELS + q(p[2])] += 1.0;
-                count += 1.0;
+                counts[band][(q(p[0]) * LEVELS + q(p[1])) * LEVELS + q(p[2])] += 1.0;
             }
         }
-        (count > 0.0).then(|| {
-            bins.iter_mut().for_each(|b| *b /= count);
-            Self { bins }
-        })
-    }
-
-    /// A histogram from bin weights (normalised here); `None` if they sum to zero or less.
-    pub fn from_bins(weights: &[f32; BINS]) -> Option<Self> {
-        let sum: f32 = weights.iter().map(|w| w.max(0.0)).sum();
-        (sum > 0.0).then(|| Self {
-            bins: weights.map(|w| w.max(0.0) / sum),
-        })
-    }
-
-    /// Bhattacharyya coefficient with `other`: 1 for the same distribution, 0 for disjoint.
-    pub fn similarity(&self, other: &Appearance) -> f32 {
-        self.bins
+        let bands = counts.map(|bins| {
+            let total: f32 = bins.iter().sum();
+            if total >= MIN_BAND_PIXELS {
+                (bins.map(|b| b / total), 1.0)
+            } else {
+                ([0.0; BINS], 0.0)
+            }
+        });
+        bands
             .iter()
-            .zip(&other.bins)
-            .map(|(a, b)| (a * b).sqrt())
-            .sum::<f32>()
-            .min(1.0)
+            .any(|(_, weight)| *weight > 0.0)
+            .then_some(Self { bands })
     }
 
-    /// This appearance moved towards `newer` by `rate` (0..1), still normalised.
-    pub fn blend(&self, newer: &Appearance, rate: f32) -> Appearance {
-        let mut bins = [0.0; BINS];
-        for (i, b) in bins.iter_mut().enumerate() {
-            *b = (1.0 - rate) * self.bins[i] + rate * newer.bins[i];
+    /// Bhattacharyya coefficient with `other`, averaged over the bands both saw (weighted by
+    /// how much each counts): 1 for the same colours, 0 for disjoint ones or no band in
+    /// common.
+    pub fn similarity(&self, other: &Appearance) -> f32 {
+        let (mut sum, mut weight) = (0.0f32, 0.0f32);
+        for ((a, wa), (b, wb)) in self.bands.iter().zip(&other.bands) {
+            let w = wa * wb;
+            if w > 0.0 {
+                let coefficient: f32 = a.iter().zip(b).map(|(x, y)| (x * y).sqrt()).sum();
+                sum += w * coefficient.min(1.0);
+                weight += w;
+            }
         }
-        Appearance { bins }
+        if weight > 0.0 {
+            sum / weight
+        } else {
+            0.0
+        }
+    }
+
+    /// This appearance moved towards `newer` by `rate` (0..1), still normalised; a band only
+    /// one of them saw is taken from that one.
+    pub fn blend(&self, newer: &Appearance, rate: f32) -> Appearance {
+        let mut bands = self.bands;
+        for ((bins, weight), (new_bins, new_weight)) in bands.iter_mut().zip(&newer.bands) {
+            if *new_weight <= 0.0 {
+                continue;
+            }
+            if *weight <= 0.0 {
+                *bins = *new_bins;
+                *weight = *new_weight;
+                continue;
+            }
+            for (b, n) in bins.iter_mut().zip(new_bins) {
+                *b = (1.0 - rate) * *b + rate * n;
+            }
+        }
+        Appearance { bands }
     }
 }

@@ -31,11 +31,16 @@ impl BoxPx {
         ]
     }
 
-    /// Intersection over union with `other` (0 when either is empty).
-    pub fn iou(&self, other: &BoxPx) -> f32 {
+    /// Area shared with `other`, square pixels.
+    pub fn intersection(&self, other: &BoxPx) -> f32 {
         let w = (self.max[0].min(other.max[0]) - self.min[0].max(other.min[0])).max(0.0);
         let h = (self.max[1].min(other.max[1]) - self.min[1].max(other.min[1])).max(0.0);
-        let inter = w * h;
+        w * h
+    }
+
+    /// Intersection over union with `other` (0 when either is empty).
+    pub fn iou(&self, other: &BoxPx) -> f32 {
+        let inter = self.intersection(other);
         let union = self.area() + other.area() - inter;
         if union > 0.0 {
             inter / union

@@ -1,10 +1,14 @@
 //! Persons across frames and cameras: stable person ids for the person instances a detector
 //! finds in each frame (issue "several people at once").
 //!
-//! Within a camera, a detection continues the track whose predicted box (constant velocity
-//! from its last two sightings) it overlaps most (greedy by IoU, best pair first). A detection
-//! no live track of its camera claims is compared by appearance ([`Appearance`]: a colour
-//! histogram of the person's pixels) with every person not seen in that camera in this frame:
+//! Within a camera, a detection continues a track whose predicted box (constant velocity from
+//! its last two sightings) it overlaps, the one whose colours as this camera saw them are
+//! closest first, overlap breaking ties (greedy, best pair first). Colours are learned only
+//! from detections whose boxes stand clear of the others': in a huddle a person's pixels mix
+//! with their neighbours', and the colours from before it are what tell them apart after it.
+//! A detection no live track of its camera claims is compared by appearance ([`Appearance`]:
+//! colour histograms of the person's pixels in three bands of their box) with every person not
+//! seen in that camera in this frame:
 //! the same person seen by another camera, or coming back after leaving. Where the caller
 //! knows where a detection stands on the floor (calibrated cameras), position decides first: a
 //! person seen by another camera within [`TrackingConfig::floor_fresh`] seconds is the same
@@ -30,6 +34,16 @@ pub use boxes::BoxPx;
 pub use floor::{floor_point, FloorCamera};
 
 use std::collections::BTreeMap;
+
+/// How much colours count against box overlap when several predicted boxes of a camera overlap
+/// one detection: colours decide (the similarity's weight is three times the IoU's), overlap
+/// breaks ties between people who look alike. In a huddle every box overlaps every predicted
+/// box; the colours each person showed before it tell them apart.
+const OVERLAP_COLOUR_WEIGHT: f32 = 3.0;
+
+/// Share of a detection's box covered by another detection's box from which the detection is
+/// in a huddle: its pixels mix people, so its colours are not learned.
+const CROWDED_COVER: f32 = 0.15;
 
 /// Tracking parameters.
 #[derive(Debug, Clone, PartialEq)]
@@ -199,6 +213,7 @@ impl PersonTracks {
         self.forget(stamp);
         let mut out: Vec<Option<Assignment>> = vec![None; detections.len()];
         let mut taken = vec![false; self.persons.len()];
+        let crowded = crowded(detections);
 
         // 1. Box overlap with each person's predicted box in this camera, best pair first;
         // overlaps whose colours differ wait until after step 2.
@@ -226,14 +241,19 @@ impl PersonTracks {
                     }
                     _ => false,
                 };
+                let similarity = match (&det.appearance, &track.appearance) {
+                    (Some(look), Some(known)) => look.similarity(known),
+                    _ => 0.0,
+                };
+                let score = iou + OVERLAP_COLOUR_WEIGHT * similarity;
                 if unlike {
-                    unlike_pairs.push((iou, p, d));
+                    unlike_pairs.push((score, p, d));
                 } else {
-                    pairs.push((iou, p, d));
+                    pairs.push((score, p, d));
                 }
             }
         }
-        self.assign_boxes(camera, stamp, detections, pairs, &mut out, &mut taken);
+        self.assign_boxes(camera, stamp, detections, &crowded, pairs, &mut out, &mut taken);
 
         // 2. Appearance against persons not matched in this frame, most similar first.
         let mut pairs = Vec::new();
@@ -279,7 +299,7 @@ impl PersonTracks {
             } else {
                 Matched::Appearance
             };
-            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], how));
+            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], crowded[d], how));
         }
 
         // 2b. Box overlaps with other colours, where nobody else took the detection: the same
@@ -288,6 +308,7 @@ impl PersonTracks {
             camera,
             stamp,
             detections,
+            &crowded,
             unlike_pairs,
             &mut out,
             &mut taken,
@@ -297,7 +318,7 @@ impl PersonTracks {
         for (d, det) in detections.iter().enumerate() {
             if out[d].is_none() {
                 let p = self.start(stamp);
-                out[d] = Some(self.sighted(p, camera, stamp, det, Matched::New));
+                out[d] = Some(self.sighted(p, camera, stamp, det, crowded[d], Matched::New));
             }
         }
         out.into_iter()
@@ -312,6 +333,7 @@ impl PersonTracks {
         camera: &str,
         stamp: f64,
         detections: &[Detection],
+        crowded: &[bool],
         mut pairs: Vec<(f32, usize, usize)>,
         out: &mut [Option<Assignment>],
         taken: &mut [bool],
@@ -322,7 +344,14 @@ impl PersonTracks {
                 continue;
             }
             taken[p] = true;
-            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], Matched::Track));
+            out[d] = Some(self.sighted(
+                p,
+                camera,
+                stamp,
+                &detections[d],
+                crowded[d],
+                Matched::Track,
+            ));
         }
     }
 
@@ -343,6 +372,7 @@ impl PersonTracks {
         camera: &str,
         stamp: f64,
         det: &Detection,
+        crowded: bool,
         matched: Matched,
     ) -> Assignment {
         let person = &mut self.persons[p];
@@ -358,7 +388,10 @@ impl PersonTracks {
             .cameras
             .get(camera)
             .and_then(|t| t.appearance.as_ref());
+        // Colours seen in a huddle mix people: keep those from before it.
+        let frozen = crowded;
         let seen_here = match (known_here, &det.appearance) {
+            (Some(known), Some(_)) if frozen => Some(known.clone()),
             (Some(known), Some(look)) => Some(known.blend(look, 0.2)),
             (known, look) => look.clone().or_else(|| known.cloned()),
         };
@@ -373,6 +406,7 @@ impl PersonTracks {
         );
         if let Some(look) = &det.appearance {
             person.appearance = Some(match &person.appearance {
+                Some(known) if frozen => known.clone(),
                 Some(known) => known.blend(look, 0.2),
                 None => look.clone(),
             });
@@ -419,6 +453,22 @@ impl PersonTracks {
         self.persons.retain(|p| p.last_seen >= horizon);
         self.stats.persons_forgotten += (before - self.persons.len()) as u64;
     }
+}
+
+/// Whether each detection's box is largely covered by another's: its pixels then mix people,
+/// and its colours describe nobody.
+fn crowded(detections: &[Detection]) -> Vec<bool> {
+    detections
+        .iter()
+        .enumerate()
+        .map(|(d, det)| {
+            let area = det.bbox.area().max(1.0);
+            detections
+                .iter()
+                .enumerate()
+                .any(|(o, other)| o != d && det.bbox.intersection(&other.bbox) / area > CROWDED_COVER)
+        })
+        .collect()
 }
 
 #[cfg(test)]

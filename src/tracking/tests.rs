@@ -230,3 +230,44 @@ fn a_person_coming_out_from_behind_another_keeps_their_own_id() {
     assert_eq!(out.person_id, first[1].person_id, "B, by its colours");
     assert_eq!(out.matched, Matched::Appearance);
 }
+
+#[test]
+fn colours_seen_while_boxes_overlap_are_not_learned() {
+    // Red A stands at x = 100; blue B walks up and stands half in front of A for a second, so
+    // A's detection shows mostly B's blue. Then they swap places within the huddle: each
+    // box overlaps both predicted boxes, and the colours from before the huddle must decide.
+    // Had A learned the huddle's blue, it would take B's detection.
+    let (red, blue) = ([200, 30, 30], [30, 30, 200]);
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let first = tracks.update("cam0", 0.0, &[det(100.0, red), det(400.0, blue)]);
+    let (a, b) = (first[0].person_id.clone(), first[1].person_id.clone());
+    for k in 1..=25 {
+        let t = k as f64 * 0.1;
+        let x_b = (400.0 - 200.0 * t as f32).max(130.0);
+        let look_a = if x_b - 100.0 < 60.0 { blue } else { red };
+        let got = tracks.update("cam0", t, &[det(100.0, look_a), det(x_b, blue)]);
+        assert_eq!((&got[0].person_id, &got[1].person_id), (&a, &b), "frame {k}");
+    }
+    let swapped = tracks.update("cam0", 2.6, &[det(100.0, blue), det(130.0, red)]);
+    assert_eq!(
+        (&swapped[0].person_id, &swapped[1].person_id),
+        (&b, &a),
+        "each by the colours seen before the huddle"
+    );
+}
+
+#[test]
+fn bands_tell_a_red_shirt_over_blue_trousers_from_the_reverse() {
+    // Same pixels overall, in other places: one histogram of the whole box could not tell them
+    // apart.
+    let outfit = |top: [u8; 3], bottom: [u8; 3]| {
+        let image = RgbImage::from_fn(20, 100, |_, y| Rgb(if y < 50 { top } else { bottom }));
+        let mask = GrayImage::from_pixel(20, 100, Luma([255]));
+        let bbox = BoxPx::new([0.0, 0.0], [20.0, 100.0]);
+        Appearance::from_masked(&image, &mask, Some(bbox)).unwrap()
+    };
+    let (red, blue) = ([200, 30, 30], [30, 30, 200]);
+    let a = outfit(red, blue);
+    assert!((a.similarity(&outfit(red, blue)) - 1.0).abs() < 1e-6);
+    assert!(a.similarity(&outfit(blue, red)) < 0.5);
+}
