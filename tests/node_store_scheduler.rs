@@ -89,6 +89,7 @@ fn stream_of_400_frames_keeps_at_most_k_views_and_few_reconstructions() {
                     image: Arc::new(img),
                     embedding,
                     evidence: None,
+                    hidden: 0.0,
                 };
                 let outcome = store.insert("p0", view);
                 if outcome.changed() {

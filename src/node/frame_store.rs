@@ -2,9 +2,11 @@
 //!
 //! Each person holds at most `max_views` views. A view whose embedding is nearly identical
 //! (cosine similarity above a threshold) to a held view from the same camera is a duplicate:
-//! it is dropped, or replaces the older view, by [`DuplicatePolicy`]. When the set is full, the
-//! view that is most redundant is evicted so the set stays diverse: of the most similar pair
-//! (new view included), the older one goes. Memory is bounded by `max_views` × (the largest
+//! it is dropped, or replaces the older view, by [`DuplicatePolicy`]. When the set is full, a
+//! view in which another person's box covered this person's ([`View::hidden`] above
+//! [`HIDDEN_FIRST_OUT`]) goes first, the most covered one (new view included): its pixels and
+//! landmarks mix people. Otherwise the view that is most redundant is evicted so the set stays
+//! diverse: of the most similar pair (new view included), the older one goes. Memory is bounded by `max_views` × (the largest
 //! preprocessed image the caller inserts + a frame of at most 640 pixels on its long side).
 //!
 //! Every change of a person's set bumps its `version`, which the scheduler watches.
@@ -15,6 +17,10 @@ pub use crate::reconstruct::reconstructor::cosine_similarity;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
+
+/// Share of a view's person box covered by another person's box from which the view leaves a
+/// full set before any view that stands clear, however alike those are.
+pub const HIDDEN_FIRST_OUT: f32 = 0.15;
 
 /// One input view of a person.
 #[derive(Debug, Clone, PartialEq)]
@@ -34,6 +40,9 @@ pub struct View {
     /// What perception saw of the person in the original frame (`None`: masked by a topic or
     /// whole frames).
     pub evidence: Option<Arc<ViewEvidence>>,
+    /// The largest share of the person's box another person's box covered in the frame
+    /// (0..1; 0 when one person is followed).
+    pub hidden: f32,
 }
 
 /// What to do with a near-duplicate of a held view from the same camera.
@@ -91,6 +100,9 @@ pub enum InsertOutcome {
         /// Their cosine similarity.
         similarity: f32,
     },
+    /// The set was full and the view's person was more hidden by others than in any held
+    /// view: it was dropped.
+    DroppedHidden,
     /// The view was a near-duplicate and was dropped (`Drop`), or the eviction chose it.
     Dropped {
         /// Held frame id it duplicated (or was most similar to).
@@ -103,7 +115,7 @@ pub enum InsertOutcome {
 impl InsertOutcome {
     /// Whether the person's view set changed.
     pub fn changed(&self) -> bool {
-        !matches!(self, Self::Dropped { .. })
+        !matches!(self, Self::Dropped { .. } | Self::DroppedHidden)
     }
 }
 
@@ -186,15 +198,36 @@ impl FrameStore {
             p.version += 1;
             return InsertOutcome::Added;
         }
-        // Full: among held views plus the new one, find the most similar pair; drop its older member.
+        // Full. A view where others covered the person goes first, the most covered one (the
+        // older of equals): its pixels mix people.
         p.views.push(view);
+        let new_index = p.views.len() - 1;
+        if let Some((hidden, _)) = p
+            .views
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.hidden > HIDDEN_FIRST_OUT)
+            .max_by(|a, b| {
+                a.1.hidden
+                    .total_cmp(&b.1.hidden)
+                    .then(b.1.frame_id.cmp(&a.1.frame_id))
+            })
+        {
+            if hidden == new_index {
+                p.views.pop();
+                return InsertOutcome::DroppedHidden;
+            }
+            let evicted = p.views.remove(hidden).frame_id;
+            p.version += 1;
+            return InsertOutcome::AddedEvicting { evicted };
+        }
+        // Then, among held views plus the new one, the most similar pair; its older member goes.
         let (a, b, similarity) = most_similar_pair(&p.views);
         let (older, newer) = if p.views[a].frame_id <= p.views[b].frame_id {
             (a, b)
         } else {
             (b, a)
         };
-        let new_index = p.views.len() - 1;
         if older == new_index {
             // Only when frame ids are out of order: the new view is the redundant one.
             let kept = p.views[newer].frame_id;
@@ -326,6 +359,7 @@ mod tests {
             image: image(),
             embedding,
             evidence: None,
+            hidden: 0.0,
         }
     }
 
@@ -406,6 +440,37 @@ mod tests {
             .collect();
         assert_eq!(ids, vec![2, 3, 4]);
         assert_eq!(s.version("p"), 4);
+    }
+
+    #[test]
+    fn a_view_where_others_cover_the_person_leaves_a_full_set_first() {
+        let hidden = |id, camera, embedding, hidden| View {
+            hidden,
+            ..view(id, camera, embedding)
+        };
+        let ids = |s: &FrameStore| -> Vec<u64> {
+            s.snapshot("p")
+                .unwrap()
+                .views
+                .iter()
+                .map(|v| v.frame_id)
+                .collect()
+        };
+        let mut s = store(3, DuplicatePolicy::Drop);
+        s.insert("p", view(1, "a", axis(8, 0, 0.0)));
+        s.insert("p", hidden(2, "b", axis(8, 2, 0.0), 0.6));
+        s.insert("p", view(3, "c", axis(8, 4, 0.0)));
+        // A clear view close to view 1: the half-hidden view 2 goes, not the older of 1 and 4.
+        let out = s.insert("p", view(4, "d", axis(8, 0, 0.5)));
+        assert_eq!(out, InsertOutcome::AddedEvicting { evicted: 2 });
+        // A new view more hidden than every held one is dropped; the set does not change.
+        let out = s.insert("p", hidden(5, "e", axis(8, 6, 0.0), 0.3));
+        assert_eq!(out, InsertOutcome::DroppedHidden);
+        assert!(!out.changed());
+        assert_eq!(ids(&s), vec![1, 3, 4]);
+        // A barely touched box counts as clear.
+        let out = s.insert("p", hidden(6, "f", axis(8, 6, 0.0), 0.1));
+        assert_eq!(out, InsertOutcome::AddedEvicting { evicted: 1 });
     }
 
     #[test]

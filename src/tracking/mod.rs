@@ -458,15 +458,28 @@ impl PersonTracks {
 /// Whether each detection's box is largely covered by another's: its pixels then mix people,
 /// and its colours describe nobody.
 fn crowded(detections: &[Detection]) -> Vec<bool> {
-    detections
+    let boxes: Vec<BoxPx> = detections.iter().map(|d| d.bbox).collect();
+    hidden_shares(&boxes)
+        .into_iter()
+        .map(|share| share > CROWDED_COVER)
+        .collect()
+}
+
+/// For each box, the largest share of its area that one of the other boxes covers: 0 for a
+/// person standing clear of everyone in the frame, towards 1 for one behind or in front of
+/// another.
+pub fn hidden_shares(boxes: &[BoxPx]) -> Vec<f32> {
+    boxes
         .iter()
         .enumerate()
-        .map(|(d, det)| {
-            let area = det.bbox.area().max(1.0);
-            detections
+        .map(|(i, b)| {
+            let area = b.area().max(1.0);
+            boxes
                 .iter()
                 .enumerate()
-                .any(|(o, other)| o != d && det.bbox.intersection(&other.bbox) / area > CROWDED_COVER)
+                .filter(|(j, _)| *j != i)
+                .map(|(_, other)| b.intersection(other) / area)
+                .fold(0.0, f32::max)
         })
         .collect()
 }

@@ -784,7 +784,7 @@ impl Pipeline {
             (MaskRoute::Perception, Some(perception)) => perception.submit(frame, camera),
             (MaskRoute::Perception, None) => {
                 let person = self.default_person.clone();
-                self.on_frame(frame, None, None, &person, now)
+                self.on_frame(frame, StoreInput::whole_frame(), &person, now)
             }
             (MaskRoute::Topic | MaskRoute::Whole, perception) => {
                 if let (PoseSource::Camera, Some(p)) = (self.animation.source, perception) {
@@ -795,7 +795,7 @@ impl Pipeline {
                     self.admit(ready, now);
                 } else {
                     let person = self.default_person.clone();
-                    self.on_frame(frame, None, None, &person, now);
+                    self.on_frame(frame, StoreInput::whole_frame(), &person, now);
                 }
             }
         }
@@ -868,7 +868,12 @@ impl Pipeline {
                         None => evidence,
                     })
                 });
-                self.on_frame(frame.clone(), Some(seen.mask), evidence, &person, now);
+                let seen_as = StoreInput {
+                    mask: Some(seen.mask),
+                    evidence,
+                    hidden: seen.hidden,
+                };
+                self.on_frame(frame.clone(), seen_as, &person, now);
             }
         }
     }
@@ -992,20 +997,23 @@ impl Pipeline {
         let person = self.default_person.clone();
         for (frame, mask) in ready {
             self.stats.masked += u64::from(mask.is_some());
-            self.on_frame(frame, mask, None, &person, now);
+            let seen = StoreInput {
+                mask,
+                evidence: None,
+                hidden: 0.0,
+            };
+            self.on_frame(frame, seen, &person, now);
         }
     }
 
-    /// A frame of `person` (cropped by `mask`, else whole; with what perception saw of them)
-    /// into their frame store.
-    fn on_frame(
-        &mut self,
-        frame: CameraFrame,
-        mask: Option<Arc<GrayImage>>,
-        evidence: Option<Arc<ViewEvidence>>,
-        person: &str,
-        now: Duration,
-    ) {
+    /// A frame of `person` (cropped by their mask, else whole; with what perception saw of
+    /// them) into their frame store.
+    fn on_frame(&mut self, frame: CameraFrame, seen: StoreInput, person: &str, now: Duration) {
+        let StoreInput {
+            mask,
+            evidence,
+            hidden,
+        } = seen;
         self.person_mut(person);
         let subject = mask.as_deref().map_or(Subject::FullFrame, Subject::Mask);
         let image = match preprocess(&frame.image, subject, &self.preprocess) {
@@ -1027,10 +1035,12 @@ impl Pipeline {
             embedding: thumbnail_embedding(&image, EMBEDDING_GRID),
             image,
             evidence,
+            hidden,
         };
         let outcome = self.store.insert(person, view);
         match outcome {
             InsertOutcome::Dropped { .. } => self.stats.duplicates += 1,
+            InsertOutcome::DroppedHidden => {}
             InsertOutcome::AddedEvicting { evicted } => self.recon.forget(evicted),
             InsertOutcome::Replaced { replaced, .. } => self.recon.forget(replaced),
             InsertOutcome::Added => {}
@@ -1526,3 +1536,25 @@ fn push_bounded(q: &mut VecDeque<f64>, v: f64) {
         q.pop_front();
     }
 }
+
+/// What perception saw of a person in one frame, as the frame store takes it.
+struct StoreInput {
+    /// The person's mask over the frame (`None`: the whole frame).
+    mask: Option<Arc<GrayImage>>,
+    /// Their landmarks and mask for the colours (`perception.colours_from_views`).
+    evidence: Option<Arc<ViewEvidence>>,
+    /// How much of their box others covered ([`View::hidden`]).
+    hidden: f32,
+}
+
+impl StoreInput {
+    /// The whole frame, nothing perceived.
+    fn whole_frame() -> Self {
+        Self {
+            mask: None,
+            evidence: None,
+            hidden: 0.0,
+        }
+    }
+}
+

@@ -12,7 +12,9 @@ use crate::perception::{
     Landmark, PeopleConfig, PeopleFinder, PersonTracker, PoseNetworks, TrackerConfig,
     BODY_LANDMARKS,
 };
-use crate::tracking::{BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats};
+use crate::tracking::{
+    hidden_shares, BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats,
+};
 use image::GrayImage;
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Condvar, Mutex};
@@ -42,6 +44,9 @@ pub struct PersonSeen {
     pub image: [Landmark; BODY_LANDMARKS],
     /// The tracked person's id (`None`: one person is followed, the configured one).
     pub id: Option<String>,
+    /// The largest share of the person's box another person's box covers in this frame (0
+    /// when one person is followed): such views mix people's pixels.
+    pub hidden: f32,
 }
 
 /// What perception made of one frame.
@@ -139,6 +144,7 @@ impl CameraTrackers {
                             world: p.landmarks.world,
                             image: p.landmarks.image,
                             id: None,
+                            hidden: 0.0,
                         })
                         .into_iter()
                         .collect(),
@@ -165,14 +171,17 @@ impl CameraTrackers {
                             frame.arrival.as_secs_f64()
                         };
                         let ids = tracks.update(&frame.topic, stamp, &detections);
+                        let boxes: Vec<BoxPx> = detections.iter().map(|d| d.bbox).collect();
                         found
                             .into_iter()
                             .zip(ids)
-                            .map(|(p, a)| PersonSeen {
+                            .zip(hidden_shares(&boxes))
+                            .map(|((p, a), hidden)| PersonSeen {
                                 mask: Arc::new(p.mask),
                                 world: p.landmarks.world,
                                 image: p.landmarks.image,
                                 id: Some(a.person_id),
+                                hidden,
                             })
                             .collect()
                     }
