@@ -1,8 +1,10 @@
-//! A person's appearance for re-identification across cameras and absences: a normalised
-//! colour histogram (4 levels per channel, 64 bins) of their pixels in each of [`BANDS`]
-//! horizontal bands of their box (head and shoulders, torso, legs), compared band by band
-//! with the Bhattacharyya coefficient (1 for equal distributions, 0 for disjoint ones). Bands
-//! tell a red shirt over blue trousers from a blue shirt over red trousers.
+//! A person's appearance for re-identification: normalised colour histograms (4 levels per
+//! channel, 64 bins) of their pixels, compared with the Bhattacharyya coefficient (1 for equal
+//! distributions, 0 for disjoint ones). One histogram per horizontal band of their box (head
+//! and shoulders, torso, legs; [`Appearance::similarity`]) tells a red shirt over blue
+//! trousers from the reverse, within one camera; one over the whole box
+//! ([`Appearance::whole_similarity`]) holds better across cameras and absences, where the box
+//! is cut differently.
 
 use image::{GrayImage, RgbImage};
 
@@ -23,6 +25,8 @@ pub struct Appearance {
     /// Per band: the histogram (sums to 1) and how much it counts (0 when the band showed too
     /// few pixels, else 1; blends in between).
     bands: [([f32; BINS], f32); BANDS],
+    /// The histogram of all the pixels (sums to 1).
+    whole: [f32; BINS],
 }
 
 impl Appearance {
@@ -51,7 +55,10 @@ impl Appearance {
         let mut counts = [[0.0f32; BINS]; BANDS];
         for y in y0..y1 {
             let along = (y as f32 + 0.5 - top) / height;
-            let band = BAND_ENDS.iter().position(|&end| along < end).unwrap_or(BANDS - 1);
+            let band = BAND_ENDS
+                .iter()
+                .position(|&end| along < end)
+                .unwrap_or(BANDS - 1);
             for x in x0..x1 {
                 if mask.get_pixel(x, y)[0] < 128 {
                     continue;
@@ -61,6 +68,14 @@ impl Appearance {
                 counts[band][(q(p[0]) * LEVELS + q(p[1])) * LEVELS + q(p[2])] += 1.0;
             }
         }
+        let mut whole = [0.0f32; BINS];
+        for bins in &counts {
+            for (w, b) in whole.iter_mut().zip(bins) {
+                *w += b;
+            }
+        }
+        let total: f32 = whole.iter().sum();
+        whole.iter_mut().for_each(|w| *w /= total.max(1.0));
         let bands = counts.map(|bins| {
             let total: f32 = bins.iter().sum();
             if total >= MIN_BAND_PIXELS {
@@ -72,7 +87,13 @@ impl Appearance {
         bands
             .iter()
             .any(|(_, weight)| *weight > 0.0)
-            .then_some(Self { bands })
+            .then_some(Self { bands, whole })
+    }
+
+    /// Bhattacharyya coefficient of the whole-box histograms: 1 for the same colours, 0 for
+    /// disjoint ones, wherever in the box they are.
+    pub fn whole_similarity(&self, other: &Appearance) -> f32 {
+        bhattacharyya(&self.whole, &other.whole)
     }
 
     /// Bhattacharyya coefficient with `other`, averaged over the bands both saw (weighted by
@@ -83,8 +104,7 @@ impl Appearance {
         for ((a, wa), (b, wb)) in self.bands.iter().zip(&other.bands) {
             let w = wa * wb;
             if w > 0.0 {
-                let coefficient: f32 = a.iter().zip(b).map(|(x, y)| (x * y).sqrt()).sum();
-                sum += w * coefficient.min(1.0);
+                sum += w * bhattacharyya(a, b);
                 weight += w;
             }
         }
@@ -112,6 +132,19 @@ impl Appearance {
                 *b = (1.0 - rate) * *b + rate * n;
             }
         }
-        Appearance { bands }
+        let mut whole = self.whole;
+        for (w, n) in whole.iter_mut().zip(&newer.whole) {
+            *w = (1.0 - rate) * *w + rate * n;
+        }
+        Appearance { bands, whole }
     }
+}
+
+/// Bhattacharyya coefficient of two normalised histograms.
+fn bhattacharyya(a: &[f32; BINS], b: &[f32; BINS]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x * y).sqrt())
+        .sum::<f32>()
+        .min(1.0)
 }

@@ -54,8 +54,8 @@ pub struct TrackingConfig {
     pub max_persons: usize,
     /// IoU between a predicted box and a detection below which they are not the same person.
     pub min_iou: f32,
-    /// Appearance similarity (Bhattacharyya coefficient, 0..1) from which a detection is the
-    /// same person as one tracked elsewhere or earlier.
+    /// Appearance similarity (Bhattacharyya coefficient of whole-box colours, 0..1) from which
+    /// a detection is the same person as one tracked elsewhere or earlier.
     pub min_similarity: f32,
     /// Distance on the floor (metres) within which a detection can be a person another camera
     /// saw at nearly the same time.
@@ -66,7 +66,8 @@ pub struct TrackingConfig {
     /// track, however well the boxes overlap: where two people cross in one camera's view,
     /// their boxes overlap while the other camera still sees them apart.
     pub max_track_floor_gap: f32,
-    /// Appearance similarity (as this camera saw the person) below which a box overlap
+    /// Appearance similarity (whole-box colours, as this camera saw the person) below which a
+    /// box overlap
     /// continues a person's track only if neither floor position nor colours give the
     /// detection to someone else: a person coming out from behind another takes the box the
     /// hidden one left, but not their colours.
@@ -237,7 +238,7 @@ impl PersonTracks {
                 }
                 let unlike = match (&det.appearance, &track.appearance) {
                     (Some(look), Some(known)) => {
-                        look.similarity(known) < self.config.min_track_similarity
+                        look.whole_similarity(known) < self.config.min_track_similarity
                     }
                     _ => false,
                 };
@@ -253,7 +254,9 @@ impl PersonTracks {
                 }
             }
         }
-        self.assign_boxes(camera, stamp, detections, &crowded, pairs, &mut out, &mut taken);
+        self.assign_boxes(
+            camera, stamp, detections, &crowded, pairs, &mut out, &mut taken,
+        );
 
         // 2. Appearance against persons not matched in this frame, most similar first.
         let mut pairs = Vec::new();
@@ -268,7 +271,7 @@ impl PersonTracks {
                     continue;
                 }
                 let similarity = match (&det.appearance, &person.appearance) {
-                    (Some(look), Some(known)) => Some(look.similarity(known)),
+                    (Some(look), Some(known)) => Some(look.whole_similarity(known)),
                     _ => None,
                 };
                 match self.floor_gap(person, det, stamp) {
@@ -344,14 +347,8 @@ impl PersonTracks {
                 continue;
             }
             taken[p] = true;
-            out[d] = Some(self.sighted(
-                p,
-                camera,
-                stamp,
-                &detections[d],
-                crowded[d],
-                Matched::Track,
-            ));
+            out[d] =
+                Some(self.sighted(p, camera, stamp, &detections[d], crowded[d], Matched::Track));
         }
     }
 

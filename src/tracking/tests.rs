@@ -246,7 +246,11 @@ fn colours_seen_while_boxes_overlap_are_not_learned() {
         let x_b = (400.0 - 200.0 * t as f32).max(130.0);
         let look_a = if x_b - 100.0 < 60.0 { blue } else { red };
         let got = tracks.update("cam0", t, &[det(100.0, look_a), det(x_b, blue)]);
-        assert_eq!((&got[0].person_id, &got[1].person_id), (&a, &b), "frame {k}");
+        assert_eq!(
+            (&got[0].person_id, &got[1].person_id),
+            (&a, &b),
+            "frame {k}"
+        );
     }
     let swapped = tracks.update("cam0", 2.6, &[det(100.0, blue), det(130.0, red)]);
     assert_eq!(

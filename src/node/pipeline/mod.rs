@@ -1557,4 +1557,3 @@ impl StoreInput {
         }
     }
 }
-
