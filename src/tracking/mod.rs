@@ -162,6 +162,13 @@ struct Person {
     last_seen: f64,
 }
 
+/// What one frame's matching has settled so far: the id given to each detection, and which
+/// persons are taken.
+struct Claims {
+    given: Vec<Option<Assignment>>,
+    taken: Vec<bool>,
+}
+
 /// Counters of a tracker's life.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct TrackingStats {
@@ -212,8 +219,10 @@ impl PersonTracks {
         detections: &[Detection],
     ) -> Vec<Assignment> {
         self.forget(stamp);
-        let mut out: Vec<Option<Assignment>> = vec![None; detections.len()];
-        let mut taken = vec![false; self.persons.len()];
+        let mut claims = Claims {
+            given: vec![None; detections.len()],
+            taken: vec![false; self.persons.len()],
+        };
         let crowded = crowded(detections);
 
         // 1. Box overlap with each person's predicted box in this camera, best pair first;
@@ -254,20 +263,18 @@ impl PersonTracks {
                 }
             }
         }
-        self.assign_boxes(
-            camera, stamp, detections, &crowded, pairs, &mut out, &mut taken,
-        );
+        self.assign_boxes(camera, stamp, detections, &crowded, pairs, &mut claims);
 
         // 2. Appearance against persons not matched in this frame, most similar first.
         let mut pairs = Vec::new();
         // Floor positions decide where both are known and fresh (scores above 1); colours
         // otherwise (scores up to 1).
         for (d, det) in detections.iter().enumerate() {
-            if out[d].is_some() {
+            if claims.given[d].is_some() {
                 continue;
             }
             for (p, person) in self.persons.iter().enumerate() {
-                if taken[p] {
+                if claims.taken[p] {
                     continue;
                 }
                 let similarity = match (&det.appearance, &person.appearance) {
@@ -293,16 +300,16 @@ impl PersonTracks {
         }
         pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
         for (score, p, d) in pairs {
-            if taken[p] || out[d].is_some() {
+            if claims.taken[p] || claims.given[d].is_some() {
                 continue;
             }
-            taken[p] = true;
+            claims.taken[p] = true;
             let how = if score > 1.0 {
                 Matched::Floor
             } else {
                 Matched::Appearance
             };
-            out[d] = Some(self.sighted(p, camera, stamp, &detections[d], crowded[d], how));
+            claims.given[d] = Some(self.sighted(p, camera, stamp, &detections[d], crowded[d], how));
         }
 
         // 2b. Box overlaps with other colours, where nobody else took the detection: the same
@@ -313,18 +320,20 @@ impl PersonTracks {
             detections,
             &crowded,
             unlike_pairs,
-            &mut out,
-            &mut taken,
+            &mut claims,
         );
 
         // 3. New persons, in detection order.
         for (d, det) in detections.iter().enumerate() {
-            if out[d].is_none() {
+            if claims.given[d].is_none() {
                 let p = self.start(stamp);
-                out[d] = Some(self.sighted(p, camera, stamp, det, crowded[d], Matched::New));
+                claims.given[d] =
+                    Some(self.sighted(p, camera, stamp, det, crowded[d], Matched::New));
             }
         }
-        out.into_iter()
+        claims
+            .given
+            .into_iter()
             .map(|a| a.expect("every detection assigned"))
             .collect()
     }
@@ -338,16 +347,15 @@ impl PersonTracks {
         detections: &[Detection],
         crowded: &[bool],
         mut pairs: Vec<(f32, usize, usize)>,
-        out: &mut [Option<Assignment>],
-        taken: &mut [bool],
+        claims: &mut Claims,
     ) {
         pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
         for (_, p, d) in pairs {
-            if taken[p] || out[d].is_some() {
+            if claims.taken[p] || claims.given[d].is_some() {
                 continue;
             }
-            taken[p] = true;
-            out[d] =
+            claims.taken[p] = true;
+            claims.given[d] =
                 Some(self.sighted(p, camera, stamp, &detections[d], crowded[d], Matched::Track));
         }
     }
