@@ -6,8 +6,9 @@
 //! view in which another person's box covered this person's ([`View::hidden`] above
 //! [`HIDDEN_FIRST_OUT`]) goes first, the most covered one (new view included): its pixels and
 //! landmarks mix people. Otherwise the view that is most redundant is evicted so the set stays
-//! diverse: of the most similar pair (new view included), the older one goes. Memory is bounded by `max_views` × (the largest
-//! preprocessed image the caller inserts + a frame of at most 640 pixels on its long side).
+//! diverse: of the most similar pair (new view included), the older one goes. Memory is
+//! bounded by `max_views` × (the largest preprocessed image the caller inserts + a frame of at
+//! most 640 pixels on its long side).
 //!
 //! Every change of a person's set bumps its `version`, which the scheduler watches.
 

@@ -13,7 +13,7 @@ const LEVELS: usize = 4;
 /// Histogram bins per band.
 const BINS: usize = LEVELS * LEVELS * LEVELS;
 /// Horizontal bands of the box, top to bottom.
-pub const BANDS: usize = 3;
+const BANDS: usize = 3;
 /// Where each band ends, as a fraction of the box height from its top.
 const BAND_ENDS: [f32; BANDS] = [0.3, 0.55, 1.0];
 /// Pixels a band needs before its colours count.
@@ -22,8 +22,8 @@ const MIN_BAND_PIXELS: f32 = 16.0;
 /// Normalised colour histograms of a person's pixels, one per band of their box.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Appearance {
-    /// Per band: the histogram (sums to 1) and how much it counts (0 when the band showed too
-    /// few pixels, else 1; blends in between).
+    /// Per band: the histogram (sums to 1) and how much it counts (0 when the band showed
+    /// fewer than `MIN_BAND_PIXELS`, else 1).
     bands: [([f32; BINS], f32); BANDS],
     /// The histogram of all the pixels (sums to 1).
     whole: [f32; BINS],
@@ -31,7 +31,8 @@ pub struct Appearance {
 
 impl Appearance {
     /// The histograms of the pixels of `image` where `mask` is at least 128 (same size), in
-    /// the bands of `bbox` (the whole image when `None`); `None` when no band has pixels.
+    /// the bands of `bbox` (the whole image when `None`); `None` when no band has
+    /// `MIN_BAND_PIXELS` (16) of them.
     pub fn from_masked(
         image: &RgbImage,
         mask: &GrayImage,

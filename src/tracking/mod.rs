@@ -67,10 +67,9 @@ pub struct TrackingConfig {
     /// their boxes overlap while the other camera still sees them apart.
     pub max_track_floor_gap: f32,
     /// Appearance similarity (whole-box colours, as this camera saw the person) below which a
-    /// box overlap
-    /// continues a person's track only if neither floor position nor colours give the
-    /// detection to someone else: a person coming out from behind another takes the box the
-    /// hidden one left, but not their colours.
+    /// box overlap continues a person's track only if neither floor position nor colours give
+    /// the detection to someone else: a person coming out from behind another takes the box
+    /// the hidden one left, but not their colours.
     pub min_track_similarity: f32,
 }
 
@@ -245,15 +244,13 @@ impl PersonTracks {
                 if iou < self.config.min_iou || far() {
                     continue;
                 }
-                let unlike = match (&det.appearance, &track.appearance) {
-                    (Some(look), Some(known)) => {
-                        look.whole_similarity(known) < self.config.min_track_similarity
-                    }
-                    _ => false,
-                };
-                let similarity = match (&det.appearance, &track.appearance) {
-                    (Some(look), Some(known)) => look.similarity(known),
-                    _ => 0.0,
+                // The gate reads whole-box colours; the choice among overlaps, banded ones.
+                let (unlike, similarity) = match (&det.appearance, &track.appearance) {
+                    (Some(look), Some(known)) => (
+                        look.whole_similarity(known) < self.config.min_track_similarity,
+                        look.similarity(known),
+                    ),
+                    _ => (false, 0.0),
                 };
                 let score = iou + OVERLAP_COLOUR_WEIGHT * similarity;
                 if unlike {
