@@ -3,8 +3,8 @@
 //! Each person holds at most `max_views` views. A view whose embedding is nearly identical
 //! (cosine similarity above a threshold) to a held view from the same camera is a duplicate:
 //! it is dropped, or replaces the older view, by [`DuplicatePolicy`]. When the set is full, a
-//! view in which another person's box covered this person's ([`View::hidden`] above
-//! [`HIDDEN_FIRST_OUT`]) goes first, the most covered one (new view included): its pixels and
+//! view in which another person's box covered this person's ([`View::hidden`] above the
+//! tracker's [`CROWDED_COVER`], where a detection's pixels mix people) goes first, the most covered one (new view included): its pixels and
 //! landmarks mix people. Otherwise the view that is most redundant is evicted so the set stays
 //! diverse: of the most similar pair (new view included), the older one goes. Memory is
 //! bounded by `max_views` × (the largest preprocessed image the caller inserts + a frame of at
@@ -15,13 +15,10 @@
 use crate::reconstruct::photo_colours::ViewEvidence;
 use crate::reconstruct::preprocess::Preprocessed;
 pub use crate::reconstruct::reconstructor::cosine_similarity;
+use crate::tracking::CROWDED_COVER;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
-
-/// Share of a view's person box covered by another person's box from which the view leaves a
-/// full set before any view that stands clear, however alike those are.
-pub const HIDDEN_FIRST_OUT: f32 = 0.15;
 
 /// One input view of a person.
 #[derive(Debug, Clone, PartialEq)]
@@ -207,7 +204,7 @@ impl FrameStore {
             .views
             .iter()
             .enumerate()
-            .filter(|(_, v)| v.hidden > HIDDEN_FIRST_OUT)
+            .filter(|(_, v)| v.hidden > CROWDED_COVER)
             .max_by(|a, b| {
                 a.1.hidden
                     .total_cmp(&b.1.hidden)

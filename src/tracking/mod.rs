@@ -42,8 +42,9 @@ use std::collections::BTreeMap;
 const OVERLAP_COLOUR_WEIGHT: f32 = 3.0;
 
 /// Share of a detection's box covered by another detection's box from which the detection is
-/// in a huddle: its pixels mix people, so its colours are not learned.
-const CROWDED_COVER: f32 = 0.15;
+/// in a huddle: its pixels mix people, so its colours are not learned (and the node's frame
+/// store lets such a view go first).
+pub const CROWDED_COVER: f32 = 0.15;
 
 /// Tracking parameters.
 #[derive(Debug, Clone, PartialEq)]
@@ -131,12 +132,15 @@ pub enum Matched {
 }
 
 /// The id given to one detection.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Assignment {
     /// The person id (`person_<n>`, numbered from 0 in order of first sighting).
     pub person_id: String,
     /// How it was matched.
     pub matched: Matched,
+    /// The largest share of the detection's box another detection's box covers in this frame
+    /// (0..1): above [`CROWDED_COVER`] its pixels mix people.
+    pub hidden: f32,
 }
 
 /// A person's state in one camera.
@@ -222,7 +226,7 @@ impl PersonTracks {
             given: vec![None; detections.len()],
             taken: vec![false; self.persons.len()],
         };
-        let crowded = crowded(detections);
+        let hidden = hidden_shares(&detections.iter().map(|d| d.bbox).collect::<Vec<_>>());
 
         // 1. Box overlap with each person's predicted box in this camera, best pair first;
         // overlaps whose colours differ wait until after step 2.
@@ -260,7 +264,7 @@ impl PersonTracks {
                 }
             }
         }
-        self.assign_boxes(camera, stamp, detections, &crowded, pairs, &mut claims);
+        self.assign_boxes(camera, stamp, detections, &hidden, pairs, &mut claims);
 
         // 2. Appearance against persons not matched in this frame, most similar first.
         let mut pairs = Vec::new();
@@ -306,7 +310,7 @@ impl PersonTracks {
             } else {
                 Matched::Appearance
             };
-            claims.given[d] = Some(self.sighted(p, camera, stamp, &detections[d], crowded[d], how));
+            claims.given[d] = Some(self.sighted(p, camera, stamp, &detections[d], hidden[d], how));
         }
 
         // 2b. Box overlaps with other colours, where nobody else took the detection: the same
@@ -315,7 +319,7 @@ impl PersonTracks {
             camera,
             stamp,
             detections,
-            &crowded,
+            &hidden,
             unlike_pairs,
             &mut claims,
         );
@@ -325,7 +329,7 @@ impl PersonTracks {
             if claims.given[d].is_none() {
                 let p = self.start(stamp);
                 claims.given[d] =
-                    Some(self.sighted(p, camera, stamp, det, crowded[d], Matched::New));
+                    Some(self.sighted(p, camera, stamp, det, hidden[d], Matched::New));
             }
         }
         claims
@@ -342,7 +346,7 @@ impl PersonTracks {
         camera: &str,
         stamp: f64,
         detections: &[Detection],
-        crowded: &[bool],
+        hidden: &[f32],
         mut pairs: Vec<(f32, usize, usize)>,
         claims: &mut Claims,
     ) {
@@ -353,7 +357,7 @@ impl PersonTracks {
             }
             claims.taken[p] = true;
             claims.given[d] =
-                Some(self.sighted(p, camera, stamp, &detections[d], crowded[d], Matched::Track));
+                Some(self.sighted(p, camera, stamp, &detections[d], hidden[d], Matched::Track));
         }
     }
 
@@ -374,7 +378,7 @@ impl PersonTracks {
         camera: &str,
         stamp: f64,
         det: &Detection,
-        crowded: bool,
+        hidden: f32,
         matched: Matched,
     ) -> Assignment {
         let person = &mut self.persons[p];
@@ -391,7 +395,7 @@ impl PersonTracks {
             .get(camera)
             .and_then(|t| t.appearance.as_ref());
         // Colours seen in a huddle mix people: keep those from before it.
-        let frozen = crowded;
+        let frozen = hidden > CROWDED_COVER;
         let seen_here = match (known_here, &det.appearance) {
             (Some(known), Some(_)) if frozen => Some(known.clone()),
             (Some(known), Some(look)) => Some(known.blend(look, 0.2)),
@@ -420,6 +424,7 @@ impl PersonTracks {
         Assignment {
             person_id: person.id.clone(),
             matched,
+            hidden,
         }
     }
 
@@ -457,20 +462,10 @@ impl PersonTracks {
     }
 }
 
-/// Whether each detection's box is largely covered by another's: its pixels then mix people,
-/// and its colours describe nobody.
-fn crowded(detections: &[Detection]) -> Vec<bool> {
-    let boxes: Vec<BoxPx> = detections.iter().map(|d| d.bbox).collect();
-    hidden_shares(&boxes)
-        .into_iter()
-        .map(|share| share > CROWDED_COVER)
-        .collect()
-}
-
 /// For each box, the largest share of its area that one of the other boxes covers: 0 for a
 /// person standing clear of everyone in the frame, towards 1 for one behind or in front of
 /// another.
-pub fn hidden_shares(boxes: &[BoxPx]) -> Vec<f32> {
+fn hidden_shares(boxes: &[BoxPx]) -> Vec<f32> {
     boxes
         .iter()
         .enumerate()

@@ -12,9 +12,7 @@ use crate::perception::{
     Landmark, PeopleConfig, PeopleFinder, PersonTracker, PoseNetworks, TrackerConfig,
     BODY_LANDMARKS,
 };
-use crate::tracking::{
-    hidden_shares, BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats,
-};
+use crate::tracking::{BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats};
 use image::GrayImage;
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Condvar, Mutex};
@@ -171,17 +169,15 @@ impl CameraTrackers {
                             frame.arrival.as_secs_f64()
                         };
                         let ids = tracks.update(&frame.topic, stamp, &detections);
-                        let boxes: Vec<BoxPx> = detections.iter().map(|d| d.bbox).collect();
                         found
                             .into_iter()
                             .zip(ids)
-                            .zip(hidden_shares(&boxes))
-                            .map(|((p, a), hidden)| PersonSeen {
+                            .map(|(p, a)| PersonSeen {
                                 mask: Arc::new(p.mask),
                                 world: p.landmarks.world,
                                 image: p.landmarks.image,
+                                hidden: a.hidden,
                                 id: Some(a.person_id),
-                                hidden,
                             })
                             .collect()
                     }
