@@ -286,11 +286,23 @@ pub fn track_and_score(
             .collect();
         let assigned = tracks.update(&img.camera, img.stamp_ns as f64 * 1e-9, &detections);
         inspect(i, img, &people, &assigned);
-        for (p, a) in people.iter().zip(assigned) {
+        for ((p, a), det) in people.iter().zip(assigned).zip(&detections) {
+            let truth = covered_person(&p.mask, &img.ids);
+            tracing::debug!(
+                image = i,
+                camera = %img.camera,
+                truth = ?truth,
+                id = %a.person_id,
+                matched = ?a.matched,
+                hidden = a.hidden,
+                floor = ?det.floor,
+                bbox = ?det.bbox,
+                "sighting"
+            );
             sightings.push(Sighting {
                 image: i,
                 camera: img.camera.clone(),
-                truth: covered_person(&p.mask, &img.ids),
+                truth,
                 id: a.person_id,
             });
         }

@@ -3,12 +3,13 @@
 //!
 //! Within a camera, a detection continues a track whose predicted box (constant velocity from
 //! its last two sightings) it overlaps, the one whose colours as this camera saw them are
-//! closest first, overlap breaking ties (greedy, best pair first). Colours are learned only
-//! from detections whose boxes stand clear of the others': in a huddle a person's pixels mix
-//! with their neighbours', and the colours from before it are what tell them apart after it.
-//! A detection no live track of its camera claims is compared by appearance ([`Appearance`]:
-//! colour histograms of the person's pixels in three bands of their box) with every person not
-//! seen in that camera in this frame:
+//! closest and, for a detection standing clear of the others on a calibrated camera, whose
+//! person stood nearest on the floor first, overlap breaking ties (greedy, best pair first).
+//! Colours are learned only from detections whose boxes stand clear of the others': in a huddle
+//! a person's pixels mix with their neighbours', and the colours from before it are what tell
+//! them apart after it. A detection no live track of its camera claims is compared by
+//! appearance ([`Appearance`]: colour histograms of the person's pixels in three bands of their
+//! box) with every person not seen in that camera in this frame:
 //! the same person seen by another camera, or coming back after leaving. Where the caller
 //! knows where a detection stands on the floor (calibrated cameras), position decides first: a
 //! person seen by another camera within [`TrackingConfig::floor_fresh`] seconds is the same
@@ -40,6 +41,14 @@ use std::collections::BTreeMap;
 /// breaks ties between people who look alike. In a huddle every box overlaps every predicted
 /// box; the colours each person showed before it tell them apart.
 const OVERLAP_COLOUR_WEIGHT: f32 = 3.0;
+
+/// How much the floor counts when several predicted boxes of a camera overlap one detection
+/// that stands clear of the others: as much as colours. Its score is the nearness of the
+/// person's last floor position (any camera) to the detection's, `1 − gap /
+/// max_track_floor_gap`. People who look alike (similar colours, as in the same uniform) are
+/// then told apart by where they stand. A huddled detection gets no floor bonus: its box bottom
+/// may be another person's feet, or cut by the one in front.
+const OVERLAP_FLOOR_WEIGHT: f32 = 3.0;
 
 /// Share of a detection's box covered by another detection's box from which the detection is
 /// in a huddle: its pixels mix people, so its colours are not learned (and the node's frame
@@ -256,7 +265,16 @@ impl PersonTracks {
                     ),
                     _ => (false, 0.0),
                 };
-                let score = iou + OVERLAP_COLOUR_WEIGHT * similarity;
+                // Where the detection stands clear of the others, its box bottom is its own
+                // feet: the person another camera saw standing nearest gets a bonus.
+                let nearness = match self.floor_gap(person, det, stamp) {
+                    Some(gap) if hidden[d] <= CROWDED_COVER => {
+                        (1.0 - gap / self.config.max_track_floor_gap.max(1e-6)).max(0.0)
+                    }
+                    _ => 0.0,
+                };
+                let score =
+                    iou + OVERLAP_COLOUR_WEIGHT * similarity + OVERLAP_FLOOR_WEIGHT * nearness;
                 if unlike {
                     unlike_pairs.push((score, p, d));
                 } else {

@@ -275,3 +275,43 @@ fn bands_tell_a_red_shirt_over_blue_trousers_from_the_reverse() {
     assert!((a.similarity(&outfit(red, blue)) - 1.0).abs() < 1e-6);
     assert!(a.similarity(&outfit(blue, red)) < 0.5);
 }
+
+#[test]
+fn people_who_look_alike_are_told_apart_by_where_they_stand() {
+    // A and B wear the same grey and stand 0.6 m apart. Camera 1 sees them apart; camera 0
+    // sees their boxes side by side, then one box over both of them, which overlaps B's box
+    // more but stands at A's feet (B behind A): it is A.
+    let grey = [128, 128, 128];
+    let seen = |x0: f32, x1: f32, floor: [f32; 2]| Detection {
+        bbox: BoxPx::new([x0, 100.0], [x1, 300.0]),
+        appearance: Some(look(grey)),
+        floor: Some(floor),
+    };
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let first = tracks.update(
+        "cam0",
+        0.0,
+        &[
+            seen(150.0, 250.0, [0.0, 0.0]),
+            seen(240.0, 340.0, [0.6, 0.0]),
+        ],
+    );
+    let (a, b) = (first[0].person_id.clone(), first[1].person_id.clone());
+    for t in [0.0, 0.1] {
+        let ids = tracks.update(
+            "cam1",
+            t,
+            &[
+                seen(100.0, 180.0, [0.0, 0.0]),
+                seen(400.0, 480.0, [0.6, 0.0]),
+            ],
+        );
+        assert_eq!((&ids[0].person_id, &ids[1].person_id), (&a, &b));
+    }
+    let merged = tracks.update("cam0", 0.1, &[seen(190.0, 330.0, [0.02, 0.0])]);
+    assert_eq!(
+        merged[0].person_id, a,
+        "the floor under the box, not its overlap"
+    );
+    assert_eq!(merged[0].matched, Matched::Track);
+}
