@@ -261,6 +261,18 @@ impl Choice for LandmarkModelChoice {
     }
 }
 
+impl LandmarkModelChoice {
+    /// The landmark model this choice names.
+    pub fn model(self) -> crate::perception::LandmarkModel {
+        use crate::perception::LandmarkModel;
+        match self {
+            Self::Lite => LandmarkModel::Lite,
+            Self::Full => LandmarkModel::Full,
+            Self::Heavy => LandmarkModel::Heavy,
+        }
+    }
+}
+
 /// `model.device`: `cpu`, `cuda` (GPU 0) or `cuda:N`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(try_from = "String", into = "String")]

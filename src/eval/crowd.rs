@@ -4,7 +4,9 @@
 //! views that no camera of the scene took: the person alone, unlit (albedo), in the rest pose,
 //! seen from cameras on a ring around them. Every avatar the node made from the scene is
 //! rendered in its canonical (rest) pose from the same cameras and scored against every true
-//! person's views; avatars and persons are then paired one to one, best PSNR first. The same
+//! person's views. Each person's avatar is the one built mostly from their views ([`own_avatars`]:
+//! the tracker replayed on the bag says whose views each id got); [`pair_avatars`] pairs them
+//! one to one, best PSNR first, instead, as a check of the scores alone. The same
 //! scores of the avatar the node makes from the same scene with only that person in it
 //! ([`crate::synth::crowd::CrowdOptions::only`]) are the single-person reference.
 
@@ -16,6 +18,7 @@ use crate::synth::dressed::DressedPerson;
 use crate::synth::person::SynthError;
 use crate::synth::stream::ring_cameras;
 use glam::Vec3;
+use std::collections::BTreeMap;
 
 /// One held-out view of a true person: the camera and what it shows.
 pub struct TruthView {
@@ -106,6 +109,31 @@ pub fn pair_avatars(scores: &[Vec<AvatarScore>], persons: usize) -> Vec<Option<u
     of_person
 }
 
+/// Each true person's own avatar: among the avatars (`avatar_ids`) whose id's sightings mostly
+/// cover that person (`sightings[id][person]`: how many detections given `id` covered
+/// `person`), the one with the most of them. Returns, per person, the avatar's index (`None`:
+/// no avatar was built mostly from them).
+pub fn own_avatars(
+    sightings: &BTreeMap<String, BTreeMap<usize, usize>>,
+    avatar_ids: &[&str],
+    persons: usize,
+) -> Vec<Option<usize>> {
+    let mut own: Vec<Option<(usize, usize)>> = vec![None; persons];
+    for (a, id) in avatar_ids.iter().enumerate() {
+        let Some(counts) = sightings.get(*id) else {
+            continue;
+        };
+        // The majority person, the lowest index on a tie.
+        let Some((&k, &n)) = counts.iter().max_by(|x, y| x.1.cmp(y.1).then(y.0.cmp(x.0))) else {
+            continue;
+        };
+        if k < persons && own[k].is_none_or(|(_, best)| n > best) {
+            own[k] = Some((a, n));
+        }
+    }
+    own.into_iter().map(|o| o.map(|(a, _)| a)).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -128,6 +156,31 @@ mod tests {
         ];
         assert_eq!(pair_avatars(&scores, 2), vec![Some(1), Some(0)]);
         assert_eq!(pair_avatars(&scores[..1], 2), vec![Some(0), None]);
+    }
+
+    /// An avatar belongs to the person most of its id's views show; of two ids built mostly
+    /// from one person, the one with more of their views; an id mostly of nobody's avatar and
+    /// a person no id mostly shows get nothing.
+    #[test]
+    fn each_person_gets_the_avatar_built_mostly_from_them() {
+        let counts = |pairs: &[(usize, usize)]| pairs.iter().copied().collect::<BTreeMap<_, _>>();
+        let sightings: BTreeMap<String, BTreeMap<usize, usize>> = [
+            ("person_0".to_string(), counts(&[(1, 30), (0, 5)])),
+            ("person_1".to_string(), counts(&[(0, 20)])),
+            ("person_2".to_string(), counts(&[(1, 8), (2, 3)])),
+            ("person_3".to_string(), counts(&[(0, 40), (2, 10)])),
+        ]
+        .into();
+        let avatars = ["person_0", "person_1", "person_2", "person_3"];
+        assert_eq!(
+            own_avatars(&sightings, &avatars, 3),
+            vec![Some(3), Some(0), None]
+        );
+        // Without person_3's avatar, person 0's own is person_1's.
+        assert_eq!(
+            own_avatars(&sightings, &avatars[..3], 3),
+            vec![Some(1), Some(0), None]
+        );
     }
 
     /// A person's own Gaussians score far better against their truth than another person's.

@@ -14,7 +14,7 @@ pub mod render;
 
 use crate::avatar::Avatar;
 use crate::body::Pose;
-use crate::config::{Delight, LandmarkModelChoice, NodeConfig, PersonMask, PoseSource};
+use crate::config::{Delight, NodeConfig, PersonMask, PoseSource};
 use crate::msgs::{BodyPose, BodyShape, Header, ReconstructionStatus, Time};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::inputs::{CameraFrame, InputEvent};
@@ -25,9 +25,7 @@ use crate::node::timings::Timings;
 use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig};
 use crate::perception::shape::ShapeReader;
 use crate::perception::PeopleConfig;
-use crate::perception::{
-    Landmark, LandmarkModel, PerceptionError, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
-};
+use crate::perception::{Landmark, PerceptionError, PoseNetworks, TrackerConfig, BODY_LANDMARKS};
 use crate::reconstruct::photo_colours::{colour_from_evidence, ViewEvidence};
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::shape::AcceptedShape;
@@ -1463,11 +1461,7 @@ fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, Perceptio
         return Ok(None);
     }
     let p = &config.perception;
-    let model = match p.landmark_model {
-        LandmarkModelChoice::Lite => LandmarkModel::Lite,
-        LandmarkModelChoice::Full => LandmarkModel::Full,
-        LandmarkModelChoice::Heavy => LandmarkModel::Heavy,
-    };
+    let model = p.landmark_model.model();
     let heavy = (!p.heavy_weights.is_empty()).then(|| Path::new(&p.heavy_weights));
     let networks = Arc::new(PoseNetworks::load(model, heavy)?);
     let live = config.replay.bag.is_empty();
