@@ -434,8 +434,10 @@ mod tests {
         assert_eq!(s.ids, 3);
     }
 
-    /// The bottom centre of a box lands where the person stands: a floor point projected into
-    /// a camera and cast back comes out where it was; a box bottom above the horizon misses.
+    /// The bottom centre of a box lands where the tip of the nearer foot is, and the person
+    /// stands `BOX_BOTTOM_TO_STANDING` beyond it: a floor point projected into a camera and cast
+    /// back comes out that far behind it, seen from the camera; a box bottom above the horizon
+    /// misses.
     #[test]
     fn floor_point_inverts_the_projection() {
         use crate::splat::Intrinsics;
@@ -450,10 +452,10 @@ mod tests {
         let px = camera.project_camera_point(optical);
         let bbox = BoxPx::new([px.x - 40.0, px.y - 300.0], [px.x + 40.0, px.y]);
         let [x, z] = floor_point(&camera, &bbox).unwrap();
-        assert!(
-            (x - 0.7).abs() < 1e-3 && (z + 0.4).abs() < 1e-3,
-            "({x}, {z})"
-        );
+        let away =
+            (foot - Vec3::new(0.5, 0.0, 5.0)).normalize() * crate::tracking::BOX_BOTTOM_TO_STANDING;
+        let (ex, ez) = (0.7 + away.x, -0.4 + away.z);
+        assert!((x - ex).abs() < 1e-3 && (z - ez).abs() < 1e-3, "({x}, {z})");
         let sky = BoxPx::new([300.0, -50.0], [340.0, 0.0]);
         assert_eq!(floor_point(&camera, &sky), None);
     }

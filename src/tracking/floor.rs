@@ -14,8 +14,17 @@ pub struct FloorCamera {
     pub world_from_camera: Affine3A,
 }
 
+/// How far (metres, on the floor, away from the camera) a person stands beyond the point the
+/// bottom of their box casts onto the floor: the lowest point of a person in the image is the
+/// tip of their nearer foot, not the middle of where they stand. Chosen as the distance that
+/// makes two cameras agree best on where the same person stands: over 914 pairs of sightings
+/// of one true person by both cameras at once (16 synthetic crowd scenes, MoveNet boxes), the
+/// median disagreement is 0.35 m at 0, 0.20 at 0.1, 0.16 at 0.15 and 0.2, 0.21 at 0.25.
+pub const BOX_BOTTOM_TO_STANDING: f32 = 0.15;
+
 /// Where a person whose box is `bbox` stands: the bottom centre of the box cast onto the floor
-/// (the world's `y = 0` plane, +Y up), as (x, z); `None` when the ray misses the floor.
+/// (the world's `y = 0` plane, +Y up), then [`BOX_BOTTOM_TO_STANDING`] further from the camera,
+/// as (x, z); `None` when the ray misses the floor.
 pub fn floor_point(camera: &FloorCamera, bbox: &BoxPx) -> Option<[f32; 2]> {
     let [fx, fy, cx, cy] = camera.intrinsics;
     let (u, v) = (0.5 * (bbox.min[0] + bbox.max[0]), bbox.max[1]);
@@ -27,5 +36,6 @@ pub fn floor_point(camera: &FloorCamera, bbox: &BoxPx) -> Option<[f32; 2]> {
     }
     let t = -origin.y / dir.y;
     let hit = origin + dir * t;
-    (t > 0.0).then_some([hit.x, hit.z])
+    let beyond = glam::Vec2::new(dir.x, dir.z).normalize_or_zero() * BOX_BOTTOM_TO_STANDING;
+    (t > 0.0).then_some([hit.x + beyond.x, hit.z + beyond.y])
 }

@@ -32,7 +32,7 @@ mod floor;
 
 pub use appearance::Appearance;
 pub use boxes::BoxPx;
-pub use floor::{floor_point, FloorCamera};
+pub use floor::{floor_point, FloorCamera, BOX_BOTTOM_TO_STANDING};
 
 use std::collections::BTreeMap;
 
