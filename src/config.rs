@@ -287,6 +287,24 @@ impl PerceptionConfig {
     pub const FEATHER: RangeInclusive<f32> = 0.0..=0.5;
     /// Accepted `perception.threads` values.
     pub const THREADS: RangeInclusive<usize> = 1..=64;
+
+    /// Loads the detector and the landmark model this configuration names.
+    pub fn networks(
+        &self,
+    ) -> Result<crate::perception::PoseNetworks, crate::perception::PerceptionError> {
+        let heavy = (!self.heavy_weights.is_empty()).then(|| Path::new(&self.heavy_weights));
+        crate::perception::PoseNetworks::load(self.landmark_model.model(), heavy)
+    }
+
+    /// The several-people finder's settings this configuration gives.
+    pub fn people(&self) -> crate::perception::PeopleConfig {
+        crate::perception::PeopleConfig {
+            min_presence: self.min_presence,
+            mask_threshold: self.mask_threshold,
+            mask_feather: self.mask_feather,
+            ..crate::perception::PeopleConfig::default()
+        }
+    }
 }
 
 /// Outputs.

@@ -18,12 +18,13 @@ use lhmpp::eval::crowd::{
 };
 use lhmpp::eval::tracking::{covered_person, read_crowd, track_and_score};
 use lhmpp::node::run::{run as run_node, RunSummary};
-use lhmpp::perception::{PeopleConfig, PeopleFinder, PoseNetworks};
+use lhmpp::perception::{PeopleFinder, PoseNetworks};
 use lhmpp::splat::{read_ply, Gaussians};
 use lhmpp::synth::crowd::{write_crowd_bag, Crowd, CrowdOptions};
 use lhmpp::tracking::PersonTracks;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Options of `lhmpp eval-crowd`.
 #[derive(Args, Debug)]
@@ -86,6 +87,7 @@ pub fn run(args: EvalCrowdArgs) -> Result<()> {
         .with_context(|| format!("creating {}", args.work.display()))?;
     println!("| seed | person | own crowd avatar | crowd PSNR / SSIM / IoU | alone PSNR / SSIM / IoU | crowd − alone dB |");
     println!("| ---: | ---: | --- | --- | --- | ---: |");
+    let node = NodePerception::load(&args)?;
     let mut rows = Vec::new();
     for &seed in &args.seeds {
         let options = CrowdOptions {
@@ -107,7 +109,7 @@ pub fn run(args: EvalCrowdArgs) -> Result<()> {
             .iter()
             .map(|(_, g)| truths.iter().map(|t| score_avatar(g, t)).collect())
             .collect();
-        let sightings = whose_views(&args, &bag)?;
+        let sightings = whose_views(&node, &bag)?;
         let ids: Vec<&str> = together.iter().map(|(id, _)| id.as_str()).collect();
         let own = own_avatars(&sightings, &ids, args.people);
         let paired = pair_avatars(&scores, args.people);
@@ -209,29 +211,31 @@ fn best(avatars: &[(String, Gaussians)], truth: &[TruthView]) -> Option<AvatarSc
         .max_by(|a, b| a.psnr.total_cmp(&b.psnr))
 }
 
-/// Whose views each tracked id got in the bag: perception and the tracker with the node's
-/// settings (`--config`, `--set`) replayed on every image in order, as the node does in bag
-/// replay; `[id][person]` counts the detections given `id` whose masks cover true `person`.
+/// The node's perception and tracking, as `--config` and `--set` configure them, to replay on a
+/// crowd bag.
+struct NodePerception {
+    config: NodeConfig,
+    networks: Arc<PoseNetworks>,
+}
+
+impl NodePerception {
+    fn load(args: &EvalCrowdArgs) -> Result<Self> {
+        let config = NodeConfig::load(&args.config, &args.overrides)
+            .with_context(|| format!("loading {}", args.config.display()))?;
+        let networks = Arc::new(config.perception.networks()?);
+        Ok(Self { config, networks })
+    }
+}
+
+/// Whose views each tracked id got in the bag: perception and a fresh tracker with the node's
+/// settings replayed on every image in order, as the node does in bag replay; `[id][person]`
+/// counts the detections given `id` whose masks cover true `person`.
 fn whose_views(
-    args: &EvalCrowdArgs,
+    node: &NodePerception,
     bag: &Path,
 ) -> Result<BTreeMap<String, BTreeMap<usize, usize>>> {
-    let config = NodeConfig::load(&args.config, &args.overrides)
-        .with_context(|| format!("loading {}", args.config.display()))?;
-    let p = &config.perception;
-    let model = p.landmark_model.model();
-    let heavy = (!p.heavy_weights.is_empty()).then(|| Path::new(&p.heavy_weights));
-    let networks = std::sync::Arc::new(PoseNetworks::load(model, heavy)?);
-    let mut finder = PeopleFinder::new(
-        networks,
-        PeopleConfig {
-            min_presence: p.min_presence,
-            mask_threshold: p.mask_threshold,
-            mask_feather: p.mask_feather,
-            ..PeopleConfig::default()
-        },
-    );
-    let mut tracks = PersonTracks::new(config.tracking.tracker());
+    let mut finder = PeopleFinder::new(node.networks.clone(), node.config.perception.people());
+    let mut tracks = PersonTracks::new(node.config.tracking.tracker());
     let images = read_crowd(bag).with_context(|| format!("reading {}", bag.display()))?;
     let mut counts: BTreeMap<String, BTreeMap<usize, usize>> = BTreeMap::new();
     track_and_score(&images, &mut finder, &mut tracks, |_, img, people, ids| {

@@ -4,8 +4,8 @@
 //! (cosine similarity above a threshold) to a held view from the same camera is a duplicate:
 //! it is dropped, or replaces the older view, by [`DuplicatePolicy`]. When the set is full, a
 //! view in which another person's box covered this person's ([`View::hidden`] above the
-//! tracker's [`CROWDED_COVER`], where a detection's pixels mix people) goes first, the most covered one (new view included): its pixels and
-//! landmarks mix people. Otherwise the view that is most redundant is evicted so the set stays
+//! tracker's [`CROWDED_COVER`]) goes first, the most covered one (new view included): its
+//! pixels and landmarks mix people. Otherwise the view that is most redundant is evicted so the set stays
 //! diverse: of the most similar pair (new view included), the older one goes. Memory is
 //! bounded by `max_views` × (the largest preprocessed image the caller inserts + a frame of at
 //! most 640 pixels on its long side).

@@ -250,11 +250,11 @@ impl PersonTracks {
                 .moved(track.velocity, (stamp - track.stamp) as f32);
             for (d, det) in detections.iter().enumerate() {
                 let iou = predicted.iou(&det.bbox);
-                let far = || {
-                    self.floor_gap(person, det, stamp)
-                        .is_some_and(|gap| gap > self.config.max_track_floor_gap)
-                };
-                if iou < self.config.min_iou || far() {
+                if iou < self.config.min_iou {
+                    continue;
+                }
+                let gap = self.floor_gap(person, det, stamp);
+                if gap.is_some_and(|gap| gap > self.config.max_track_floor_gap) {
                     continue;
                 }
                 // The gate reads whole-box colours; the choice among overlaps, banded ones.
@@ -267,7 +267,7 @@ impl PersonTracks {
                 };
                 // Where the detection stands clear of the others, its box bottom is its own
                 // feet: the person another camera saw standing nearest gets a bonus.
-                let nearness = match self.floor_gap(person, det, stamp) {
+                let nearness = match gap {
                     Some(gap) if hidden[d] <= CROWDED_COVER => {
                         (1.0 - gap / self.config.max_track_floor_gap.max(1e-6)).max(0.0)
                     }

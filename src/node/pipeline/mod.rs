@@ -24,8 +24,7 @@ use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::node::timings::Timings;
 use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig};
 use crate::perception::shape::ShapeReader;
-use crate::perception::PeopleConfig;
-use crate::perception::{Landmark, PerceptionError, PoseNetworks, TrackerConfig, BODY_LANDMARKS};
+use crate::perception::{Landmark, PerceptionError, TrackerConfig, BODY_LANDMARKS};
 use crate::reconstruct::photo_colours::{colour_from_evidence, ViewEvidence};
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::shape::AcceptedShape;
@@ -1462,8 +1461,7 @@ fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, Perceptio
     }
     let p = &config.perception;
     let model = p.landmark_model.model();
-    let heavy = (!p.heavy_weights.is_empty()).then(|| Path::new(&p.heavy_weights));
-    let networks = Arc::new(PoseNetworks::load(model, heavy)?);
+    let networks = Arc::new(p.networks()?);
     let live = config.replay.bag.is_empty();
     tracing::info!(
         landmark_model = model.name(),
@@ -1482,16 +1480,7 @@ fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, Perceptio
             cluster_index = config.cluster.index,
             "several people: MoveNet MultiPose, the landmark model per person, tracked ids"
         );
-        Finders::many(
-            networks.clone(),
-            PeopleConfig {
-                min_presence: p.min_presence,
-                mask_threshold: p.mask_threshold,
-                mask_feather: p.mask_feather,
-                ..PeopleConfig::default()
-            },
-            config.tracking.tracker(),
-        )
+        Finders::many(networks.clone(), p.people(), config.tracking.tracker())
     } else {
         Finders::one(TrackerConfig {
             min_detection_score: p.min_detection_score,
