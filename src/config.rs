@@ -269,6 +269,10 @@ pub struct PerceptionConfig {
     pub min_visibility: f32,
     /// CPU threads of the perception networks, in [`PerceptionConfig::THREADS`].
     pub threads: usize,
+    /// Short side of the several-people detector's input (MoveNet MultiPose, with
+    /// `tracking.enabled`): a multiple of 32 in [`PerceptionConfig::DETECTOR_SIDE`]; larger
+    /// finds people who fill less of the frame, at a higher cost per frame.
+    pub people_detector_side: usize,
     /// Read the body height from calibrated views (CameraInfo and the cameras' TF frames in
     /// `outputs.world_frame`, two or more cameras) when no shape topic gives the shape.
     pub estimate_shape: bool,
@@ -287,6 +291,8 @@ impl PerceptionConfig {
     pub const FEATHER: RangeInclusive<f32> = 0.0..=0.5;
     /// Accepted `perception.threads` values.
     pub const THREADS: RangeInclusive<usize> = 1..=64;
+    /// Accepted `perception.people_detector_side` values (multiples of 32).
+    pub const DETECTOR_SIDE: RangeInclusive<usize> = 128..=1024;
 
     /// Loads the detector and the landmark model this configuration names.
     pub fn networks(
@@ -302,6 +308,7 @@ impl PerceptionConfig {
             min_presence: self.min_presence,
             mask_threshold: self.mask_threshold,
             mask_feather: self.mask_feather,
+            detector_side: self.people_detector_side,
             ..crate::perception::PeopleConfig::default()
         }
     }
@@ -467,6 +474,7 @@ impl Default for PerceptionConfig {
             mask_feather: 0.1,
             min_visibility: 0.5,
             threads: 1,
+            people_detector_side: crate::perception::multipose::NATIVE_SIDE,
             estimate_shape: true,
             colours_from_views: true,
             delight: Delight::Calibrated,

@@ -2,8 +2,9 @@
 //! `lhmpp eval-tracking`): the scene's id maps are the truth, the tracker's ids must follow it.
 //!
 //! One camera, two people walking past each other: each person is found in most frames, keeps
-//! one id throughout, and no view goes to the other person's id. A bag without id maps is
-//! refused with an error naming the missing topic.
+//! one id throughout, and no view goes to the other person's id. People who fill a small part
+//! of the frame need a larger detector input. A bag without id maps is refused with an error
+//! naming the missing topic.
 
 use lhmpp::eval::tracking::{read_crowd, track_and_score, visible_persons};
 use lhmpp::perception::{LandmarkModel, PeopleConfig, PeopleFinder, PoseNetworks};
@@ -55,5 +56,57 @@ fn a_bag_without_id_maps_is_refused_by_name() {
     assert!(
         err.contains("person_ids") && err.contains("eval_seed1.mcap"),
         "{err}"
+    );
+}
+
+/// People who fill a small part of the frame (a crowd frame shrunk to a quarter of its size and
+/// set in the middle of a plain frame of the original size, so each person stands about a sixth
+/// of the frame high): the detector at its native 256-pixel input misses them, a larger input
+/// (`perception.people_detector_side`) finds them.
+#[test]
+fn a_larger_detector_input_finds_people_who_fill_a_small_part_of_the_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("crowd.mcap");
+    let options = CrowdOptions {
+        seed: 5,
+        people: 2,
+        cameras: 1,
+        frames: 1,
+        ..CrowdOptions::default()
+    };
+    write_crowd_bag(&bag, &options, |_, _| {}).unwrap();
+    let frame = &read_crowd(&bag).unwrap()[0];
+    assert_eq!(visible_persons(&frame.ids), vec![0, 1]);
+    let (w, h) = frame.rgb.dimensions();
+    let small = image::imageops::resize(
+        &frame.rgb,
+        w / 4,
+        h / 4,
+        image::imageops::FilterType::Triangle,
+    );
+    let mean =
+        |c: usize| frame.rgb.pixels().map(|p| p.0[c] as u64).sum::<u64>() / (w as u64 * h as u64);
+    let fill = image::Rgb([mean(0) as u8, mean(1) as u8, mean(2) as u8]);
+    let mut far = image::RgbImage::from_pixel(w, h, fill);
+    image::imageops::replace(&mut far, &small, (w * 3 / 8) as i64, (h * 3 / 8) as i64);
+
+    let nets = Arc::new(PoseNetworks::load(LandmarkModel::Full, None).unwrap());
+    let found = |side: usize| {
+        let config = PeopleConfig {
+            detector_side: side,
+            ..PeopleConfig::default()
+        };
+        let people = PeopleFinder::new(nets.clone(), config).find(&far).unwrap();
+        eprintln!("side {side}: {} found", people.len());
+        people.len()
+    };
+    let (native, large) = (found(256), found(640));
+    assert!(
+        native < 2,
+        "the native input found {native} of 2 small people"
+    );
+    assert_eq!(
+        large, 2,
+        "a 640-pixel input found {large} of 2 small people"
     );
 }

@@ -36,6 +36,9 @@ pub struct EvalTrackingArgs {
     /// saw (calibrated cameras).
     #[arg(long, default_value_t = TrackingConfig::default().max_floor_gap)]
     max_floor_gap: f32,
+    /// Short side of MoveNet's input (a multiple of 32; larger finds smaller people).
+    #[arg(long, default_value_t = lhmpp::perception::multipose::NATIVE_SIDE)]
+    detector_side: usize,
     /// Write every image's overlay into this folder: each person's mask tinted by the id the
     /// tracker gave it, with the id, beside the true id map.
     #[arg(long)]
@@ -110,7 +113,13 @@ pub fn run(args: EvalTrackingArgs) -> Result<()> {
     for bag in &args.bags {
         let images = read_crowd(bag).with_context(|| format!("reading {}", bag.display()))?;
         tracing::info!(bag = %bag.display(), images = images.len(), "tracking");
-        let mut finder = PeopleFinder::new(networks.clone(), PeopleConfig::default());
+        let mut finder = PeopleFinder::new(
+            networks.clone(),
+            PeopleConfig {
+                detector_side: args.detector_side,
+                ..PeopleConfig::default()
+            },
+        );
         let mut tracks = PersonTracks::new(config.clone());
         let name = bag
             .file_name()

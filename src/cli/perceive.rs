@@ -47,6 +47,10 @@ pub struct PerceiveArgs {
     /// MoveNet person score a person needs (with `--people`).
     #[arg(long, default_value_t = 0.2)]
     pub(super) min_score: f32,
+    /// Short side of MoveNet's input (with `--people`; a multiple of 32): larger finds people
+    /// who fill less of the photo, at a higher cost.
+    #[arg(long, default_value_t = lhmpp::perception::multipose::NATIVE_SIDE)]
+    pub(super) detector_side: usize,
 }
 
 /// Perceives every image; an image that cannot be read or shows nobody is reported and the

@@ -33,6 +33,7 @@ pub fn run(args: &PerceiveArgs, networks: Arc<PoseNetworks>) -> Result<()> {
         min_score: args.min_score,
         mask_threshold: args.mask_threshold,
         mask_feather: args.mask_feather,
+        detector_side: args.detector_side,
         ..PeopleConfig::default()
     };
     let mut finder = PeopleFinder::new(networks, config);

@@ -262,6 +262,18 @@ pub fn parameters() -> Vec<Parameter> {
              per camera wins)",
         ),
         p(
+            "perception.people_detector_side",
+            format!(
+                "multiple of 32 in {}..={}",
+                PerceptionConfig::DETECTOR_SIDE.start(),
+                PerceptionConfig::DETECTOR_SIDE.end()
+            ),
+            "short side of the several-people detector's input (MoveNet MultiPose, with \
+             `tracking.enabled`; the long side follows the frame's aspect): 256 finds people \
+             down to about a sixth of the frame's height, larger sides smaller people at a \
+             higher cost per frame (`assets/perception/README.md`)",
+        ),
+        p(
             "perception.estimate_shape",
             boolean(),
             "read the body height from calibrated views (perceived landmarks of two or more \

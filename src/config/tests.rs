@@ -269,3 +269,21 @@ fn devices_read_and_print_as_written() {
     let e = load(base, &["model.device=tpu"]).unwrap_err().to_string();
     assert!(e.contains("`tpu` is not cpu, cuda or cuda:N"), "{e}");
 }
+
+#[test]
+fn the_people_detector_side_reaches_the_finder_and_must_be_a_multiple_of_32() {
+    let text = "lhmpp:\n  ros__parameters:\n    tracking:\n      enabled: true\n";
+    let c = load(text, &["perception.people_detector_side=384"]).unwrap();
+    assert_eq!(c.perception.people().detector_side, 384);
+    assert_eq!(
+        NodeConfig::default().perception.people().detector_side,
+        crate::perception::multipose::NATIVE_SIDE
+    );
+    for bad in ["300", "96", "2048"] {
+        let e = load(text, &[&format!("perception.people_detector_side={bad}")])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("perception.people_detector_side"), "{bad}: {e}");
+        assert!(e.contains(bad), "{bad}: {e}");
+    }
+}

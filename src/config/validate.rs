@@ -135,6 +135,23 @@ impl NodeConfig {
             "perception.threads",
             in_range(perception.threads, &PerceptionConfig::THREADS),
         )?;
+        check(
+            "perception.people_detector_side",
+            in_range(
+                perception.people_detector_side,
+                &PerceptionConfig::DETECTOR_SIDE,
+            ),
+        )?;
+        let multiple = crate::perception::multipose::SIDE_MULTIPLE;
+        if perception.people_detector_side % multiple != 0 {
+            return Err(bad(
+                "perception.people_detector_side",
+                format!(
+                    "{} is not a multiple of {multiple} (the detector's stride)",
+                    perception.people_detector_side
+                ),
+            ));
+        }
         if perception.landmark_model == LandmarkModelChoice::Heavy
             && perception.heavy_weights.is_empty()
         {

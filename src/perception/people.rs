@@ -34,8 +34,11 @@ pub struct PeopleConfig {
     /// MoveNet person score a person needs.
     pub min_score: f32,
     /// MoveNet input `(height, width)` (multiples of 32); `None`: chosen per frame by
-    /// [`input_size_for`].
+    /// [`input_size_for`] from `detector_side`.
     pub input_size: Option<(usize, usize)>,
+    /// Short side of MoveNet's input (a multiple of 32; [`NATIVE_SIDE`] is what it was
+    /// trained at, larger sides find smaller people at a higher cost).
+    pub detector_side: usize,
     /// MoveNet keypoint score from which a keypoint places the crop.
     pub min_keypoint_score: f32,
     /// Landmark-model pose presence a person needs.
@@ -51,6 +54,7 @@ impl Default for PeopleConfig {
         Self {
             min_score: 0.2,
             input_size: None,
+            detector_side: NATIVE_SIDE,
             min_keypoint_score: 0.3,
             min_presence: MIN_PRESENCE,
             mask_threshold: 0.5,
@@ -79,18 +83,19 @@ pub struct FoundPerson {
     pub mask: GrayImage,
 }
 
-/// The MoveNet input for a `width × height` frame: the short side [`NATIVE_SIDE`], the long
-/// side the multiple of 32 nearest the frame's aspect (at most three times the short side).
-pub fn input_size_for(width: u32, height: u32) -> (usize, usize) {
+/// The MoveNet input for a `width × height` frame: the short side `short` (a multiple of 32,
+/// [`NATIVE_SIDE`] by default), the long side the multiple of 32 nearest the frame's aspect (at
+/// most three times the short side).
+pub fn input_size_for(width: u32, height: u32, short: usize) -> (usize, usize) {
     let (w, h) = (width.max(1) as f32, height.max(1) as f32);
     let long = |aspect: f32| {
-        let sides = (NATIVE_SIDE as f32 * aspect / SIDE_MULTIPLE as f32).round() as usize;
-        (sides * SIDE_MULTIPLE).clamp(NATIVE_SIDE, 3 * NATIVE_SIDE)
+        let sides = (short as f32 * aspect / SIDE_MULTIPLE as f32).round() as usize;
+        (sides * SIDE_MULTIPLE).clamp(short, 3 * short)
     };
     if w >= h {
-        (NATIVE_SIDE, long(w / h))
+        (short, long(w / h))
     } else {
-        (long(h / w), NATIVE_SIDE)
+        (long(h / w), short)
     }
 }
 
@@ -166,7 +171,7 @@ impl PeopleFinder {
         let size = self
             .config
             .input_size
-            .unwrap_or_else(|| input_size_for(width, height));
+            .unwrap_or_else(|| input_size_for(width, height, self.config.detector_side));
         if self.detector.as_ref().map(|d| d.input_size()) != Some(size) {
             self.detector = Some(MultiPoseDetector::embedded_sized(size.0, size.1)?);
         }
@@ -278,10 +283,11 @@ mod tests {
 
     #[test]
     fn input_size_follows_the_frame_aspect() {
-        assert_eq!(input_size_for(1920, 1080), (256, 448));
-        assert_eq!(input_size_for(1080, 1920), (448, 256));
-        assert_eq!(input_size_for(500, 500), (256, 256));
-        assert_eq!(input_size_for(10_000, 100), (256, 768));
+        assert_eq!(input_size_for(1920, 1080, NATIVE_SIDE), (256, 448));
+        assert_eq!(input_size_for(1080, 1920, NATIVE_SIDE), (448, 256));
+        assert_eq!(input_size_for(500, 500, NATIVE_SIDE), (256, 256));
+        assert_eq!(input_size_for(10_000, 100, NATIVE_SIDE), (256, 768));
+        assert_eq!(input_size_for(640, 480, 384), (384, 512));
     }
 
     #[test]
