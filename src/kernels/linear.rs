@@ -67,8 +67,11 @@ impl Linear {
     /// On the CPU in f32 the weight is re-laid out once as `[in, out]` in memory (the tensor
     /// stays the logical `[out, in]`): `gemm` then streams it without repacking, which helps most
     /// the few-row, long-`in` products of a ViT (`fc2`).
+    /// A broadcast weight (a stride of 0: no values behind it, as the checkpoint's shape
+    /// recorder gives) is kept as it is: laying it out would allocate the whole matrix.
     pub fn new(weight: Tensor, bias: Option<Tensor>) -> Self {
-        let weight = if weight.device().is_cpu() && weight.dtype() == DType::F32 {
+        let broadcast = weight.stride().contains(&0);
+        let weight = if weight.device().is_cpu() && weight.dtype() == DType::F32 && !broadcast {
             weight
                 .t()
                 .and_then(|t| t.contiguous())
