@@ -4,9 +4,11 @@
 //! One camera, two people walking past each other: each person is found in most frames, keeps
 //! one id throughout, and no view goes to the other person's id. People who fill a small part
 //! of the frame need a larger detector input. A bag without id maps is refused with an error
-//! naming the missing topic.
+//! naming the missing topic, unless read as one without truth (real video): then one person
+//! seen by twelve calibrated cameras gets one id, placed in one spot by every camera.
 
-use lhmpp::eval::tracking::{read_crowd, track_and_score, visible_persons};
+use lhmpp::eval::id_tracks::{camera_tracks, id_agreement, track_ids, SAME_MOMENT_NS};
+use lhmpp::eval::tracking::{read_camera_bag, read_crowd, track_and_score, visible_persons};
 use lhmpp::perception::{LandmarkModel, PeopleConfig, PeopleFinder, PoseNetworks};
 use lhmpp::synth::crowd::{write_crowd_bag, CrowdOptions};
 use lhmpp::tracking::{PersonTracks, TrackingConfig};
@@ -109,4 +111,35 @@ fn a_larger_detector_input_finds_people_who_fill_a_small_part_of_the_frame() {
         large, 2,
         "a 640-pixel input found {large} of 2 small people"
     );
+}
+
+#[test]
+fn one_person_in_twelve_calibrated_cameras_without_truth_gets_one_id_in_one_spot() {
+    let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("bags/eval_seed1.mcap");
+    let images = read_camera_bag(&bag).unwrap();
+    assert_eq!(images.len(), 12);
+    assert!(images.iter().all(|i| i.camera_model.is_some()));
+    assert!(images.iter().all(|i| visible_persons(&i.ids).is_empty()));
+
+    let nets = Arc::new(PoseNetworks::load(LandmarkModel::Full, None).unwrap());
+    let mut finder = PeopleFinder::new(nets, PeopleConfig::default());
+    let mut tracks = PersonTracks::new(TrackingConfig::default());
+    let sightings = track_ids(&images, &mut finder, &mut tracks, |_, _, _, _| {}).unwrap();
+    assert_eq!(sightings.len(), 12, "{sightings:?}");
+    let agree = id_agreement(&sightings, SAME_MOMENT_NS);
+    assert_eq!(agree.len(), 1, "one person, one id: {agree:?}");
+    assert_eq!(agree[0].cameras.len(), 12);
+    // Every camera puts them within 0.5 m of where the cameras put them on average.
+    let floors: Vec<[f32; 2]> = camera_tracks(&sightings)
+        .iter()
+        .map(|t| t.mean_floor.expect("calibrated"))
+        .collect();
+    let n = floors.len() as f32;
+    let mean = [
+        floors.iter().map(|f| f[0]).sum::<f32>() / n,
+        floors.iter().map(|f| f[1]).sum::<f32>() / n,
+    ];
+    for f in &floors {
+        assert!((f[0] - mean[0]).hypot(f[1] - mean[1]) < 0.5, "{floors:?}");
+    }
 }

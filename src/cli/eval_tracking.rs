@@ -1,13 +1,17 @@
 //! `lhmpp eval-tracking BAG...`: person ids scored on crowd bags made by
 //! `lhmpp synth --people N` (persons found, id switches per 100 images, views that would land
 //! in another person's store, ids per person). The measures are defined in
-//! `lhmpp::eval::tracking`.
+//! `lhmpp::eval::tracking`. With `--no-truth`, bags without id maps (real video): each id's
+//! sightings per camera and how the cameras agree on where it stands (`lhmpp::eval::id_tracks`).
 
 use super::perceive_people::{number, COLOURS};
 use anyhow::{Context, Result};
 use clap::Args;
 use image::{Rgb, RgbImage};
-use lhmpp::eval::tracking::{read_crowd, track_and_score, CrowdImage, TrackingScore};
+use lhmpp::eval::id_tracks::{camera_tracks, id_agreement, track_ids, SAME_MOMENT_NS};
+use lhmpp::eval::tracking::{
+    read_camera_bag, read_crowd, track_and_score, CrowdImage, TrackingScore,
+};
 use lhmpp::perception::people::tint_mask;
 use lhmpp::perception::FoundPerson;
 use lhmpp::perception::{LandmarkModel, PeopleConfig, PeopleFinder, PoseNetworks};
@@ -46,6 +50,12 @@ pub struct EvalTrackingArgs {
     /// Print the table as JSON too.
     #[arg(long)]
     json: bool,
+    /// Bags without id maps (real video, `/<camera>/image_raw` or `image_raw/compressed`,
+    /// calibrated by `camera_info` and `/tf_static`): instead of scores, per camera and id the
+    /// sightings and the largest box jump between them, and per id how far apart the cameras
+    /// put it on the floor at the same moment.
+    #[arg(long)]
+    no_truth: bool,
 }
 
 const HEADER: &str = "| bag | people | images | found | id switches / 100 images (all cameras) | within a camera | ids per person | wrong-person views | false detections | ms / image |\n| --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: |";
@@ -107,6 +117,9 @@ pub fn run(args: EvalTrackingArgs) -> Result<()> {
         max_floor_gap: args.max_floor_gap,
         ..TrackingConfig::default()
     };
+    if args.no_truth {
+        return run_without_truth(&args, networks, &config);
+    }
     println!("{HEADER}");
     let mut total = TrackingScore::default();
     let mut json = Vec::new();
@@ -171,6 +184,79 @@ pub fn run(args: EvalTrackingArgs) -> Result<()> {
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
+    }
+    Ok(())
+}
+
+/// `--no-truth`: per bag, the per-camera and per-id tables of `lhmpp::eval::id_tracks`.
+fn run_without_truth(
+    args: &EvalTrackingArgs,
+    networks: Arc<PoseNetworks>,
+    config: &TrackingConfig,
+) -> Result<()> {
+    for bag in &args.bags {
+        let images = read_camera_bag(bag).with_context(|| format!("reading {}", bag.display()))?;
+        tracing::info!(bag = %bag.display(), images = images.len(), "tracking (no truth)");
+        let people = PeopleConfig {
+            detector_side: args.detector_side,
+            ..PeopleConfig::default()
+        };
+        let mut finder = PeopleFinder::new(networks.clone(), people);
+        let mut tracks = PersonTracks::new(config.clone());
+        let name = bag
+            .file_name()
+            .map_or_else(|| bag.display().to_string(), |n| n.to_string_lossy().into());
+        if let Some(dir) = &args.frames_dir {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        let mut written = Ok(());
+        let sightings = track_ids(&images, &mut finder, &mut tracks, |i, img, people, ids| {
+            if let (Some(dir), Ok(())) = (&args.frames_dir, &written) {
+                let target = dir.join(format!("{name}_{i:04}_{}.png", img.camera));
+                written = overlay(img, people, ids)
+                    .save(&target)
+                    .with_context(|| format!("writing {}", target.display()));
+            }
+        })
+        .with_context(|| format!("tracking {}", bag.display()))?;
+        written?;
+        let floor =
+            |f: Option<[f32; 2]>| f.map_or("—".into(), |[x, z]| format!("({x:.2}, {z:.2})"));
+        println!(
+            "{name}: {} images, {} detections\n",
+            images.len(),
+            sightings.len()
+        );
+        println!(
+            "| camera | id | sightings | largest box jump / box height | mean floor (x, z) m |"
+        );
+        println!("| --- | --- | ---: | ---: | --- |");
+        for t in camera_tracks(&sightings) {
+            println!(
+                "| {} | {} | {} | {:.2} | {} |",
+                t.camera,
+                t.id,
+                t.sightings,
+                t.largest_jump,
+                floor(t.mean_floor)
+            );
+        }
+        println!(
+            "\n| id | cameras | same-moment pairs | floor gap between cameras: median / max (m) |"
+        );
+        println!("| --- | --- | ---: | --- |");
+        let metres = |g: Option<f32>| g.map_or("—".into(), |g| format!("{g:.2}"));
+        for a in id_agreement(&sightings, SAME_MOMENT_NS) {
+            println!(
+                "| {} | {} | {} | {} / {} |",
+                a.id,
+                a.cameras.join(" "),
+                a.pairs,
+                metres(a.median_gap),
+                metres(a.max_gap)
+            );
+        }
+        println!();
     }
     Ok(())
 }

@@ -2,11 +2,13 @@
 //! [`perception`]: camera-only perception scored against synthetic ground truth
 //! (`lhmpp eval-perception`). [`photos`]: the avatar's colours against real photos, region by
 //! region with CIEDE2000 (`lhmpp eval-photos`). [`tracking`]: person ids on crowd scenes
-//! (`lhmpp eval-tracking`). [`crowd`]: each tracked person's avatar against their own
+//! (`lhmpp eval-tracking`); [`id_tracks`]: the same ids on a calibrated bag without truth
+//! (real video, `--no-truth`). [`crowd`]: each tracked person's avatar against their own
 //! true person, beside the avatar made of that person alone (`lhmpp eval-crowd`).
 
 pub mod crowd;
 pub mod heldout;
+pub mod id_tracks;
 pub mod metrics;
 pub mod perception;
 pub mod photos;

@@ -13,9 +13,9 @@
 //! - **ids per person**: distinct ids each true person was given (1 is perfect).
 
 use crate::bag::{BagError, BagReader};
-use crate::msgs::{CameraInfo, Image, TFMessage};
+use crate::msgs::{CameraInfo, CompressedImage, Image, TFMessage};
 use crate::perception::{FoundPerson, PeopleFinder, PerceptionError};
-use crate::reconstruct::image_decode::{decode_mask, decode_raw, RawImage};
+use crate::reconstruct::image_decode::{decode_compressed, decode_mask, decode_raw, RawImage};
 use crate::splat::Camera;
 use crate::synth::capture::TF_STATIC_TOPIC;
 use crate::synth::crowd::ids_topic;
@@ -85,6 +85,18 @@ pub fn floor_point(camera: &Camera, bbox: &BoxPx) -> Option<[f32; 2]> {
 
 /// The camera images of a crowd bag, in bag order (time order), each with its id map.
 pub fn read_crowd(path: &Path) -> Result<Vec<CrowdImage>, TrackingEvalError> {
+    read_images(path, true)
+}
+
+/// Every camera image of a calibrated bag that need not carry id maps (real video): as
+/// [`read_crowd`], but an image without an id map gets an empty one (nobody), and
+/// `/<camera>/image_raw/compressed` (JPEG, PNG) is read beside `/<camera>/image_raw`.
+pub fn read_camera_bag(path: &Path) -> Result<Vec<CrowdImage>, TrackingEvalError> {
+    read_images(path, false)
+}
+
+/// [`read_crowd`] (`truth`: every image needs its id map) or [`read_camera_bag`].
+fn read_images(path: &Path, truth: bool) -> Result<Vec<CrowdImage>, TrackingEvalError> {
     let bag = BagReader::open(path)?;
     let bad = |message: String| TrackingEvalError::GroundTruth {
         path: path.to_path_buf(),
@@ -125,6 +137,12 @@ pub fn read_crowd(path: &Path) -> Result<Vec<CrowdImage>, TrackingEvalError> {
                     .map_err(|e| bad(format!("{topic}: {e}")))?;
                 images.push((camera.0, msg.header.stamp.as_nanos(), rgb));
             }
+            "image_raw/compressed" if !truth => {
+                let msg: CompressedImage = bag.decode(m)?;
+                let rgb = decode_compressed(topic, &msg.format, &msg.data, 8192)
+                    .map_err(|e| bad(format!("{topic}: {e}")))?;
+                images.push((camera.0, msg.header.stamp.as_nanos(), rgb));
+            }
             "camera_info" => {
                 infos.insert(camera.0, bag.decode(m)?);
             }
@@ -138,18 +156,28 @@ pub fn read_crowd(path: &Path) -> Result<Vec<CrowdImage>, TrackingEvalError> {
         }
     }
     if images.is_empty() {
-        return Err(bad("no camera images (`/<camera>/image_raw`)".into()));
+        return Err(bad(if truth {
+            "no camera images (`/<camera>/image_raw`)".into()
+        } else {
+            "no camera images (`/<camera>/image_raw` or `/<camera>/image_raw/compressed`)".into()
+        }));
     }
+    // Cameras in time order, whatever order the bag stores them in.
+    images.sort_by_key(|(camera, stamp_ns, _)| (*stamp_ns, camera.clone()));
     images
         .into_iter()
         .map(|(camera, stamp_ns, rgb)| {
-            let ids = id_maps.remove(&(camera.clone(), stamp_ns)).ok_or_else(|| {
-                bad(format!(
-                    "no id map on {} for the image stamped {stamp_ns} (is this a bag of \
-                     `lhmpp synth --people N`?)",
-                    ids_topic(&camera)
-                ))
-            })?;
+            let ids = match id_maps.remove(&(camera.clone(), stamp_ns)) {
+                Some(ids) => ids,
+                None if !truth => GrayImage::new(rgb.width(), rgb.height()),
+                None => {
+                    return Err(bad(format!(
+                        "no id map on {} for the image stamped {stamp_ns} (is this a bag of \
+                         `lhmpp synth --people N`?)",
+                        ids_topic(&camera)
+                    )))
+                }
+            };
             if ids.dimensions() != rgb.dimensions() {
                 return Err(bad(format!(
                     "{}: id map {:?} and image {:?} differ in size",
