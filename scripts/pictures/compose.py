@@ -173,6 +173,28 @@ def tracked(out, target):
     column([row(tiles)], title="several people: one avatar per tracked person").save(target)
 
 
+def real_tracked(out, target):
+    """Two real people in four calibrated cameras (Pose2Sim Demo_MultiPerson, BSD-3) tracked
+    by the node: one frame of each camera with each person's mask tinted by the id the tracker
+    gave it, and each tracked id's avatar from the front and the side."""
+    out = Path(out)
+    frame = 25  # of 50: both people in every camera
+    tiles = []
+    for cam in range(4):
+        (path,) = sorted((out / "frames").glob(f"*_{4 * frame + cam:04d}_cam{cam}.png"))
+        overlay = Image.open(path)
+        tiles.append(tile(overlay.crop((0, 0, overlay.width // 2, overlay.height)), f"cam{cam}", height=420))
+    avatars = []
+    for person in sorted(p.name[len("render_"):] for p in out.glob("node/render_person_*")):
+        renders = out / "node" / f"render_{person}"
+        for view, side in [("f0000_v00.png", "front"), ("f0000_v01.png", "side")]:
+            avatars.append(tile(crop_to_content(Image.open(renders / view)), f"{person}, {side}", height=300))
+    column([row(tiles), row(avatars)],
+           title="two real people in four calibrated cameras: the node's ids, one per person across the "
+                 "cameras, and each id's avatar (person_2: the lab's anatomical skeleton)"
+           ).save(target)
+
+
 if __name__ == "__main__":
     kind, out, target = sys.argv[1:4]
     {
@@ -181,4 +203,5 @@ if __name__ == "__main__":
         "overview": overview,
         "people": people,
         "tracked": tracked,
+        "real-tracked": real_tracked,
     }[kind](out, target)
