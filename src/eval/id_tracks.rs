@@ -75,7 +75,7 @@ pub fn track_ids(
         let people = finder.find(&img.rgb)?;
         let detections: Vec<_> = people
             .iter()
-            .map(|p| detection(&img.rgb, p, img.camera_model.as_ref()))
+            .map(|p| detection(&img.rgb, p, img.floor_camera().as_ref()))
             .collect();
         let assigned = tracks.update(&img.camera, img.stamp_ns as f64 * 1e-9, &detections);
         inspect(i, img, &people, &assigned);

@@ -19,7 +19,7 @@ use crate::reconstruct::image_decode::{decode_compressed, decode_mask, decode_ra
 use crate::splat::Camera;
 use crate::synth::capture::TF_STATIC_TOPIC;
 use crate::synth::crowd::ids_topic;
-use crate::tracking::{Assignment, BoxPx, Detection, FloorCamera, PersonTracks};
+use crate::tracking::{Assignment, BoxPx, Detection, FloorCamera, LensDistortion, PersonTracks};
 use glam::{Affine3A, Quat, Vec3};
 use image::{GrayImage, RgbImage};
 use std::collections::BTreeMap;
@@ -60,13 +60,30 @@ pub struct CrowdImage {
     /// The camera, when the bag calibrates it (`camera_info` and its optical frame on
     /// `/tf_static`): detections then get a floor position.
     pub camera_model: Option<Camera>,
+    /// The lens distortion of the camera's `camera_info` (`None`: none, or a model that is not
+    /// supported, which is logged).
+    pub distortion: Option<LensDistortion>,
+}
+
+impl CrowdImage {
+    /// The camera as the tracker's floor positions need it, when calibrated.
+    pub fn floor_camera(&self) -> Option<FloorCamera> {
+        self.camera_model.as_ref().map(|camera| FloorCamera {
+            distortion: self.distortion,
+            ..floor_camera(camera)
+        })
+    }
 }
 
 /// The tracker's view of a person found in `image`: its box, its colours under its mask, and
 /// where it stands when the camera is calibrated.
-pub fn detection(image: &RgbImage, person: &FoundPerson, camera: Option<&Camera>) -> Detection {
+pub fn detection(
+    image: &RgbImage,
+    person: &FoundPerson,
+    camera: Option<&FloorCamera>,
+) -> Detection {
     let bbox = BoxPx::new(person.min.to_array(), person.max.to_array());
-    Detection::seen(image, &person.mask, bbox, camera.map(floor_camera).as_ref())
+    Detection::seen(image, &person.mask, bbox, camera)
 }
 
 /// A rendering camera as the tracker's floor position needs it.
@@ -74,6 +91,7 @@ pub fn floor_camera(camera: &Camera) -> FloorCamera {
     let i = &camera.intrinsics;
     FloorCamera {
         intrinsics: [i.fx, i.fy, i.cx, i.cy],
+        distortion: None,
         world_from_camera: camera.world_from_camera,
     }
 }
@@ -162,6 +180,17 @@ fn read_images(path: &Path, truth: bool) -> Result<Vec<CrowdImage>, TrackingEval
             "no camera images (`/<camera>/image_raw` or `/<camera>/image_raw/compressed`)".into()
         }));
     }
+    // Each camera's lens, read once (a model that is not supported is logged, then ignored).
+    let lenses: BTreeMap<String, Option<LensDistortion>> = infos
+        .iter()
+        .map(|(camera, info)| {
+            let lens = LensDistortion::from_camera_info(&info.distortion_model, &info.d)
+                .map_err(|e| tracing::warn!(camera = %camera, "{e}"))
+                .ok()
+                .flatten();
+            (camera.clone(), lens)
+        })
+        .collect();
     // Cameras in time order, whatever order the bag stores them in.
     images.sort_by_key(|(camera, stamp_ns, _)| (*stamp_ns, camera.clone()));
     images
@@ -195,12 +224,14 @@ fn read_images(path: &Path, truth: bool) -> Result<Vec<CrowdImage>, TrackingEval
                     *pose,
                 ))
             });
+            let distortion = lenses.get(&camera).copied().flatten();
             Ok(CrowdImage {
                 camera,
                 stamp_ns,
                 rgb,
                 ids,
                 camera_model,
+                distortion,
             })
         })
         .collect()
@@ -310,7 +341,7 @@ pub fn track_and_score(
         perception_s += started.elapsed().as_secs_f64();
         let detections: Vec<Detection> = people
             .iter()
-            .map(|p| detection(&img.rgb, p, img.camera_model.as_ref()))
+            .map(|p| detection(&img.rgb, p, img.floor_camera().as_ref()))
             .collect();
         let assigned = tracks.update(&img.camera, img.stamp_ns as f64 * 1e-9, &detections);
         inspect(i, img, &people, &assigned);

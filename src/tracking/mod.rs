@@ -29,10 +29,12 @@
 mod appearance;
 mod boxes;
 mod floor;
+mod lens;
 
 pub use appearance::Appearance;
 pub use boxes::BoxPx;
 pub use floor::{floor_point, FloorCamera, BOX_BOTTOM_TO_STANDING};
+pub use lens::LensDistortion;
 
 use std::collections::BTreeMap;
 
