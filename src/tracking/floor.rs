@@ -48,26 +48,28 @@ pub fn floor_point(camera: &FloorCamera, bbox: &BoxPx) -> Option<[f32; 2]> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::splat::{Camera, Intrinsics};
+    use glam::Mat3;
 
     /// A wide-angle camera (barrel distortion, k1 −0.3) 2.5 m up, looking down across a room:
     /// a person's box bottom near the image's edge, where the lens moves points most, lands
     /// where they stand once the lens is undone, and far from it when the lens is ignored.
     #[test]
     fn a_box_bottom_seen_through_a_wide_lens_lands_where_the_person_stands() {
-        let intrinsics = Intrinsics::from_fov_y(640, 480, 1.4);
-        let camera = Camera::look_at(
-            Vec3::new(0.0, 2.5, 4.0),
-            Vec3::new(0.0, 0.0, 0.0),
-            Vec3::Y,
-            intrinsics,
-        );
-        let k = [intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy];
+        // 640×480, vertical field of view 1.4 rad; the optical frame's axes (x right, y down,
+        // z forward) as columns, looking from `eye` at the room's origin.
+        let f = 240.0 / (0.7f32).tan();
+        let k = [f, f, 320.0, 240.0];
+        let eye = Vec3::new(0.0, 2.5, 4.0);
+        let forward = (Vec3::ZERO - eye).normalize();
+        let right = forward.cross(Vec3::Y).normalize();
+        let down = forward.cross(right);
+        let world_from_camera =
+            Affine3A::from_mat3_translation(Mat3::from_cols(right, down, forward), eye);
         let lens =
             LensDistortion::from_camera_info("plumb_bob", &[-0.3, 0.08, 0.0, 0.0, 0.0]).unwrap();
         let stands = Vec3::new(-2.8, 0.0, 0.5);
         // The lens puts the ideal image point of the box bottom elsewhere.
-        let optical = camera.world_from_camera.inverse().transform_point3(stands);
+        let optical = world_from_camera.inverse().transform_point3(stands);
         let ideal = [optical.x / optical.z, optical.y / optical.z];
         let [xd, yd] = lens.unwrap().distort(ideal[0], ideal[1]);
         let bottom = [k[0] * xd + k[2], k[1] * yd + k[3]];
@@ -83,7 +85,7 @@ mod tests {
             let floor = FloorCamera {
                 intrinsics: k,
                 distortion,
-                world_from_camera: camera.world_from_camera,
+                world_from_camera,
             };
             let [x, z] = floor_point(&floor, &bbox).unwrap();
             let away =
