@@ -8,26 +8,34 @@
 //! seen by twelve calibrated cameras gets one id, placed in one spot by every camera.
 
 use lhmpp::eval::id_tracks::{camera_tracks, id_agreement, track_ids, SAME_MOMENT_NS};
-use lhmpp::eval::tracking::{read_camera_bag, read_crowd, track_and_score, visible_persons};
+use lhmpp::eval::tracking::{
+    read_camera_bag, read_crowd, track_and_score, visible_persons, CrowdImage,
+};
 use lhmpp::perception::{LandmarkModel, PeopleConfig, PeopleFinder, PoseNetworks};
 use lhmpp::synth::crowd::{write_crowd_bag, CrowdOptions};
 use lhmpp::tracking::{PersonTracks, TrackingConfig};
 use std::path::Path;
 use std::sync::Arc;
 
-#[test]
-fn two_people_keep_their_ids_in_one_camera() {
+/// `frames` frames of the two people of seed 5 walking past each other in one camera, read
+/// back from their bag.
+fn two_people_in_one_camera(frames: usize) -> Vec<CrowdImage> {
     let dir = tempfile::tempdir().unwrap();
     let bag = dir.path().join("crowd.mcap");
     let options = CrowdOptions {
         seed: 5,
         people: 2,
         cameras: 1,
-        frames: 16,
+        frames,
         ..CrowdOptions::default()
     };
     write_crowd_bag(&bag, &options, |_, _| {}).unwrap();
-    let images = read_crowd(&bag).unwrap();
+    read_crowd(&bag).unwrap()
+}
+
+#[test]
+fn two_people_keep_their_ids_in_one_camera() {
+    let images = two_people_in_one_camera(16);
     assert_eq!(images.len(), 16);
     // Both people show in the first frame's id map.
     assert_eq!(visible_persons(&images[0].ids), vec![0, 1]);
@@ -67,17 +75,7 @@ fn a_bag_without_id_maps_is_refused_by_name() {
 /// (`perception.people_detector_side`) finds them.
 #[test]
 fn a_larger_detector_input_finds_people_who_fill_a_small_part_of_the_frame() {
-    let dir = tempfile::tempdir().unwrap();
-    let bag = dir.path().join("crowd.mcap");
-    let options = CrowdOptions {
-        seed: 5,
-        people: 2,
-        cameras: 1,
-        frames: 1,
-        ..CrowdOptions::default()
-    };
-    write_crowd_bag(&bag, &options, |_, _| {}).unwrap();
-    let frame = &read_crowd(&bag).unwrap()[0];
+    let frame = &two_people_in_one_camera(1)[0];
     assert_eq!(visible_persons(&frame.ids), vec![0, 1]);
     let (w, h) = frame.rgb.dimensions();
     let small = image::imageops::resize(

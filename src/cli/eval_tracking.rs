@@ -18,7 +18,7 @@ use lhmpp::perception::{LandmarkModel, PeopleConfig, PeopleFinder, PoseNetworks}
 use lhmpp::picture::draw_text;
 use lhmpp::tracking::Assignment;
 use lhmpp::tracking::{PersonTracks, TrackingConfig};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Options of `lhmpp eval-tracking`.
@@ -106,6 +106,59 @@ fn overlay(img: &CrowdImage, people: &[FoundPerson], ids: &[Assignment]) -> RgbI
     out
 }
 
+/// Writes each image's [`overlay`] into `--frames-dir` when it is set; the first failure stops
+/// the writing and comes back from [`Overlays::finish`].
+struct Overlays {
+    dir: Option<PathBuf>,
+    bag: String,
+    written: Result<()>,
+}
+
+impl Overlays {
+    /// Overlays of `bag` (its file name) into `dir`, created if missing.
+    fn new(dir: Option<&PathBuf>, bag: &Path) -> Result<Self> {
+        if let Some(dir) = dir {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        Ok(Self {
+            dir: dir.cloned(),
+            bag: bag
+                .file_name()
+                .map_or_else(|| bag.display().to_string(), |n| n.to_string_lossy().into()),
+            written: Ok(()),
+        })
+    }
+
+    fn write(&mut self, i: usize, img: &CrowdImage, people: &[FoundPerson], ids: &[Assignment]) {
+        if let (Some(dir), Ok(())) = (&self.dir, &self.written) {
+            let target = dir.join(format!("{}_{i:04}_{}.png", self.bag, img.camera));
+            self.written = overlay(img, people, ids)
+                .save(&target)
+                .with_context(|| format!("writing {}", target.display()));
+        }
+    }
+
+    fn finish(self) -> Result<()> {
+        self.written
+    }
+}
+
+/// A fresh finder (at `--detector-side`) and tracker for one bag.
+fn fresh_tracking(
+    args: &EvalTrackingArgs,
+    networks: &Arc<PoseNetworks>,
+    config: &TrackingConfig,
+) -> (PeopleFinder, PersonTracks) {
+    let people = PeopleConfig {
+        detector_side: args.detector_side,
+        ..PeopleConfig::default()
+    };
+    (
+        PeopleFinder::new(networks.clone(), people),
+        PersonTracks::new(config.clone()),
+    )
+}
+
 /// Scores every bag with a fresh tracker and prints one row per bag and a total.
 pub fn run(args: EvalTrackingArgs) -> Result<()> {
     let model = LandmarkModel::from_name(&args.model)
@@ -126,31 +179,14 @@ pub fn run(args: EvalTrackingArgs) -> Result<()> {
     for bag in &args.bags {
         let images = read_crowd(bag).with_context(|| format!("reading {}", bag.display()))?;
         tracing::info!(bag = %bag.display(), images = images.len(), "tracking");
-        let mut finder = PeopleFinder::new(
-            networks.clone(),
-            PeopleConfig {
-                detector_side: args.detector_side,
-                ..PeopleConfig::default()
-            },
-        );
-        let mut tracks = PersonTracks::new(config.clone());
-        let name = bag
-            .file_name()
-            .map_or_else(|| bag.display().to_string(), |n| n.to_string_lossy().into());
-        if let Some(dir) = &args.frames_dir {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        }
-        let mut written = Ok(());
+        let (mut finder, mut tracks) = fresh_tracking(&args, &networks, &config);
+        let mut overlays = Overlays::new(args.frames_dir.as_ref(), bag)?;
         let score = track_and_score(&images, &mut finder, &mut tracks, |i, img, people, ids| {
-            if let (Some(dir), Ok(())) = (&args.frames_dir, &written) {
-                let target = dir.join(format!("{name}_{i:04}_{}.png", img.camera));
-                written = overlay(img, people, ids)
-                    .save(&target)
-                    .with_context(|| format!("writing {}", target.display()));
-            }
+            overlays.write(i, img, people, ids)
         })
         .with_context(|| format!("scoring {}", bag.display()))?;
-        written?;
+        let name = overlays.bag.clone();
+        overlays.finish()?;
         println!("{}", row(&name, &score));
         json.push(serde_json::json!({
             "bag": bag,
@@ -197,29 +233,14 @@ fn run_without_truth(
     for bag in &args.bags {
         let images = read_camera_bag(bag).with_context(|| format!("reading {}", bag.display()))?;
         tracing::info!(bag = %bag.display(), images = images.len(), "tracking (no truth)");
-        let people = PeopleConfig {
-            detector_side: args.detector_side,
-            ..PeopleConfig::default()
-        };
-        let mut finder = PeopleFinder::new(networks.clone(), people);
-        let mut tracks = PersonTracks::new(config.clone());
-        let name = bag
-            .file_name()
-            .map_or_else(|| bag.display().to_string(), |n| n.to_string_lossy().into());
-        if let Some(dir) = &args.frames_dir {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        }
-        let mut written = Ok(());
+        let (mut finder, mut tracks) = fresh_tracking(args, &networks, config);
+        let mut overlays = Overlays::new(args.frames_dir.as_ref(), bag)?;
         let sightings = track_ids(&images, &mut finder, &mut tracks, |i, img, people, ids| {
-            if let (Some(dir), Ok(())) = (&args.frames_dir, &written) {
-                let target = dir.join(format!("{name}_{i:04}_{}.png", img.camera));
-                written = overlay(img, people, ids)
-                    .save(&target)
-                    .with_context(|| format!("writing {}", target.display()));
-            }
+            overlays.write(i, img, people, ids)
         })
         .with_context(|| format!("tracking {}", bag.display()))?;
-        written?;
+        let name = overlays.bag.clone();
+        overlays.finish()?;
         let floor =
             |f: Option<[f32; 2]>| f.map_or("—".into(), |[x, z]| format!("({x:.2}, {z:.2})"));
         println!(

@@ -8,7 +8,7 @@
 //!   same moment (one person seen by several calibrated cameras stands in one place; two
 //!   people given one id stand where each is).
 
-use super::tracking::{detection, CrowdImage, TrackingEvalError};
+use super::tracking::{track_images, CrowdImage, TrackingEvalError};
 use crate::perception::{FoundPerson, PeopleFinder};
 use crate::tracking::{Assignment, BoxPx, PersonTracks};
 use std::collections::BTreeMap;
@@ -71,24 +71,16 @@ pub fn track_ids(
     mut inspect: impl FnMut(usize, &CrowdImage, &[FoundPerson], &[Assignment]),
 ) -> Result<Vec<IdSighting>, TrackingEvalError> {
     let mut out = Vec::new();
-    for (i, img) in images.iter().enumerate() {
-        let people = finder.find(&img.rgb)?;
-        let detections: Vec<_> = people
-            .iter()
-            .map(|p| detection(&img.rgb, p, img.floor_camera().as_ref()))
-            .collect();
-        let assigned = tracks.update(&img.camera, img.stamp_ns as f64 * 1e-9, &detections);
-        inspect(i, img, &people, &assigned);
-        for (a, det) in assigned.iter().zip(&detections) {
-            out.push(IdSighting {
-                camera: img.camera.clone(),
-                stamp_ns: img.stamp_ns,
-                id: a.person_id.clone(),
-                bbox: det.bbox,
-                floor: det.floor,
-            });
-        }
-    }
+    track_images(images, finder, tracks, |t| {
+        inspect(t.index, t.image, t.people, t.ids);
+        out.extend(t.ids.iter().zip(t.detections).map(|(a, det)| IdSighting {
+            camera: t.image.camera.clone(),
+            stamp_ns: t.image.stamp_ns,
+            id: a.person_id.clone(),
+            bbox: det.bbox,
+            floor: det.floor,
+        }));
+    })?;
     Ok(out)
 }
 

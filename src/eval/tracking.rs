@@ -323,6 +323,51 @@ pub fn visible_persons(ids: &GrayImage) -> Vec<usize> {
         .collect()
 }
 
+/// One image after perception and the tracker: its persons, their detections (box, colours,
+/// floor position) and the ids they got.
+pub struct TrackedImage<'a> {
+    /// Index of the image in the bag's order.
+    pub index: usize,
+    /// The image.
+    pub image: &'a CrowdImage,
+    /// The persons perception found.
+    pub people: &'a [FoundPerson],
+    /// The tracker's view of each person.
+    pub detections: &'a [Detection],
+    /// The id each person got.
+    pub ids: &'a [Assignment],
+}
+
+/// Runs perception and the tracker over the images (in order), handing each image's result
+/// to `each`; returns the seconds spent in perception.
+pub fn track_images(
+    images: &[CrowdImage],
+    finder: &mut PeopleFinder,
+    tracks: &mut PersonTracks,
+    mut each: impl FnMut(TrackedImage<'_>),
+) -> Result<f64, TrackingEvalError> {
+    let mut perception_s = 0.0;
+    for (index, image) in images.iter().enumerate() {
+        let started = std::time::Instant::now();
+        let people = finder.find(&image.rgb)?;
+        perception_s += started.elapsed().as_secs_f64();
+        let floor = image.floor_camera();
+        let detections: Vec<Detection> = people
+            .iter()
+            .map(|p| detection(&image.rgb, p, floor.as_ref()))
+            .collect();
+        let ids = tracks.update(&image.camera, image.stamp_ns as f64 * 1e-9, &detections);
+        each(TrackedImage {
+            index,
+            image,
+            people: &people,
+            detections: &detections,
+            ids: &ids,
+        });
+    }
+    Ok(perception_s)
+}
+
 /// Runs perception and the tracker over the images (in order) and scores them;
 /// `inspect(index, image, persons, ids)` sees each image's persons and the ids they got.
 pub fn track_and_score(
@@ -334,22 +379,13 @@ pub fn track_and_score(
     let mut sightings = Vec::new();
     let mut visible = Vec::new();
     let mut persons = 0;
-    let mut perception_s = 0.0;
-    for (i, img) in images.iter().enumerate() {
-        let started = std::time::Instant::now();
-        let people = finder.find(&img.rgb)?;
-        perception_s += started.elapsed().as_secs_f64();
-        let detections: Vec<Detection> = people
-            .iter()
-            .map(|p| detection(&img.rgb, p, img.floor_camera().as_ref()))
-            .collect();
-        let assigned = tracks.update(&img.camera, img.stamp_ns as f64 * 1e-9, &detections);
-        inspect(i, img, &people, &assigned);
-        for ((p, a), det) in people.iter().zip(assigned).zip(&detections) {
-            let truth = covered_person(&p.mask, &img.ids);
+    let perception_s = track_images(images, finder, tracks, |t| {
+        inspect(t.index, t.image, t.people, t.ids);
+        for ((p, a), det) in t.people.iter().zip(t.ids).zip(t.detections) {
+            let truth = covered_person(&p.mask, &t.image.ids);
             tracing::debug!(
-                image = i,
-                camera = %img.camera,
+                image = t.index,
+                camera = %t.image.camera,
                 truth = ?truth,
                 id = %a.person_id,
                 matched = ?a.matched,
@@ -359,16 +395,16 @@ pub fn track_and_score(
                 "sighting"
             );
             sightings.push(Sighting {
-                image: i,
-                camera: img.camera.clone(),
+                image: t.index,
+                camera: t.image.camera.clone(),
                 truth,
-                id: a.person_id,
+                id: a.person_id.clone(),
             });
         }
-        let seen = visible_persons(&img.ids);
+        let seen = visible_persons(&t.image.ids);
         persons = persons.max(seen.iter().map(|k| k + 1).max().unwrap_or(0));
         visible.push(seen);
-    }
+    })?;
     let mut score = score_sightings(&sightings, &visible, persons);
     score.perception_ms = 1e3 * perception_s / images.len().max(1) as f64;
     Ok(score)
