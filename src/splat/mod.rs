@@ -4,6 +4,7 @@
 mod camera;
 pub mod cuda;
 mod gaussians;
+pub mod grad;
 mod nearest;
 mod ply;
 pub mod render;

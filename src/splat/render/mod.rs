@@ -6,9 +6,9 @@
 //! bands of tiles in `blend`); the output is bit-identical for any thread count and any
 //! instruction set. A [`Rasterizer`] keeps the per-frame buffers between frames.
 
-mod bin;
-mod blend;
-mod project;
+pub(crate) mod bin;
+pub(crate) mod blend;
+pub(crate) mod project;
 #[cfg(test)]
 mod tests;
 
@@ -165,6 +165,17 @@ impl Rasterizer {
     /// A rasteriser with empty buffers (they grow on the first frame).
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The last frame's projected splats, one per Gaussian (`None` = culled), for the
+    /// backward pass ([`crate::splat::grad`]).
+    pub(crate) fn splats(&self) -> &[Option<project::Splat2D>] {
+        &self.splats
+    }
+
+    /// The last frame's depth-sorted tile lists, for the backward pass.
+    pub(crate) fn bins(&self) -> &bin::TileBins {
+        &self.bins
     }
 
     /// Renders into `out`, overwriting all of it (its buffers are resized only when the image

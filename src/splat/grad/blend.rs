@@ -1,0 +1,189 @@
+//! Backward through the blend: per pixel, the samples the forward added, walked back to front
+//! (3DGS's backward), giving each splat's gradient with respect to its 2D mean, conic,
+//! opacity and colour.
+
+use super::FrameGrads;
+use crate::splat::camera::Camera;
+use crate::splat::render::bin::{TileBins, TileGrid};
+use crate::splat::render::blend::fast_exp;
+use crate::splat::render::project::{Splat2D, MIN_ALPHA};
+use crate::splat::render::{RenderOptions, TILE};
+use rayon::prelude::*;
+
+/// Transmittance below which the forward finishes a pixel (as the blend stage).
+const MIN_TRANSMITTANCE: f32 = 1e-4;
+/// Highest alpha of one sample (as the blend stage).
+const MAX_ALPHA: f32 = 0.99;
+
+/// One splat's gradients in screen space.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(super) struct SplatGrad {
+    /// `∂L/∂mean` (pixels).
+    pub mean: [f32; 2],
+    /// `∂L/∂conic` `(a, b, c)`.
+    pub conic: [f32; 3],
+    /// `∂L/∂opacity` (of the splat's capped opacity).
+    pub opacity: f32,
+    /// `∂L/∂rgb`.
+    pub rgb: [f32; 3],
+}
+
+impl SplatGrad {
+    fn add(&mut self, o: &SplatGrad) {
+        for k in 0..2 {
+            self.mean[k] += o.mean[k];
+        }
+        for k in 0..3 {
+            self.conic[k] += o.conic[k];
+            self.rgb[k] += o.rgb[k];
+        }
+        self.opacity += o.opacity;
+    }
+}
+
+/// A sample of splat `g` at the pixel `d = mean − pixel` away: its power, alpha and whether
+/// the forward blends it (before the transmittance test).
+#[inline(always)]
+fn sample(g: &Splat2D, dx: f32, dy: f32) -> (f32, f32, bool) {
+    let [ca, cb, cc] = g.conic;
+    let power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
+    let alpha = MAX_ALPHA.min(g.opacity * fast_exp(power));
+    let sampled = power <= 0.0 && power >= g.min_power && alpha >= MIN_ALPHA;
+    (power, alpha, sampled)
+}
+
+/// Per splat (indexed like `splats`), the gradients of the loss whose frame gradients are
+/// `frame`.
+pub(super) fn backward(
+    splats: &[Option<Splat2D>],
+    bins: &TileBins,
+    camera: &Camera,
+    options: &RenderOptions,
+    frame: FrameGrads<'_>,
+) -> Vec<SplatGrad> {
+    let (width, height) = (
+        camera.intrinsics.width as usize,
+        camera.intrinsics.height as usize,
+    );
+    let grid = TileGrid::new(camera.intrinsics.width, camera.intrinsics.height);
+    let bg = options.background.to_array();
+    let per_tile: Vec<Vec<SplatGrad>> = (0..grid.cols * grid.rows)
+        .into_par_iter()
+        .map(|t| {
+            let (col, row) = (t % grid.cols, t / grid.cols);
+            tile_backward(splats, bins.tile(t), col, row, width, height, bg, frame)
+        })
+        .collect();
+    let mut grads = vec![SplatGrad::default(); splats.len()];
+    for (t, acc) in per_tile.iter().enumerate() {
+        for (&i, g) in bins.tile(t).iter().zip(acc) {
+            grads[i as usize].add(g);
+        }
+    }
+    grads
+}
+
+/// One tile's gradients, one entry per entry of its splat list `list`.
+#[allow(clippy::too_many_arguments)]
+fn tile_backward(
+    splats: &[Option<Splat2D>],
+    list: &[u32],
+    col: usize,
+    row: usize,
+    width: usize,
+    height: usize,
+    bg: [f32; 3],
+    frame: FrameGrads<'_>,
+) -> Vec<SplatGrad> {
+    let mut acc = vec![SplatGrad::default(); list.len()];
+    if list.is_empty() {
+        return acc;
+    }
+    let (x0, y0) = (col * TILE, row * TILE);
+    for y in y0..(y0 + TILE).min(height) {
+        for x in x0..(x0 + TILE).min(width) {
+            let o = y * width + x;
+            let d_rgb = [frame.rgb[3 * o], frame.rgb[3 * o + 1], frame.rgb[3 * o + 2]];
+            let d_alpha = frame.alpha[o];
+            if d_rgb == [0.0; 3] && d_alpha == 0.0 {
+                continue;
+            }
+            pixel_backward(
+                splats, list, x as f32, y as f32, bg, d_rgb, d_alpha, &mut acc,
+            );
+        }
+    }
+    acc
+}
+
+/// Adds one pixel's contribution to the gradients of the tile's splats.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn pixel_backward(
+    splats: &[Option<Splat2D>],
+    list: &[u32],
+    px: f32,
+    py: f32,
+    bg: [f32; 3],
+    d_rgb: [f32; 3],
+    d_alpha: f32,
+    acc: &mut [SplatGrad],
+) {
+    // Forward sweep: the final transmittance and the end of the samples added.
+    let mut t = 1.0f32;
+    let mut end = 0;
+    for (k, &i) in list.iter().enumerate() {
+        let Some(g) = &splats[i as usize] else {
+            continue;
+        };
+        let (_, alpha, sampled) = sample(g, g.mean[0] - px, g.mean[1] - py);
+        if !sampled {
+            continue;
+        }
+        let next = t * (1.0 - alpha);
+        if next < MIN_TRANSMITTANCE {
+            break;
+        }
+        t = next;
+        end = k + 1;
+    }
+    let t_final = t;
+    // Back to front: `behind` is the colour the samples behind the current one added.
+    let mut behind = [0.0f32; 3];
+    let bg_dot: f32 = (0..3).map(|c| bg[c] * d_rgb[c]).sum();
+    for k in (0..end).rev() {
+        let Some(g) = &splats[list[k] as usize] else {
+            continue;
+        };
+        let (dx, dy) = (g.mean[0] - px, g.mean[1] - py);
+        let (power, alpha, sampled) = sample(g, dx, dy);
+        if !sampled {
+            continue;
+        }
+        let one_minus = 1.0 - alpha;
+        t /= one_minus;
+        let weight = alpha * t;
+        let mut d_a = d_alpha * t_final / one_minus - bg_dot * t_final / one_minus;
+        for c in 0..3 {
+            d_a += d_rgb[c] * (g.rgb[c] * t - behind[c] / one_minus);
+        }
+        let grad = &mut acc[k];
+        for c in 0..3 {
+            grad.rgb[c] += weight * d_rgb[c];
+            behind[c] += g.rgb[c] * weight;
+        }
+        // α = min(0.99, opacity · e^power): no gradient where the cap holds.
+        let gauss = fast_exp(power);
+        if g.opacity * gauss >= MAX_ALPHA {
+            continue;
+        }
+        grad.opacity += d_a * gauss;
+        let d_power = d_a * alpha;
+        let [ca, cb, cc] = g.conic;
+        grad.mean[0] -= d_power * (ca * dx + cb * dy);
+        grad.mean[1] -= d_power * (cc * dy + cb * dx);
+        grad.conic[0] -= 0.5 * d_power * dx * dx;
+        grad.conic[1] -= d_power * dx * dy;
+        grad.conic[2] -= 0.5 * d_power * dy * dy;
+    }
+}
