@@ -170,6 +170,34 @@ impl Avatar {
     }
 }
 
+impl Avatar {
+    /// Each Gaussian's blended bone transform and the rotation part [`Avatar::animate`] turns
+    /// its orientation by, for `skinning_matrices` (the posed centre is `transform ·
+    /// canonical`, the posed quaternion `rotation ⊗ canonical`, normalised): what a fit of the
+    /// canonical Gaussians through posing needs ([`crate::refine`]).
+    ///
+    /// Panics if fewer matrices than [`Avatar::bones_needed`] are given.
+    pub fn blend_transforms(&self, skinning_matrices: &[Mat4]) -> Vec<(Affine3A, Quat)> {
+        if let Err(e) = self.check_matrices(skinning_matrices) {
+            panic!("Avatar::blend_transforms: {e}");
+        }
+        blend_rows(&self.skin, skinning_matrices)
+    }
+}
+
+/// [`Avatar::blend_transforms`] for any skin rows (every bone they use must have a matrix).
+pub fn blend_rows(skin: &SkinWeights, skinning_matrices: &[Mat4]) -> Vec<(Affine3A, Quat)> {
+    let bones = BoneSet::new(skinning_matrices);
+    (0..skin.len())
+        .into_par_iter()
+        .with_min_len(POSE_CHUNK)
+        .map(|i| {
+            let (b, w) = (&skin.bones[i], &skin.weights[i]);
+            (bones.blend_affine(b, w), bones.blend_rotation(b, w))
+        })
+        .collect()
+}
+
 /// Gaussians posed per rayon task.
 const POSE_CHUNK: usize = 4096;
 

@@ -6,6 +6,7 @@
 
 mod choices;
 mod people;
+mod refine;
 mod table;
 mod validate;
 
@@ -14,6 +15,7 @@ pub use choices::{
     PoseSource, RenderDevice, RendererChoice, UnknownDevice,
 };
 pub use people::{owner, ClusterConfig, TrackingSettings};
+pub use refine::RefineSettings;
 pub use table::{markdown_table, parameters, Parameter};
 
 use serde::{Deserialize, Serialize};
@@ -95,6 +97,8 @@ pub struct NodeConfig {
     pub tracking: TrackingSettings,
     /// Nodes sharing the tracked persons.
     pub cluster: ClusterConfig,
+    /// Fitting each avatar to its views between network reruns.
+    pub refine: RefineSettings,
 }
 
 impl NodeConfig {
@@ -393,6 +397,7 @@ impl Default for NodeConfig {
             replay: ReplayConfig::default(),
             tracking: TrackingSettings::default(),
             cluster: ClusterConfig::default(),
+            refine: RefineSettings::default(),
         }
     }
 }

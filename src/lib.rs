@@ -23,6 +23,7 @@ pub mod node;
 pub mod perception;
 pub mod picture;
 pub mod reconstruct;
+pub mod refine;
 mod simd;
 pub mod splat;
 pub mod synth;

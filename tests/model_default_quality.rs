@@ -5,7 +5,7 @@
 //! enough to clear a floor that a model rendering the training average does not.
 
 use lhmpp::config::{Delight, ModelConfig};
-use lhmpp::eval::heldout::{evaluate_bag, InputCrop};
+use lhmpp::eval::heldout::{evaluate_bag, EvalStages, InputCrop};
 use std::path::Path;
 
 const BAG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/bags/eval_seed2.mcap");
@@ -38,9 +38,10 @@ fn scores_on(bag: &str, checkpoint: &str, crop: InputCrop) -> (f64, f64, f64) {
         Path::new(bag),
         &model,
         &[4],
-        crop,
-        Default::default(),
-        Default::default(),
+        &EvalStages {
+            crop,
+            ..Default::default()
+        },
     )
     .unwrap();
     assert_eq!(rows.len(), 1);
@@ -84,9 +85,12 @@ fn recoloured_gain(bag: &str) -> (f64, f64) {
             Path::new(bag),
             &ModelConfig::default(),
             &[4],
-            InputCrop::Mask,
-            ShapeSource::Estimate,
-            colours,
+            &EvalStages {
+                crop: InputCrop::Mask,
+                shape: ShapeSource::Estimate,
+                colours,
+                refine: None,
+            },
         )
         .unwrap();
         rows[0].means().0
@@ -140,9 +144,12 @@ fn dividing_out_the_key_light_brings_a_lit_person_closer_to_their_garments() {
             &bag,
             &ModelConfig::default(),
             &[8],
-            InputCrop::Mask,
-            ShapeSource::Estimate,
-            ColourSource::Views(delight),
+            &EvalStages {
+                crop: InputCrop::Mask,
+                shape: ShapeSource::Estimate,
+                colours: ColourSource::Views(delight),
+                refine: None,
+            },
         )
         .unwrap();
         rows[0].means().0

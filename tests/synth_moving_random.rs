@@ -172,9 +172,10 @@ fn eval_uses_every_frame_of_a_moving_camera_as_a_view() {
         &bag,
         &model,
         &[1, 4, 8],
-        lhmpp::eval::heldout::InputCrop::FullFrame,
-        Default::default(),
-        Default::default(),
+        &lhmpp::eval::heldout::EvalStages {
+            crop: lhmpp::eval::heldout::InputCrop::FullFrame,
+            ..Default::default()
+        },
     )
     .unwrap();
     // One camera topic with 4 frames gives 4 input views (8 is clamped to 4).

@@ -3,7 +3,7 @@
 use super::config_source::ConfigSource;
 use anyhow::{Context, Result};
 use lhmpp::body::MakeHumanShape;
-use lhmpp::eval::heldout::{evaluate_bag, ColourSource, InputCrop, ShapeSource};
+use lhmpp::eval::heldout::{evaluate_bag, ColourSource, EvalStages, InputCrop, ShapeSource};
 use std::path::PathBuf;
 
 /// Arguments of `lhmpp eval`.
@@ -24,17 +24,27 @@ pub struct EvalArgs {
     /// node does when `inputs.mask_topics` are set.
     #[arg(long)]
     full_frame: bool,
-    /// Body shape to reconstruct on: `bag` (the bag's BodyShape when it has one, as the node
-    /// with a shape topic), `template` (the template's own shape, as the node without one),
-    /// `estimate` (read by perception from the calibrated input views) or `H,G` (MakeHuman
-    /// height and girth scales).
-    #[arg(long, default_value = "bag")]
+    /// Body shape to reconstruct on: `estimate` (read by perception from the calibrated input
+    /// views, as the node does by default, without a shape topic), `bag` (the bag's BodyShape
+    /// when it has one, as the node with a shape topic), `template` (the template's own shape)
+    /// or `H,G` (MakeHuman height and girth scales).
+    #[arg(long, default_value = "estimate")]
     shape: String,
-    /// Recolour each avatar from its input views as the node does with
-    /// `perception.colours_from_views` (perception reads the person in each input view; the
-    /// bag's masks cut them out).
+    /// Keep the network's colours instead of recolouring each avatar from its input views as
+    /// the node does by default (`perception.colours_from_views`: perception reads the person
+    /// in each input view; the bag's masks cut them out).
     #[arg(long)]
+    network_colours: bool,
+    /// Accepted for older command lines: colours from the views are the default.
+    #[arg(long, hide = true)]
     colours_from_views: bool,
+    /// Refine each avatar against its input views, as the node does by default
+    /// (`refine.enabled`); `--no-refine` scores the network's avatar.
+    #[arg(long, overrides_with = "no_refine")]
+    refine: bool,
+    /// Score the network's avatar without refinement.
+    #[arg(long)]
+    no_refine: bool,
     /// The model settings (`--set model.checkpoint=x.safetensors`).
     #[command(flatten)]
     pub source: ConfigSource,
@@ -43,21 +53,28 @@ pub struct EvalArgs {
 /// Prints one table row per bag and view count.
 pub fn run(args: EvalArgs) -> Result<()> {
     let config = args.source.load()?;
+    let crop = if args.full_frame {
+        InputCrop::FullFrame
+    } else {
+        InputCrop::Mask
+    };
+    let colours = match args.network_colours {
+        true => ColourSource::Network,
+        false => ColourSource::Views(config.perception.delight),
+    };
+    let refine = (!args.no_refine).then(|| dev_overrides(config.refine.fit_config()));
+    let stages = EvalStages {
+        crop,
+        shape: parse_shape(&args.shape)?,
+        colours,
+        refine,
+    };
+    println!("stages: {}", describe(&stages, &args.shape));
     println!(
         "| bag | input views | held-out views | PSNR (dB) | SSIM | mask IoU |\n| --- | ---: | ---: | ---: | ---: | ---: |"
     );
-    let shape = parse_shape(&args.shape)?;
     for (b, bag) in args.bags.iter().enumerate() {
-        let crop = if args.full_frame {
-            InputCrop::FullFrame
-        } else {
-            InputCrop::Mask
-        };
-        let colours = match args.colours_from_views {
-            true => ColourSource::Views(config.perception.delight),
-            false => ColourSource::Network,
-        };
-        let rows = evaluate_bag(bag, &config.model, &args.views, crop, shape, colours)?;
+        let rows = evaluate_bag(bag, &config.model, &args.views, &stages)?;
         if let (0, Some(path), Some(last)) = (b, &args.picture, rows.last()) {
             last.picture
                 .save(path)
@@ -71,6 +88,23 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 row.views,
                 row.per_view.len()
             );
+            if let Some(r) = &row.refine {
+                tracing::info!(
+                    bag = %bag.display(),
+                    views = row.views,
+                    iterations = r.iterations,
+                    best = r.best_iteration,
+                    stop = ?r.stop,
+                    improved = r.improved,
+                    held = ?r.held,
+                    loss = ?r.loss,
+                    gaussians = ?r.gaussians,
+                    grown = r.grown,
+                    seconds = r.elapsed.as_secs_f32(),
+                    times = ?r.times,
+                    "refinement"
+                );
+            }
         }
     }
     println!(
@@ -94,6 +128,23 @@ pub fn run(args: EvalArgs) -> Result<()> {
     Ok(())
 }
 
+/// One line naming the stages that run.
+fn describe(stages: &EvalStages, shape: &str) -> String {
+    let crop = match stages.crop {
+        InputCrop::Mask => "inputs cropped by the bag's masks",
+        InputCrop::FullFrame => "whole input frames",
+    };
+    let colours = match stages.colours {
+        ColourSource::Network => "the network's colours",
+        ColourSource::Views(_) => "colours from the views",
+    };
+    let refine = match &stages.refine {
+        Some(c) => format!("refinement (budget {:.1} s)", c.budget.as_secs_f32()),
+        None => "no refinement".into(),
+    };
+    format!("{crop}; shape {shape}; {colours}; {refine}")
+}
+
 /// `--shape`: `bag`, `template`, `estimate` or `H,G`.
 fn parse_shape(spec: &str) -> Result<ShapeSource> {
     match spec {
@@ -115,4 +166,26 @@ fn parse_shape(spec: &str) -> Result<ShapeSource> {
                 })
         }
     }
+}
+
+/// TEMPORARY development overrides of the fit's settings (LHMPP_REFINE_DEV="k=v,...").
+fn dev_overrides(mut c: lhmpp::refine::RefineConfig) -> lhmpp::refine::RefineConfig {
+    let Ok(spec) = std::env::var("LHMPP_REFINE_DEV") else {
+        return c;
+    };
+    for kv in spec.split(',').filter(|s| !s.is_empty()) {
+        let (k, v) = kv.split_once('=').expect("k=v");
+        match k {
+            "views_per_step" => c.views_per_step = v.parse().unwrap(),
+            "anchor_weight" => c.anchor_weight = v.parse().unwrap(),
+            "silhouette_weight" => c.silhouette_weight = v.parse().unwrap(),
+            "patience" => c.patience = v.parse().unwrap(),
+            "grow" => c.grow = v.parse().unwrap(),
+            "max_side" => c.max_side = v.parse().unwrap(),
+            "iterations" => c.max_iterations = v.parse().unwrap(),
+            "budget" => c.budget = std::time::Duration::from_secs_f32(v.parse().unwrap()),
+            _ => panic!("unknown {k}"),
+        }
+    }
+    c
 }

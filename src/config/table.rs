@@ -5,7 +5,8 @@
 use super::{
     Choice, ClusterConfig, ComputeDevice, Delight, Dtype, FrameQos, FrameStoreConfig, ImageQos,
     InputConfig, LandmarkModelChoice, ModelConfig, NodeConfig, OutputConfig, PerceptionConfig,
-    PersonMask, PoseSource, RenderDevice, RendererChoice, TrackingSettings, RATE_RANGE,
+    PersonMask, PoseSource, RefineSettings, RenderDevice, RendererChoice, TrackingSettings,
+    RATE_RANGE,
 };
 use crate::model::LhmppConfig;
 use std::fmt::Display;
@@ -427,6 +428,35 @@ pub fn parameters() -> Vec<Parameter> {
             int_in(&ClusterConfig::MEMBERS),
             "nodes sharing the tracked persons (same cameras, same config); needs \
              `tracking.enabled`",
+        ),
+        p(
+            "refine.enabled",
+            boolean(),
+            "fit each avatar to the views it holds after each network reconstruction (in the \
+             background, one person at a time; a new view restarts the fit from the new \
+             network output); each improvement is published as a new revision",
+        ),
+        p(
+            "refine.budget_ms",
+            int_in(&RefineSettings::BUDGET_MS),
+            "wall-clock milliseconds one fit may take (it stops earlier once a held-out view \
+             stops improving)",
+        ),
+        p(
+            "refine.max_gaussians",
+            int_in(&RefineSettings::MAX_GAUSSIANS),
+            "most Gaussians an avatar may grow to where its views ask for more than the body \
+             template gives (skirts, coats, hair)",
+        ),
+        p(
+            "refine.max_iterations",
+            int_in(&RefineSettings::MAX_ITERATIONS),
+            "most optimiser steps of one fit",
+        ),
+        p(
+            "refine.max_side",
+            int_in(&RefineSettings::MAX_SIDE),
+            "longest side (pixels) each view is cropped to and fitted at",
         ),
         p(
             "cluster.index",

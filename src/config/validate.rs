@@ -239,6 +239,23 @@ impl NodeConfig {
             "cluster.members",
             in_range(c.members, &ClusterConfig::MEMBERS),
         )?;
+        let r = &self.refine;
+        check(
+            "refine.budget_ms",
+            in_range(r.budget_ms, &super::RefineSettings::BUDGET_MS),
+        )?;
+        check(
+            "refine.max_gaussians",
+            in_range(r.max_gaussians, &super::RefineSettings::MAX_GAUSSIANS),
+        )?;
+        check(
+            "refine.max_iterations",
+            in_range(r.max_iterations, &super::RefineSettings::MAX_ITERATIONS),
+        )?;
+        check(
+            "refine.max_side",
+            in_range(r.max_side, &super::RefineSettings::MAX_SIDE),
+        )?;
         if c.index >= c.members {
             return Err(bad(
                 "cluster.index",

@@ -52,9 +52,25 @@ pub struct ViewScore {
     pub iou: f64,
 }
 
+/// The stages an evaluation runs between the bag and the scores, each as the node runs it or
+/// switched off.
+#[derive(Debug, Clone, Default)]
+pub struct EvalStages {
+    /// How the input views are located before the encoder.
+    pub crop: InputCrop,
+    /// The body shape reconstructed on.
+    pub shape: ShapeSource,
+    /// Where the avatar's colours come from.
+    pub colours: ColourSource,
+    /// Refinement against the input views (calibrated ones with a mask), when set.
+    pub refine: Option<crate::refine::RefineConfig>,
+}
+
 /// Scores of one reconstruction (a number of input views) over all held-out views.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvalRow {
+    /// What refinement did, when it ran.
+    pub refine: Option<crate::refine::RefineReport>,
     /// Input views used.
     pub views: usize,
     /// Per held-out view.
@@ -402,10 +418,14 @@ pub fn evaluate_bag(
     path: &Path,
     model: &ModelConfig,
     view_counts: &[usize],
-    crop: InputCrop,
-    shape: ShapeSource,
-    colours: ColourSource,
+    stages: &EvalStages,
 ) -> Result<Vec<EvalRow>, EvalError> {
+    let EvalStages {
+        crop,
+        shape,
+        colours,
+        ref refine,
+    } = *stages;
     let bag = BagReader::open(path)?;
     let gt = read_ground_truth(&bag)?;
     let evidence = match colours {
@@ -475,13 +495,65 @@ pub fn evaluate_bag(
             .map(|i| (i as u64 + 1, &images[i]))
             .collect();
         let mut avatar = recon.reconstruct(&views)?;
+        // The key light divided out of the views' colours, and each view's exposure in it.
+        let mut light: Option<(crate::reconstruct::delight::KeyLight, BTreeMap<usize, f32>)> = None;
         if let ColourSource::Views(delight) = colours {
-            let chosen: Vec<&ViewEvidence> = spread(images.len(), k)
+            let chosen: Vec<(usize, &ViewEvidence)> = spread(images.len(), k)
                 .into_iter()
-                .filter_map(|i| evidence[i].as_ref())
+                .filter_map(|i| Some((i, evidence[i].as_ref()?)))
                 .collect();
-            colour_from_evidence(&mut avatar, recon.template(), &chosen, delight);
+            let seen: Vec<&ViewEvidence> = chosen.iter().map(|(_, e)| *e).collect();
+            let report = colour_from_evidence(&mut avatar, recon.template(), &seen, delight);
+            light = report.lights.into_iter().next().map(|l| {
+                let exposure = chosen
+                    .iter()
+                    .enumerate()
+                    .map(|(photo, (i, _))| (*i, l.exposure.get(photo).copied().unwrap_or(0.0)))
+                    .collect();
+                (l, exposure)
+            });
         }
+        let refined = match refine {
+            Some(cfg) => {
+                let views = spread(images.len(), k)
+                    .into_iter()
+                    .filter_map(|i| {
+                        let v = &gt.inputs[i];
+                        let (mask, camera) = (v.mask.as_ref()?, v.camera?);
+                        let mut view = crate::refine::RefineView::new(
+                            &v.name,
+                            &v.rgb,
+                            mask,
+                            camera,
+                            matrices.clone(),
+                            cfg.max_side,
+                        )
+                        .ok()?;
+                        if let Some((l, exposure)) = &light {
+                            view.shading = crate::reconstruct::view_shading::view_shading(
+                                &avatar,
+                                recon.template(),
+                                l,
+                                &matrices,
+                                exposure.get(&i).copied().unwrap_or(0.0),
+                            );
+                        }
+                        Some(view)
+                    })
+                    .collect();
+                let out = crate::refine::refine(&avatar, views, cfg, |p| {
+                    tracing::debug!(?p, "refine");
+                    true
+                })
+                .map_err(|e| EvalError::MissingGroundTruth {
+                    path: path.display().to_string(),
+                    message: e.to_string(),
+                })?;
+                avatar = out.avatar;
+                Some(out.report)
+            }
+            None => None,
+        };
         let posed = avatar.animate(&matrices);
         let mut first_render = None;
         let per_view = gt
@@ -508,6 +580,7 @@ pub fn evaluate_bag(
             .collect();
         let picture = comparison_strip(&shown, &gt.heldout[0], first_render.as_ref(), k);
         rows.push(EvalRow {
+            refine: refined,
             views: k,
             per_view,
             picture,

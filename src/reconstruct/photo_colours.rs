@@ -537,7 +537,7 @@ const MIN_FACING: f32 = 0.2;
 
 /// Each Gaussian's canonical surface normal and body part: those of the template's vertex
 /// nearest to it.
-fn canonical_normals(avatar: &Avatar, template: &BodyTemplate) -> (Vec<Vec3>, Vec<u8>) {
+pub(super) fn canonical_normals(avatar: &Avatar, template: &BodyTemplate) -> (Vec<Vec3>, Vec<u8>) {
     let normals = crate::body::vertex_normals(&template.vertices, &template.triangles);
     let grid = crate::body::PointGrid::for_surface(&template.vertices);
     avatar
@@ -559,7 +559,7 @@ fn canonical_normals(avatar: &Avatar, template: &BodyTemplate) -> (Vec<Vec3>, Ve
 const SHADOW_CELL: f32 = 0.03;
 
 /// Cells holding a posed Gaussian.
-fn occupied_cells(positions: &[Vec3]) -> HashSet<IVec3> {
+pub(super) fn occupied_cells(positions: &[Vec3]) -> HashSet<IVec3> {
     positions
         .iter()
         .filter(|p| p.is_finite())
@@ -569,7 +569,7 @@ fn occupied_cells(positions: &[Vec3]) -> HashSet<IVec3> {
 
 /// Whether the ray from `from` towards unit `dir` meets an occupied cell: stepped every 2 cm
 /// from 6 cm (clear of the surface the point lies on) to 1.2 m.
-fn in_shadow(cells: &HashSet<IVec3>, from: Vec3, dir: Vec3) -> bool {
+pub(super) fn in_shadow(cells: &HashSet<IVec3>, from: Vec3, dir: Vec3) -> bool {
     let start = (from / SHADOW_CELL).floor().as_ivec3();
     (3..60).any(|k| {
         let q = ((from + dir * (k as f32 * 0.02)) / SHADOW_CELL)

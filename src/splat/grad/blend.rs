@@ -83,6 +83,17 @@ pub(super) fn backward(
     grads
 }
 
+/// One sample the forward blended at a pixel: the splat's place in the tile list, its offset
+/// from the pixel and its alpha.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    k: u32,
+    dx: f32,
+    dy: f32,
+    power: f32,
+    alpha: f32,
+}
+
 /// One tile's gradients, one entry per entry of its splat list `list`.
 #[allow(clippy::too_many_arguments)]
 fn tile_backward(
@@ -100,43 +111,114 @@ fn tile_backward(
         return acc;
     }
     let (x0, y0) = (col * TILE, row * TILE);
-    for y in y0..(y0 + TILE).min(height) {
-        for x in x0..(x0 + TILE).min(width) {
-            let o = y * width + x;
+    let (tw, th) = (TILE.min(width - x0), TILE.min(height - y0));
+    let reach = PixelLists::new(splats, list, x0, y0, tw, th);
+    let mut samples = Vec::new();
+    for ly in 0..th {
+        for lx in 0..tw {
+            let o = (y0 + ly) * width + x0 + lx;
             let d_rgb = [frame.rgb[3 * o], frame.rgb[3 * o + 1], frame.rgb[3 * o + 2]];
             let d_alpha = frame.alpha[o];
             if d_rgb == [0.0; 3] && d_alpha == 0.0 {
                 continue;
             }
+            let (px, py) = ((x0 + lx) as f32, (y0 + ly) as f32);
+            let t_final =
+                pixel_samples(splats, list, reach.of(ly * TILE + lx), px, py, &mut samples);
             pixel_backward(
-                splats, list, x as f32, y as f32, bg, d_rgb, d_alpha, &mut acc,
+                splats, list, &samples, t_final, bg, d_rgb, d_alpha, &mut acc,
             );
         }
     }
     acc
 }
 
-/// Adds one pixel's contribution to the gradients of the tile's splats.
-#[allow(clippy::too_many_arguments)]
+/// For each pixel of a tile, the places in the tile's list of the splats whose α ≥ 1/255 box
+/// holds it, front to back (what the forward's row spans visit).
+struct PixelLists {
+    /// `offsets[p]..offsets[p + 1]` is pixel `p`'s range of `entries` (`p = y · TILE + x`).
+    offsets: Vec<u32>,
+    entries: Vec<u32>,
+}
+
+impl PixelLists {
+    fn new(
+        splats: &[Option<Splat2D>],
+        list: &[u32],
+        x0: usize,
+        y0: usize,
+        tw: usize,
+        th: usize,
+    ) -> Self {
+        // Each splat's box within the tile, as pixel ranges.
+        let boxes: Vec<Option<(usize, usize, usize, usize)>> = list
+            .iter()
+            .map(|&i| {
+                let g = splats[i as usize].as_ref()?;
+                let range = |centre: f32, extent: f32, origin: usize, len: usize| {
+                    let lo = (centre - extent - origin as f32).ceil().max(0.0);
+                    let hi = (centre + extent - origin as f32)
+                        .floor()
+                        .min(len as f32 - 1.0);
+                    (lo <= hi).then_some((lo as usize, hi as usize))
+                };
+                let (xa, xb) = range(g.mean[0], g.extent[0], x0, tw)?;
+                let (ya, yb) = range(g.mean[1], g.extent[1], y0, th)?;
+                Some((xa, xb, ya, yb))
+            })
+            .collect();
+        let mut offsets = vec![0u32; TILE * TILE + 1];
+        for &(xa, xb, ya, yb) in boxes.iter().flatten() {
+            for y in ya..=yb {
+                for x in xa..=xb {
+                    offsets[y * TILE + x + 1] += 1;
+                }
+            }
+        }
+        for p in 0..TILE * TILE {
+            offsets[p + 1] += offsets[p];
+        }
+        let mut fill = offsets.clone();
+        let mut entries = vec![0u32; offsets[TILE * TILE] as usize];
+        for (k, b) in boxes.iter().enumerate() {
+            let Some((xa, xb, ya, yb)) = *b else {
+                continue;
+            };
+            for y in ya..=yb {
+                for x in xa..=xb {
+                    let p = y * TILE + x;
+                    entries[fill[p] as usize] = k as u32;
+                    fill[p] += 1;
+                }
+            }
+        }
+        Self { offsets, entries }
+    }
+
+    fn of(&self, pixel: usize) -> &[u32] {
+        &self.entries[self.offsets[pixel] as usize..self.offsets[pixel + 1] as usize]
+    }
+}
+
+/// The samples the forward blended at pixel `(px, py)` among the tile-list places `reach`
+/// (front to back), into `samples`; returns the final transmittance.
 #[inline]
-fn pixel_backward(
+fn pixel_samples(
     splats: &[Option<Splat2D>],
     list: &[u32],
+    reach: &[u32],
     px: f32,
     py: f32,
-    bg: [f32; 3],
-    d_rgb: [f32; 3],
-    d_alpha: f32,
-    acc: &mut [SplatGrad],
-) {
-    // Forward sweep: the final transmittance and the end of the samples added.
+    samples: &mut Vec<Sample>,
+) -> f32 {
+    samples.clear();
     let mut t = 1.0f32;
-    let mut end = 0;
-    for (k, &i) in list.iter().enumerate() {
-        let Some(g) = &splats[i as usize] else {
+    for &k in reach {
+        let Some(g) = &splats[list[k as usize] as usize] else {
             continue;
         };
-        let (_, alpha, sampled) = sample(g, g.mean[0] - px, g.mean[1] - py);
+        let (dx, dy) = (g.mean[0] - px, g.mean[1] - py);
+        let (power, alpha, sampled) = sample(g, dx, dy);
         if !sampled {
             continue;
         }
@@ -145,35 +227,54 @@ fn pixel_backward(
             break;
         }
         t = next;
-        end = k + 1;
+        samples.push(Sample {
+            k,
+            dx,
+            dy,
+            power,
+            alpha,
+        });
     }
-    let t_final = t;
-    // Back to front: `behind` is the colour the samples behind the current one added.
+    t
+}
+
+/// Adds one pixel's contribution to the gradients of the tile's splats, walking its
+/// `samples` back to front from the final transmittance `t_final`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn pixel_backward(
+    splats: &[Option<Splat2D>],
+    list: &[u32],
+    samples: &[Sample],
+    t_final: f32,
+    bg: [f32; 3],
+    d_rgb: [f32; 3],
+    d_alpha: f32,
+    acc: &mut [SplatGrad],
+) {
+    let mut t = t_final;
+    // `behind` is the colour the samples behind the current one added.
     let mut behind = [0.0f32; 3];
     let bg_dot: f32 = (0..3).map(|c| bg[c] * d_rgb[c]).sum();
-    for k in (0..end).rev() {
-        let Some(g) = &splats[list[k] as usize] else {
-            continue;
-        };
-        let (dx, dy) = (g.mean[0] - px, g.mean[1] - py);
-        let (power, alpha, sampled) = sample(g, dx, dy);
-        if !sampled {
-            continue;
-        }
+    for s in samples.iter().rev() {
+        let g = splats[list[s.k as usize] as usize]
+            .as_ref()
+            .expect("a sampled splat is visible");
+        let (dx, dy, alpha) = (s.dx, s.dy, s.alpha);
         let one_minus = 1.0 - alpha;
         t /= one_minus;
         let weight = alpha * t;
-        let mut d_a = d_alpha * t_final / one_minus - bg_dot * t_final / one_minus;
+        let mut d_a = (d_alpha - bg_dot) * t_final / one_minus;
         for c in 0..3 {
             d_a += d_rgb[c] * (g.rgb[c] * t - behind[c] / one_minus);
         }
-        let grad = &mut acc[k];
+        let grad = &mut acc[s.k as usize];
         for c in 0..3 {
             grad.rgb[c] += weight * d_rgb[c];
             behind[c] += g.rgb[c] * weight;
         }
         // α = min(0.99, opacity · e^power): no gradient where the cap holds.
-        let gauss = fast_exp(power);
+        let gauss = fast_exp(s.power);
         if g.opacity * gauss >= MAX_ALPHA {
             continue;
         }

@@ -1,0 +1,560 @@
+//! Refinement: the avatar the network made, fitted to the views the person was seen in.
+//!
+//! Starting from the network's canonical Gaussians, a fit moves each Gaussian's centre
+//! (pulled back towards where the network put it), scales, orientation, opacity and albedo so
+//! that the avatar, posed as the person stood in each view and rendered through that view's
+//! camera, shows the person's colours inside their mask and covers the mask and nothing else
+//! ([`loss`]). Gradients come from the rasteriser's backward pass ([`crate::splat::grad`]),
+//! through linear blend skinning to the canonical Gaussians, and Adam takes the steps
+//! ([`params`]). Gaussians grow where the silhouettes ask for more than the body template
+//! gives (skirts, coats, hair: [`growth`]).
+//!
+//! Never worse than its start: one view is held out of the fit, the fit stops when the held
+//! view's loss stops falling, and the parameters that scored best on it are kept; when none
+//! beat the network's avatar, the network's avatar is returned unchanged.
+
+mod growth;
+mod loss;
+mod params;
+mod skinning;
+mod view;
+
+pub use loss::ViewLoss;
+pub use view::RefineView;
+
+use crate::avatar::{Avatar, AvatarError};
+use crate::splat::grad::{self, FrameGrads};
+use crate::splat::{Rasterizer, RenderOptions, RenderOutput};
+use glam::Vec3;
+use params::{Adam, ParamGrads, Params, Rates};
+use std::time::{Duration, Instant};
+
+/// Why a fit cannot run.
+#[derive(Debug, thiserror::Error)]
+pub enum RefineError {
+    /// A view is unusable.
+    #[error("refine: view `{view}`: {why}")]
+    View {
+        /// The view's name.
+        view: String,
+        /// What is wrong with it.
+        why: String,
+    },
+    /// The fitted Gaussians do not make an avatar (a bug: the fit keeps them valid).
+    #[error("refine: {0}")]
+    Avatar(#[from] AvatarError),
+}
+
+/// Settings of a fit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RefineConfig {
+    /// Wall-clock time a fit may take.
+    pub budget: Duration,
+    /// Most optimiser steps.
+    pub max_iterations: usize,
+    /// Most Gaussians the avatar may grow to.
+    pub max_gaussians: usize,
+    /// Longest side (pixels) of each view's crop.
+    pub max_side: u32,
+    /// Fewest views to fit to (one of them is held out to stop the fit in time).
+    pub min_views: usize,
+    /// Weight of the silhouette term against the photometric one.
+    pub silhouette_weight: f32,
+    /// Weight of the pull of each centre back to its anchor (per `(2 cm)²` of offset, averaged
+    /// over the Gaussians).
+    pub anchor_weight: f32,
+    /// Steps between checks of the held-out view.
+    pub check_every: usize,
+    /// Checks without a better held-out loss after which the fit stops.
+    pub patience: usize,
+    /// Grow Gaussians where the silhouettes ask for them.
+    pub grow: bool,
+    /// Views rendered per optimiser step (taken in turn).
+    pub views_per_step: usize,
+}
+
+impl Default for RefineConfig {
+    fn default() -> Self {
+        Self {
+            budget: Duration::from_secs(10),
+            max_iterations: 500,
+            max_gaussians: 60_000,
+            max_side: 256,
+            min_views: 3,
+            silhouette_weight: 1.0,
+            anchor_weight: 0.05,
+            check_every: 10,
+            patience: 6,
+            grow: true,
+            views_per_step: 1,
+        }
+    }
+}
+
+/// Why a fit ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Stop {
+    /// Fewer views than [`RefineConfig::min_views`]: nothing was fitted.
+    #[default]
+    TooFewViews,
+    /// The held-out view's loss stopped falling.
+    Converged,
+    /// [`RefineConfig::budget`] ran out.
+    Budget,
+    /// [`RefineConfig::max_iterations`] were taken.
+    Iterations,
+    /// The caller asked it to stop (a new view arrived).
+    Cancelled,
+}
+
+/// What a fit did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RefineReport {
+    /// Optimiser steps taken.
+    pub iterations: usize,
+    /// Views fitted to (the held-out one not counted).
+    pub views_fitted: usize,
+    /// The view held out to stop the fit.
+    pub held_view: Option<String>,
+    /// Mean loss over the fitted views at the start and at the end.
+    pub loss: (f32, f32),
+    /// The held-out view's loss at the start and at its best.
+    pub held: (f32, f32),
+    /// Step at which the held-out view scored best (0: the network's avatar).
+    pub best_iteration: usize,
+    /// Gaussians before and after.
+    pub gaussians: (usize, usize),
+    /// Gaussians added by growth (in the kept parameters).
+    pub grown: usize,
+    /// Wall-clock time taken.
+    pub elapsed: Duration,
+    /// Whether the fitted avatar replaced the network's (it beat it on the held-out view).
+    pub improved: bool,
+    /// Why it ended.
+    pub stop: Stop,
+    /// Time spent in each part of the steps.
+    pub times: StageTimes,
+}
+
+/// Seconds spent in each part of a fit's steps.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    /// Posing the Gaussians for each view.
+    pub pose: f64,
+    /// The forward render.
+    pub render: f64,
+    /// The image loss and its frame gradients.
+    pub loss: f64,
+    /// The rasteriser's backward pass.
+    pub backward: f64,
+    /// The chain rule through posing, regularisation and the optimiser step.
+    pub update: f64,
+    /// Checks of the held-out view.
+    pub check: f64,
+}
+
+/// A progress report at each check of the held-out view; returning `false` stops the fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress {
+    /// Steps taken.
+    pub iteration: usize,
+    /// Mean loss over the fitted views.
+    pub loss: f32,
+    /// The held-out view's loss.
+    pub held: f32,
+    /// Gaussians now.
+    pub gaussians: usize,
+}
+
+/// The fitted avatar and what the fit did.
+#[derive(Debug, Clone)]
+pub struct Refined {
+    /// The avatar (the input one when the fit did not beat it).
+    pub avatar: Avatar,
+    /// What the fit did.
+    pub report: RefineReport,
+}
+
+/// Fits `avatar` to `views` (see the module doc). `on_check` sees each check of the held-out
+/// view and can stop the fit by returning `false`.
+pub fn refine(
+    avatar: &Avatar,
+    views: Vec<RefineView>,
+    config: &RefineConfig,
+    mut on_check: impl FnMut(&Progress) -> bool,
+) -> Result<Refined, RefineError> {
+    let start = Instant::now();
+    let mut report = RefineReport {
+        gaussians: (avatar.canonical.len(), avatar.canonical.len()),
+        ..RefineReport::default()
+    };
+    if views.len() < config.min_views.max(2) || avatar.canonical.is_empty() {
+        report.elapsed = start.elapsed();
+        return Ok(Refined {
+            avatar: avatar.clone(),
+            report,
+        });
+    }
+    for v in &views {
+        if let Err(e) = avatar.check_matrices(&v.skinning) {
+            return Err(RefineError::View {
+                view: v.name.clone(),
+                why: e.to_string(),
+            });
+        }
+        if !v.shading.is_empty() && v.shading.len() != avatar.canonical.len() {
+            return Err(RefineError::View {
+                view: v.name.clone(),
+                why: format!(
+                    "{} shading gains for {} Gaussians",
+                    v.shading.len(),
+                    avatar.canonical.len()
+                ),
+            });
+        }
+    }
+    let held = std::env::var("LHMPP_HELD")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| held_out_view(avatar, &views));
+    tracing::debug!(held, name = %views[held].name, "held-out view");
+    report.held_view = Some(views[held].name.clone());
+    report.views_fitted = views.len() - 1;
+    let mut fit = Fit::new(avatar, views, held, config);
+    let held_start = fit.held_loss();
+    let loss_start = fit.step(false).0;
+    report.loss = (loss_start, loss_start);
+    report.held = (held_start, held_start);
+    let mut best = (held_start, 0, fit.params.clone(), 0usize);
+    let mut since_best = 0;
+    let mut grown = 0usize;
+    report.stop = Stop::Iterations;
+    for it in 1..=config.max_iterations {
+        // The schedule follows the steps; the budget only cuts the fit short.
+        let progress = it as f32 / config.max_iterations.max(1) as f32;
+        fit.set_rates(progress);
+        let (loss, _) = fit.step(true);
+        report.loss.1 = loss;
+        report.iterations = it;
+        if config.grow && growth::due(it, progress) {
+            grown += fit.grow(config.max_gaussians);
+        }
+        if it % config.check_every == 0 {
+            let held_loss = fit.held_loss();
+            let keep_going = on_check(&Progress {
+                iteration: it,
+                loss,
+                held: held_loss,
+                gaussians: fit.params.len(),
+            });
+            if held_loss < best.0 {
+                best = (held_loss, it, fit.params.clone(), grown);
+                since_best = 0;
+            } else {
+                since_best += 1;
+            }
+            if !keep_going {
+                report.stop = Stop::Cancelled;
+                break;
+            }
+            if since_best >= config.patience {
+                report.stop = Stop::Converged;
+                break;
+            }
+        }
+        if start.elapsed() >= config.budget {
+            report.stop = Stop::Budget;
+            break;
+        }
+    }
+    let (held_best, best_it, params, best_grown) = best;
+    report.held.1 = held_best;
+    report.best_iteration = best_it;
+    report.improved = best_it > 0;
+    let avatar = if report.improved {
+        report.grown = best_grown;
+        Avatar::new(
+            params.gaussians(),
+            params.skin.clone(),
+            avatar.body_model.clone(),
+        )?
+    } else {
+        avatar.clone()
+    };
+    report.gaussians.1 = avatar.canonical.len();
+    report.times = fit.times;
+    report.elapsed = start.elapsed();
+    Ok(Refined { avatar, report })
+}
+
+/// The view held out of the fit: the one whose camera sits nearest another view's (seen from
+/// the avatar's centre), so that the views fitted cover the person as well as they can.
+fn held_out_view(avatar: &Avatar, views: &[RefineView]) -> usize {
+    let g = &avatar.canonical.positions;
+    let centre = g.iter().copied().sum::<Vec3>() / g.len().max(1) as f32;
+    let dirs: Vec<Vec3> = views
+        .iter()
+        .map(|v| (v.camera.center() - centre).normalize_or_zero())
+        .collect();
+    let crowding = |i: usize| {
+        dirs.iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(_, d)| d.dot(dirs[i]))
+            .fold(f32::MIN, f32::max)
+    };
+    // The newest view among the most crowded ones (ties go to the last).
+    (0..views.len())
+        .max_by(|&a, &b| crowding(a).total_cmp(&crowding(b)).then(a.cmp(&b)))
+        .unwrap_or(0)
+}
+
+/// A step through `n` views that visits all of them, spread out: about 0.4 n, coprime with n.
+fn stride(n: usize) -> usize {
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 {
+            a
+        } else {
+            gcd(b, a % b)
+        }
+    }
+    let mut s = (n * 2 / 5).max(1);
+    while gcd(s, n) != 1 {
+        s += 1;
+    }
+    s
+}
+
+/// The state of one fit.
+struct Fit<'a> {
+    config: &'a RefineConfig,
+    params: Params,
+    adam: Adam,
+    rates: Rates,
+    views: Vec<RefineView>,
+    held: usize,
+    /// Per view, each Gaussian's blended bone transform and rotation.
+    transforms: Vec<Vec<(glam::Affine3A, glam::Quat)>>,
+    /// Per view, each Gaussian's shading gain (empty: none).
+    shading: Vec<Vec<Vec3>>,
+    /// Per Gaussian, the summed screen-space gradient norms and the views that saw it (the
+    /// growth signal since the last growth).
+    grad_2d: Vec<f32>,
+    seen: Vec<u32>,
+    rasterizer: Rasterizer,
+    out: RenderOutput,
+    d_rgb: Vec<f32>,
+    d_alpha: Vec<f32>,
+    initial_rates: Rates,
+    times: StageTimes,
+    /// Next place in the visiting order of the fitted views.
+    cursor: usize,
+    /// Each view's latest loss.
+    last_loss: Vec<f32>,
+}
+
+impl<'a> Fit<'a> {
+    fn new(
+        avatar: &Avatar,
+        mut views: Vec<RefineView>,
+        held: usize,
+        config: &'a RefineConfig,
+    ) -> Self {
+        let params = Params::from_avatar(avatar);
+        let transforms = views
+            .iter()
+            .map(|v| crate::avatar::blend_rows(&params.skin, &v.skinning))
+            .collect();
+        let shading = views
+            .iter_mut()
+            .map(|v| std::mem::take(&mut v.shading))
+            .collect();
+        let rates = Rates {
+            position: 1e-3,
+            log_scale: 1e-2,
+            rotation: 5e-3,
+            opacity_logit: 5e-2,
+            colour: 1e-2,
+        };
+        let n = params.len();
+        let count = views.len();
+        Self {
+            last_loss: vec![0.0; count],
+            config,
+            params,
+            adam: Adam::default(),
+            rates,
+            views,
+            held,
+            transforms,
+            shading,
+            grad_2d: vec![0.0; n],
+            seen: vec![0; n],
+            rasterizer: Rasterizer::new(),
+            out: RenderOutput::default(),
+            d_rgb: Vec::new(),
+            d_alpha: Vec::new(),
+            initial_rates: rates,
+            times: StageTimes::default(),
+            cursor: 0,
+        }
+    }
+
+    /// Learning rates at `progress` (0–1) through the steps: positions decay tenfold.
+    fn set_rates(&mut self, progress: f32) {
+        let r = self.initial_rates;
+        self.rates = Rates {
+            position: r.position * 0.1f32.powf(progress),
+            ..r
+        };
+    }
+
+    fn options() -> RenderOptions {
+        RenderOptions {
+            background: Vec3::ZERO,
+            ..RenderOptions::default()
+        }
+    }
+
+    /// The loss of the held-out view now.
+    fn held_loss(&mut self) -> f32 {
+        let clock = Instant::now();
+        let posed = skinning::pose(
+            &self.params,
+            &self.transforms[self.held],
+            &self.shading[self.held],
+        );
+        let view = &self.views[self.held];
+        self.rasterizer
+            .render_into(&posed, &view.camera, &Self::options(), &mut self.out);
+        let loss = loss::composite_error(view, &self.out);
+        self.times.check += clock.elapsed().as_secs_f64();
+        loss
+    }
+
+    /// With `apply`, one optimiser step on the next [`RefineConfig::views_per_step`] fitted
+    /// views; without, the loss of every fitted view. Returns the mean of each fitted view's
+    /// latest loss.
+    fn step(&mut self, apply: bool) -> (f32, ParamGrads) {
+        let n = self.params.len();
+        let mut grads = ParamGrads::zeros(n);
+        let fitted = (0..self.views.len())
+            .filter(|v| *v != self.held)
+            .collect::<Vec<_>>();
+        let batch: Vec<usize> = if apply {
+            let k = self.config.views_per_step.clamp(1, fitted.len());
+            (0..k)
+                .map(|_| {
+                    // A stride coprime with the count visits the views in a spread-out order.
+                    let v = fitted[self.cursor % fitted.len()];
+                    self.cursor += stride(fitted.len());
+                    v
+                })
+                .collect()
+        } else {
+            fitted.clone()
+        };
+        let share = 1.0 / batch.len() as f32;
+        let options = Self::options();
+        for &v in &batch {
+            let mut clock = Instant::now();
+            let mut lap = |t: &mut f64| {
+                *t += clock.elapsed().as_secs_f64();
+                clock = Instant::now();
+            };
+            let posed = skinning::pose(&self.params, &self.transforms[v], &self.shading[v]);
+            lap(&mut self.times.pose);
+            let view = &self.views[v];
+            grad::forward(
+                &mut self.rasterizer,
+                &posed,
+                &view.camera,
+                &options,
+                &mut self.out,
+            );
+            lap(&mut self.times.render);
+            let loss = loss::view_loss(
+                view,
+                &self.out,
+                self.config.silhouette_weight,
+                Some((&mut self.d_rgb, &mut self.d_alpha)),
+            );
+            self.last_loss[v] = loss.total();
+            lap(&mut self.times.loss);
+            if !apply {
+                continue;
+            }
+            for d in self.d_rgb.iter_mut().chain(self.d_alpha.iter_mut()) {
+                *d *= share;
+            }
+            let frame = FrameGrads {
+                rgb: &self.d_rgb,
+                alpha: &self.d_alpha,
+            };
+            let g = grad::backward(&self.rasterizer, &posed, &view.camera, &options, frame)
+                .expect("the frame and Gaussians of the forward just run");
+            lap(&mut self.times.backward);
+            skinning::accumulate(
+                &self.params,
+                &self.transforms[v],
+                &self.shading[v],
+                &g,
+                &mut grads,
+            );
+            for (i, m) in g.means_2d.iter().enumerate() {
+                let norm = (m[0] * m[0] + m[1] * m[1]).sqrt();
+                if norm > 0.0 {
+                    self.grad_2d[i] += norm;
+                    self.seen[i] += 1;
+                }
+            }
+            lap(&mut self.times.update);
+        }
+        if apply {
+            let clock = Instant::now();
+            self.regularise(&mut grads);
+            self.adam.step(&mut self.params, &grads, &self.rates);
+            self.times.update += clock.elapsed().as_secs_f64();
+        }
+        let total = fitted.iter().map(|v| self.last_loss[*v]).sum::<f32>() / fitted.len() as f32;
+        (total, grads)
+    }
+
+    /// Adds the pull of each centre towards its anchor to `grads`.
+    fn regularise(&self, grads: &mut ParamGrads) {
+        const REACH: f32 = 0.02;
+        let w = 2.0 * self.config.anchor_weight / (self.params.len() as f32 * REACH * REACH);
+        for ((g, x), a) in grads
+            .position
+            .iter_mut()
+            .zip(&self.params.position)
+            .zip(&self.params.anchor)
+        {
+            *g += (*x - *a) * w;
+        }
+    }
+
+    /// Grows Gaussians where the screen-space gradients say the silhouette or colours ask for
+    /// more; returns how many were added.
+    fn grow(&mut self, max_gaussians: usize) -> usize {
+        let added = growth::densify(
+            &mut self.params,
+            &mut self.adam,
+            &self.grad_2d,
+            &self.seen,
+            max_gaussians,
+        );
+        for (parent, _) in &added {
+            for (t, s) in self.transforms.iter_mut().zip(&mut self.shading) {
+                t.push(t[*parent]);
+                if !s.is_empty() {
+                    s.push(s[*parent]);
+                }
+            }
+        }
+        let n = self.params.len();
+        self.grad_2d = vec![0.0; n];
+        self.seen = vec![0; n];
+        added.len()
+    }
+}
