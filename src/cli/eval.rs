@@ -178,6 +178,7 @@ fn dev_overrides(mut c: lhmpp::refine::RefineConfig) -> lhmpp::refine::RefineCon
         match k {
             "views_per_step" => c.views_per_step = v.parse().unwrap(),
             "anchor_weight" => c.anchor_weight = v.parse().unwrap(),
+            "albedo_weight" => c.albedo_weight = v.parse().unwrap(),
             "silhouette_weight" => c.silhouette_weight = v.parse().unwrap(),
             "patience" => c.patience = v.parse().unwrap(),
             "grow" => c.grow = v.parse().unwrap(),

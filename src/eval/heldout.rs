@@ -504,7 +504,9 @@ pub fn evaluate_bag(
                 .collect();
             let seen: Vec<&ViewEvidence> = chosen.iter().map(|(_, e)| *e).collect();
             let report = colour_from_evidence(&mut avatar, recon.template(), &seen, delight);
-            light = report.lights.into_iter().next().map(|l| {
+            let modelled = delight != crate::config::Delight::Never;
+            light = modelled.then(|| {
+                let l = report.lights.into_iter().next().unwrap_or_default();
                 let exposure = chosen
                     .iter()
                     .enumerate()
@@ -529,19 +531,21 @@ pub fn evaluate_bag(
                             cfg.max_side,
                         )
                         .ok()?;
-                        if let Some((l, exposure)) = &light {
-                            view.shading = crate::reconstruct::view_shading::view_shading(
-                                &avatar,
-                                recon.template(),
-                                l,
-                                &matrices,
-                                exposure.get(&i).copied().unwrap_or(0.0),
-                            );
+                        if let Some((_, exposure)) = &light {
+                            view.exposure = exposure.get(&i).copied().unwrap_or(0.0);
                         }
                         Some(view)
                     })
                     .collect();
-                let out = crate::refine::refine(&avatar, views, cfg, |p| {
+                let start = light.as_ref().map(|(key, _)| crate::refine::LightStart {
+                    key: key.clone(),
+                    normals: crate::reconstruct::surface::canonical_normals(
+                        &avatar,
+                        recon.template(),
+                    )
+                    .0,
+                });
+                let out = crate::refine::refine(&avatar, views, start, cfg, |p| {
                     tracing::debug!(?p, "refine");
                     true
                 })

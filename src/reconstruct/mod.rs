@@ -19,7 +19,7 @@ pub mod photos;
 pub mod preprocess;
 pub mod reconstructor;
 pub mod shape;
-pub mod view_shading;
+pub mod surface;
 
 pub use part_rules::apply_part_rules;
 pub use reconstructor::{select_device, ReconstructError, Reconstructor};

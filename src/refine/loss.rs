@@ -120,7 +120,7 @@ mod tests {
             rgb,
             mask,
             skinning: Vec::new(),
-            shading: Vec::new(),
+            exposure: 0.0,
         }
     }
 

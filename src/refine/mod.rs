@@ -14,9 +14,11 @@
 //! beat the network's avatar, the network's avatar is returned unchanged.
 
 mod growth;
+mod light;
 mod loss;
 mod params;
 mod skinning;
+mod smooth;
 mod view;
 
 pub use loss::ViewLoss;
@@ -63,6 +65,9 @@ pub struct RefineConfig {
     /// Weight of the pull of each centre back to its anchor (per `(2 cm)²` of offset, averaged
     /// over the Gaussians).
     pub anchor_weight: f32,
+    /// Weight of the albedo prior (neighbouring Gaussians share a colour, [`smooth`]) when
+    /// the light is fitted.
+    pub albedo_weight: f32,
     /// Steps between checks of the held-out view.
     pub check_every: usize,
     /// Checks without a better held-out loss after which the fit stops.
@@ -83,6 +88,7 @@ impl Default for RefineConfig {
             min_views: 3,
             silhouette_weight: 1.0,
             anchor_weight: 0.05,
+            albedo_weight: 0.05,
             check_every: 10,
             patience: 6,
             grow: true,
@@ -166,6 +172,18 @@ pub struct Progress {
     pub gaussians: usize,
 }
 
+/// What the light is fitted from: the key light the views' colours were de-lit by (the
+/// avatar's colours are albedo in its convention) and each Gaussian's canonical normal
+/// ([`crate::reconstruct::surface::canonical_normals`]). Each view's exposure is
+/// [`RefineView::exposure`].
+#[derive(Debug, Clone)]
+pub struct LightStart {
+    /// The key light fitted to the views' colours (none: a light from above in front).
+    pub key: crate::reconstruct::delight::KeyLight,
+    /// Per Gaussian of the avatar, its canonical normal.
+    pub normals: Vec<Vec3>,
+}
+
 /// The fitted avatar and what the fit did.
 #[derive(Debug, Clone)]
 pub struct Refined {
@@ -175,11 +193,13 @@ pub struct Refined {
     pub report: RefineReport,
 }
 
-/// Fits `avatar` to `views` (see the module doc). `on_check` sees each check of the held-out
-/// view and can stop the fit by returning `false`.
+/// Fits `avatar` to `views` (see the module doc), with the light the views were taken in when
+/// `light` is given (the avatar's colours then stay albedo), else with the colours as seen.
+/// `on_check` sees each check of the held-out view and can stop the fit by returning `false`.
 pub fn refine(
     avatar: &Avatar,
     views: Vec<RefineView>,
+    light: Option<LightStart>,
     config: &RefineConfig,
     mut on_check: impl FnMut(&Progress) -> bool,
 ) -> Result<Refined, RefineError> {
@@ -202,12 +222,14 @@ pub fn refine(
                 why: e.to_string(),
             });
         }
-        if !v.shading.is_empty() && v.shading.len() != avatar.canonical.len() {
+    }
+    if let Some(l) = &light {
+        if l.normals.len() != avatar.canonical.len() {
             return Err(RefineError::View {
-                view: v.name.clone(),
+                view: "all".into(),
                 why: format!(
-                    "{} shading gains for {} Gaussians",
-                    v.shading.len(),
+                    "{} normals for {} Gaussians",
+                    l.normals.len(),
                     avatar.canonical.len()
                 ),
             });
@@ -220,7 +242,7 @@ pub fn refine(
     tracing::debug!(held, name = %views[held].name, "held-out view");
     report.held_view = Some(views[held].name.clone());
     report.views_fitted = views.len() - 1;
-    let mut fit = Fit::new(avatar, views, held, config);
+    let mut fit = Fit::new(avatar, views, light, held, config);
     let held_start = fit.held_loss();
     let loss_start = fit.step(false).0;
     report.loss = (loss_start, loss_start);
@@ -282,6 +304,9 @@ pub fn refine(
         avatar.clone()
     };
     report.gaussians.1 = avatar.canonical.len();
+    if let Some(l) = &fit.light {
+        tracing::debug!(light = ?l.summary(), "fitted light");
+    }
     report.times = fit.times;
     report.elapsed = start.elapsed();
     Ok(Refined { avatar, report })
@@ -309,6 +334,11 @@ fn held_out_view(avatar: &Avatar, views: &[RefineView]) -> usize {
         .unwrap_or(0)
 }
 
+/// Learning rate of the light's parameters.
+const LIGHT_RATE: f32 = 0.02;
+/// Steps between updates of the cast shadows.
+const SHADOW_EVERY: usize = 50;
+
 /// A step through `n` views that visits all of them, spread out: about 0.4 n, coprime with n.
 fn stride(n: usize) -> usize {
     fn gcd(a: usize, b: usize) -> usize {
@@ -335,8 +365,11 @@ struct Fit<'a> {
     held: usize,
     /// Per view, each Gaussian's blended bone transform and rotation.
     transforms: Vec<Vec<(glam::Affine3A, glam::Quat)>>,
-    /// Per view, each Gaussian's shading gain (empty: none).
-    shading: Vec<Vec<Vec3>>,
+    /// The fitted light, when the light is modelled.
+    light: Option<light::Light>,
+    light_adam: light::LightAdam,
+    /// Per view, whether the key light reaches each Gaussian (refreshed as the fit goes).
+    lit: Vec<Vec<f32>>,
     /// Per Gaussian, the summed screen-space gradient norms and the views that saw it (the
     /// growth signal since the last growth).
     grad_2d: Vec<f32>,
@@ -347,6 +380,10 @@ struct Fit<'a> {
     d_alpha: Vec<f32>,
     initial_rates: Rates,
     times: StageTimes,
+    /// Steps since the cast shadows were last worked out.
+    shadow_age: usize,
+    /// Neighbouring Gaussians (the albedo prior's pairs), rebuilt after growth.
+    pairs: Vec<(u32, u32)>,
     /// Next place in the visiting order of the fitted views.
     cursor: usize,
     /// Each view's latest loss.
@@ -356,19 +393,18 @@ struct Fit<'a> {
 impl<'a> Fit<'a> {
     fn new(
         avatar: &Avatar,
-        mut views: Vec<RefineView>,
+        views: Vec<RefineView>,
+        light: Option<LightStart>,
         held: usize,
         config: &'a RefineConfig,
     ) -> Self {
         let params = Params::from_avatar(avatar);
-        let transforms = views
+        let transforms: Vec<_> = views
             .iter()
             .map(|v| crate::avatar::blend_rows(&params.skin, &v.skinning))
             .collect();
-        let shading = views
-            .iter_mut()
-            .map(|v| std::mem::take(&mut v.shading))
-            .collect();
+        let exposures: Vec<f32> = views.iter().map(|v| v.exposure).collect();
+        let light = light.map(|l| light::Light::new(&l.key, &exposures, l.normals));
         let rates = Rates {
             position: 1e-3,
             log_scale: 1e-2,
@@ -387,7 +423,9 @@ impl<'a> Fit<'a> {
             views,
             held,
             transforms,
-            shading,
+            light,
+            light_adam: light::LightAdam::default(),
+            lit: Vec::new(),
             grad_2d: vec![0.0; n],
             seen: vec![0; n],
             rasterizer: Rasterizer::new(),
@@ -397,6 +435,8 @@ impl<'a> Fit<'a> {
             initial_rates: rates,
             times: StageTimes::default(),
             cursor: 0,
+            shadow_age: 0,
+            pairs: Vec::new(),
         }
     }
 
@@ -419,11 +459,8 @@ impl<'a> Fit<'a> {
     /// The loss of the held-out view now.
     fn held_loss(&mut self) -> f32 {
         let clock = Instant::now();
-        let posed = skinning::pose(
-            &self.params,
-            &self.transforms[self.held],
-            &self.shading[self.held],
-        );
+        let shading = self.shading(self.held);
+        let posed = skinning::pose(&self.params, &self.transforms[self.held], &shading);
         let view = &self.views[self.held];
         self.rasterizer
             .render_into(&posed, &view.camera, &Self::options(), &mut self.out);
@@ -456,13 +493,19 @@ impl<'a> Fit<'a> {
         };
         let share = 1.0 / batch.len() as f32;
         let options = Self::options();
+        let mut light_grads = self
+            .light
+            .as_ref()
+            .map(|l| l.zero_grads())
+            .unwrap_or_default();
         for &v in &batch {
             let mut clock = Instant::now();
             let mut lap = |t: &mut f64| {
                 *t += clock.elapsed().as_secs_f64();
                 clock = Instant::now();
             };
-            let posed = skinning::pose(&self.params, &self.transforms[v], &self.shading[v]);
+            let shading = self.shading(v);
+            let posed = skinning::pose(&self.params, &self.transforms[v], &shading);
             lap(&mut self.times.pose);
             let view = &self.views[v];
             grad::forward(
@@ -494,13 +537,17 @@ impl<'a> Fit<'a> {
             let g = grad::backward(&self.rasterizer, &posed, &view.camera, &options, frame)
                 .expect("the frame and Gaussians of the forward just run");
             lap(&mut self.times.backward);
-            skinning::accumulate(
-                &self.params,
-                &self.transforms[v],
-                &self.shading[v],
-                &g,
-                &mut grads,
-            );
+            skinning::accumulate(&self.params, &self.transforms[v], &shading, &g, &mut grads);
+            if let Some(l) = &self.light {
+                l.accumulate(
+                    v,
+                    &self.transforms[v],
+                    &self.lit[v],
+                    &self.params.colour,
+                    &g.colours,
+                    &mut light_grads,
+                );
+            }
             for (i, m) in g.means_2d.iter().enumerate() {
                 let norm = (m[0] * m[0] + m[1] * m[1]).sqrt();
                 if norm > 0.0 {
@@ -512,16 +559,61 @@ impl<'a> Fit<'a> {
         }
         if apply {
             let clock = Instant::now();
+            self.shadow_age += 1;
             self.regularise(&mut grads);
             self.adam.step(&mut self.params, &grads, &self.rates);
+            if let Some(l) = &mut self.light {
+                let factor = l.step(&light_grads, &mut self.light_adam, LIGHT_RATE, &fitted);
+                for c in &mut self.params.colour {
+                    *c = (*c * factor).clamp(Vec3::ZERO, Vec3::ONE);
+                }
+            }
             self.times.update += clock.elapsed().as_secs_f64();
         }
         let total = fitted.iter().map(|v| self.last_loss[*v]).sum::<f32>() / fitted.len() as f32;
         (total, grads)
     }
 
-    /// Adds the pull of each centre towards its anchor to `grads`.
-    fn regularise(&self, grads: &mut ParamGrads) {
+    /// Per Gaussian, the light view `v` shows it in (empty without a light model); the
+    /// cast shadows are worked out again every [`SHADOW_EVERY`] steps.
+    fn shading(&mut self, v: usize) -> Vec<Vec3> {
+        let Some(light) = &self.light else {
+            return Vec::new();
+        };
+        if self.lit.is_empty() || self.shadow_age >= SHADOW_EVERY {
+            self.lit = self
+                .transforms
+                .iter()
+                .map(|t| {
+                    let posed: Vec<Vec3> = self
+                        .params
+                        .position
+                        .iter()
+                        .zip(t)
+                        .map(|(x, (a, _))| a.transform_point3(*x))
+                        .collect();
+                    light.lit(&posed, t)
+                })
+                .collect();
+            self.shadow_age = 0;
+        }
+        light.shading(v, &self.transforms[v], &self.lit[v])
+    }
+
+    /// Adds the pull of each centre towards its anchor, and with a fitted light the albedo
+    /// prior, to `grads`.
+    fn regularise(&mut self, grads: &mut ParamGrads) {
+        if self.light.is_some() && self.config.albedo_weight > 0.0 {
+            if self.pairs.is_empty() {
+                self.pairs = smooth::neighbour_pairs(&self.params.anchor);
+            }
+            smooth::albedo_prior(
+                &self.params.colour,
+                &self.pairs,
+                self.config.albedo_weight,
+                &mut grads.colour,
+            );
+        }
         const REACH: f32 = 0.02;
         let w = 2.0 * self.config.anchor_weight / (self.params.len() as f32 * REACH * REACH);
         for ((g, x), a) in grads
@@ -545,16 +637,22 @@ impl<'a> Fit<'a> {
             max_gaussians,
         );
         for (parent, _) in &added {
-            for (t, s) in self.transforms.iter_mut().zip(&mut self.shading) {
+            for t in &mut self.transforms {
                 t.push(t[*parent]);
-                if !s.is_empty() {
-                    s.push(s[*parent]);
-                }
+            }
+            for l in &mut self.lit {
+                l.push(l[*parent]);
+            }
+            if let Some(light) = &mut self.light {
+                light.normals.push(light.normals[*parent]);
             }
         }
         let n = self.params.len();
         self.grad_2d = vec![0.0; n];
         self.seen = vec![0; n];
+        if !added.is_empty() {
+            self.pairs.clear();
+        }
         added.len()
     }
 }

@@ -19,9 +19,9 @@ pub struct RefineView {
     pub mask: Vec<f32>,
     /// Skinning matrices of the person's pose in the camera's world frame.
     pub skinning: Vec<Mat4>,
-    /// Per-channel gain that takes the light this view was lit by out of a colour (1 = none),
-    /// one per Gaussian of the avatar being fitted, or empty for none.
-    pub shading: Vec<glam::Vec3>,
+    /// The view's exposure offset (log luminance) where a key light was fitted to the views'
+    /// colours ([`crate::reconstruct::delight::KeyLight::exposure`]); 0 otherwise.
+    pub exposure: f32,
 }
 
 /// Share of the mask's bounding box added on each side of the crop (room for an avatar that
@@ -131,7 +131,7 @@ impl RefineView {
                 .map(|v| *v as f32 / 255.0)
                 .collect(),
             skinning,
-            shading: Vec::new(),
+            exposure: 0.0,
         })
     }
 

@@ -224,6 +224,7 @@ pub fn render_dressed_views<'a>(
     };
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6c69_6768_7473);
     let lighting = Lighting::random(&mut rng);
+    tracing::debug!(?lighting, "lighting of the lit views");
     let shadow = match lighting.lights.first() {
         Some(key) if lit => Some(person.light_visibility(&matrices, &posed, key.direction)?),
         _ => None,
@@ -393,6 +394,7 @@ pub fn write_bag(
         ns,
         &BodyPose::from_pose(header(ns, WORLD_FRAME), "person_0", &pose),
     )?;
+    tracing::debug!(shape = ?subject.shape(), "the person's body shape");
     if options.publish_shape {
         bag.write(
             SHAPE_TOPIC,
