@@ -104,8 +104,8 @@ pub fn run(args: RunArgs) -> Result<()> {
     if let Some(salvage) = summary.bag.as_ref().filter(|s| !s.is_complete()) {
         println!("bag {}: {salvage}", config.replay.bag);
     }
-    if !config.outputs.dir.is_empty() {
-        println!("outputs in {}/", config.outputs.dir);
+    if let Some(files) = &summary.files {
+        println!("outputs in {}/: {files}", config.outputs.dir);
     }
     Ok(())
 }

@@ -302,6 +302,20 @@ pub fn parameters() -> Vec<Parameter> {
             "PLY avatars and PNG frames; empty disables",
         ),
         p(
+            "outputs.keep_revisions",
+            int(),
+            "numbered revision files `avatar_<person>_rev<N>.ply` kept per person besides \
+             the latest `avatar_<person>.ply` (always whole: written by rename); 0 keeps the \
+             latest only",
+        ),
+        p(
+            "outputs.max_disk_mb",
+            "float ≥ 0".into(),
+            "cap in megabytes on every avatar and frame file under `outputs.dir`, those of \
+             earlier runs included: the oldest frames and numbered revisions go first, then the \
+             oldest latest avatars, never the files just written; 0: no cap",
+        ),
+        p(
             "outputs.render_rate_hz",
             rate(),
             "rendered frames per second per virtual camera",

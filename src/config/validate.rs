@@ -165,6 +165,12 @@ impl NodeConfig {
             ));
         }
         let out = &self.outputs;
+        if !(out.max_disk_mb.is_finite() && out.max_disk_mb >= 0.0) {
+            return Err(bad(
+                "outputs.max_disk_mb",
+                format!("{} must be finite and >= 0 (0: no cap)", out.max_disk_mb),
+            ));
+        }
         check("outputs.render_rate_hz", rate(out.render_rate_hz))?;
         check(
             "outputs.render_size",

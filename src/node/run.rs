@@ -69,6 +69,8 @@ pub struct RunSummary {
     pub encoded_views: usize,
     /// Animation frames written at the end of a replay.
     pub animation_frames: usize,
+    /// What the files under `outputs.dir` took and gave back (`None`: no files written).
+    pub files: Option<crate::node::outputs::DiskUsage>,
     /// Every person followed at the end (one without tracking).
     pub persons: Vec<PersonSummary>,
     /// The person tracker's counters (`tracking.enabled` only).
@@ -203,6 +205,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         revision: pipeline.revision(),
         encoded_views: pipeline.encoded_views(),
         animation_frames,
+        files: pipeline.disk_usage(),
         persons: pipeline
             .persons()
             .into_iter()

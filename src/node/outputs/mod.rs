@@ -9,11 +9,13 @@
 //! frames ([`Publisher::animation`]). The pipeline renders and poses only for outputs that take
 //! the result. Failures are each output's to log: an output never stops the pipeline.
 
+pub mod disk;
 pub mod files;
 pub mod ros;
 pub mod shm;
 
-pub use files::FileOutputs;
+pub use disk::DiskUsage;
+pub use files::{FileOutputs, Retention};
 pub use ros::{avatar_message, frame_message, status_message, RosPublisher};
 pub use shm::ShmOutputs;
 
@@ -92,6 +94,10 @@ pub trait Publisher {
     fn animation(&self) -> Option<Box<dyn Animation + '_>> {
         None
     }
+    /// What this output wrote to and removed from disk so far (`None`: it writes no files).
+    fn disk_usage(&self) -> Option<DiskUsage> {
+        None
+    }
 }
 
 /// The frames of one end-of-replay animation, stored as they are rendered.
@@ -141,6 +147,9 @@ impl Publisher for Fanout {
     fn live(&self) -> bool {
         self.0.iter().any(|p| p.live())
     }
+    fn disk_usage(&self) -> Option<DiskUsage> {
+        self.0.iter().find_map(|p| p.disk_usage())
+    }
     fn animation(&self) -> Option<Box<dyn Animation + '_>> {
         let stores: Vec<_> = self.0.iter().filter_map(|p| p.animation()).collect();
         (!stores.is_empty()).then(|| Box::new(FanoutAnimation(stores)) as Box<dyn Animation + '_>)
@@ -178,7 +187,7 @@ mod tests {
     #[test]
     fn replacing_the_live_publishers_keeps_the_files() {
         let tmp = tempfile::tempdir().unwrap();
-        let files = FileOutputs::new(tmp.path()).unwrap();
+        let files = FileOutputs::new(tmp.path(), Retention::EVERYTHING).unwrap();
         let mut outputs = Fanout(vec![Box::new(files)]);
         assert!(!outputs.live(), "files take no live stream");
         assert!(outputs.animation().is_some(), "files store the animation");

@@ -18,7 +18,9 @@ use crate::config::{Delight, NodeConfig, PersonMask, PoseSource};
 use crate::msgs::{BodyPose, BodyShape, Header, ReconstructionStatus, Time};
 use crate::node::frame_store::{thumbnail_embedding, FrameStore, InsertOutcome, View};
 use crate::node::inputs::{CameraFrame, InputEvent};
-use crate::node::outputs::{status_message, AvatarUpdate, Fanout, FileOutputs, Publisher};
+use crate::node::outputs::{
+    status_message, AvatarUpdate, DiskUsage, Fanout, FileOutputs, Publisher, Retention,
+};
 use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::node::timings::Timings;
@@ -238,7 +240,12 @@ impl Pipeline {
         // An unusable output directory costs the files only: the ROS 2 and shared-memory
         // outputs go on.
         let files = (!config.outputs.dir.is_empty())
-            .then(|| FileOutputs::new(Path::new(&config.outputs.dir)))
+            .then(|| {
+                FileOutputs::new(
+                    Path::new(&config.outputs.dir),
+                    Retention::from_config(&config.outputs),
+                )
+            })
             .and_then(|made| {
                 made.map_err(|e| {
                     tracing::error!(
@@ -392,6 +399,11 @@ impl Pipeline {
     /// Run counters so far.
     pub fn stats(&self) -> &PipelineStats {
         &self.stats
+    }
+
+    /// What the files under `outputs.dir` took and gave back so far (`None`: no files).
+    pub fn disk_usage(&self) -> Option<DiskUsage> {
+        self.outputs.disk_usage()
     }
 
     /// Counts and logs an input message rejected before it became an event (a bag message
