@@ -3,6 +3,7 @@
 
 use lhmpp::config::NodeConfig;
 use lhmpp::splat::read_ply;
+use lhmpp::testing::bytes_under;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -47,18 +48,6 @@ fn demo_bag_replays_into_an_avatar_and_rendered_frames() {
     assert_eq!(summary.animation_frames, 24 * 4);
     let frame = image::open(dir.path().join("frames/person_0_cam0_012.png")).unwrap();
     assert_eq!(frame.width(), config.outputs.render_size);
-}
-
-/// Bytes of every file under `dir`.
-fn bytes_under(dir: &Path) -> u64 {
-    std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .map(|p| match p.is_dir() {
-            true => bytes_under(&p),
-            false => std::fs::metadata(&p).unwrap().len(),
-        })
-        .sum()
 }
 
 /// The files stay within `outputs.max_disk_mb`: the 96 end-of-replay frames do not fit beside

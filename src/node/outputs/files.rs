@@ -345,6 +345,7 @@ mod tests {
     use super::*;
     use crate::body::SkinWeights;
     use crate::splat::Gaussians;
+    use crate::testing::bytes_under;
     use glam::{Quat, Vec3};
     use std::sync::{Arc, Mutex};
 
@@ -450,17 +451,6 @@ mod tests {
             .collect();
         revs.sort_unstable();
         revs
-    }
-
-    fn bytes_under(dir: &Path) -> u64 {
-        std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .map(|p| match p.is_dir() {
-                true => bytes_under(&p),
-                false => std::fs::metadata(&p).unwrap().len(),
-            })
-            .sum()
     }
 
     /// A long run: 3 persons × 150 revisions with `keep_revisions: 3` keep exactly the last 3
