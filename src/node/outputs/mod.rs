@@ -14,15 +14,17 @@ pub mod ros;
 pub mod shm;
 
 pub use files::FileOutputs;
-pub use ros::{avatar_message, frame_message, status_message, RosPublisher};
+pub use ros::{avatar_message, compact_message, frame_message, status_message, RosPublisher};
 pub use shm::ShmOutputs;
 
 use crate::avatar::Avatar;
+use crate::compact::CompactAvatar;
 use crate::msgs::{BodyPose, ReconstructionStatus};
 use crate::node::pipeline::RenderedFrame;
 use crate::splat::{Gaussians, PlyError};
 use image::GrayImage;
 use std::path::PathBuf;
+use std::sync::OnceLock;
 
 /// An output failed; names the file or the message.
 #[derive(Debug, thiserror::Error)]
@@ -41,6 +43,9 @@ pub enum OutputError {
     /// A message could not be built.
     #[error("message: {0}")]
     Message(#[from] crate::msgs::MsgError),
+    /// The compact avatar could not be encoded.
+    #[error("compact avatar: {0}")]
+    Compact(String),
 }
 
 /// A new avatar revision as handed to the outputs.
@@ -63,6 +68,24 @@ pub struct AvatarUpdate<'a> {
     pub rgb_display_ready: bool,
     /// The neural renderer that decodes a latent RGB avatar (empty when display-ready).
     pub neural_renderer: &'a str,
+    /// The compact form, encoded by the first output that asks ([`AvatarUpdate::compact`]).
+    pub compact: CompactOnce,
+}
+
+/// A compact avatar encoded at most once per update, for every output that sends it.
+#[derive(Default)]
+pub struct CompactOnce(OnceLock<Result<CompactAvatar, String>>);
+
+impl AvatarUpdate<'_> {
+    /// The compact form of the avatar (SPZ + skin), encoded on first use; the error text
+    /// when it cannot be encoded.
+    pub fn compact(&self) -> Result<&CompactAvatar, &str> {
+        self.compact
+            .0
+            .get_or_init(|| CompactAvatar::encode(self.avatar).map_err(|e| e.to_string()))
+            .as_ref()
+            .map_err(|e| e.as_str())
+    }
 }
 
 /// One output of the node (ROS 2, shared memory, files).
