@@ -1,4 +1,4 @@
-//! The compact avatar (SPZ + skin, `lhmpp_msgs/CompactAvatar`) of an avatar made by the
+//! The compact avatar (Gaussians as SPZ quantises them + skin, `lhmpp_msgs/CompactAvatar`) of an avatar made by the
 //! embedded network: decoded and rendered by the CPU rasteriser, at rest and in two walk poses
 //! from four cameras, it stays at least 40 dB PSNR of the full avatar's renders, and its
 //! message is at least 8× smaller than the `GaussianAvatar` of the same revision.
@@ -6,7 +6,7 @@
 use lhmpp::avatar::Avatar;
 use lhmpp::body::{motion::walk_pose, BodyTemplate, Pose};
 use lhmpp::compact::fidelity::{orbit_cameras, round_trip_psnr};
-use lhmpp::compact::CompactAvatar;
+use lhmpp::compact::{CompactAvatar, CompactOptions};
 use lhmpp::config::ModelConfig;
 use lhmpp::msgs::{self, RosMessage};
 use lhmpp::node::outputs::{avatar_message, compact_message, AvatarUpdate};
@@ -62,12 +62,12 @@ fn the_compact_avatar_renders_within_40_db_of_the_full_one_at_an_eighth_of_the_s
     let small = compact_message(&u).unwrap();
     let bytes = small.encode_cdr();
     eprintln!(
-        "{} Gaussians: GaussianAvatar {} B, CompactAvatar {} B ({:.2}×; SPZ {} B, skin {} B)",
+        "{} Gaussians: GaussianAvatar {} B, CompactAvatar {} B ({:.2}×; Gaussians {} B, skin {} B)",
         avatar.canonical.len(),
         full.len(),
         bytes.len(),
         full.len() as f64 / bytes.len() as f64,
-        small.spz.len(),
+        small.gaussians.len(),
         small.skin.len()
     );
     assert!(
@@ -92,14 +92,20 @@ fn the_message_carries_what_the_gaussian_avatar_does_and_survives_cdr() {
     assert_eq!(small.shape_params, full.shape_params);
     assert_eq!(small.bone_names, full.bone_names);
     assert_eq!(small.bone_parents, full.bone_parents);
-    assert_eq!(small.bone_rest_positions, full.bone_rest_positions);
+    let rest: Vec<f32> = full
+        .bone_rest_positions
+        .iter()
+        .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
+        .collect();
+    assert_eq!(small.bone_rest_positions, rest);
     assert_eq!(small.rgb_display_ready, full.rgb_display_ready);
     let back = msgs::CompactAvatar::decode_cdr(&small.encode_cdr()).unwrap();
     assert_eq!(back, small);
     // The blobs decode to the avatar's Gaussians, in another (spatial) order: same count, same
-    // set of positions to within SPZ's 1/4096 m.
+    // set of positions to within the position step.
+    let unit = (1u32 << CompactOptions::default().fractional_bits) as f32;
     let blobs = CompactAvatar {
-        spz: back.spz,
+        gaussians: back.gaussians,
         skin: back.skin,
     };
     let decoded = blobs.decode(&back.body_model).unwrap();
@@ -107,17 +113,17 @@ fn the_message_carries_what_the_gaussian_avatar_does_and_survives_cdr() {
         .canonical
         .positions
         .iter()
-        .map(|p| (*p * 4096.0).round().as_ivec3().to_array())
+        .map(|p| (*p * unit).round().as_ivec3().to_array())
         .collect();
     let mut b: Vec<[i32; 3]> = decoded
         .canonical
         .positions
         .iter()
-        .map(|p| (*p * 4096.0).round().as_ivec3().to_array())
+        .map(|p| (*p * unit).round().as_ivec3().to_array())
         .collect();
     a.sort();
     b.sort();
-    assert_eq!(a, b);
+    assert!(a == b, "the decoded positions are not the avatar's");
     // A damaged skin blob is refused with a reason, not decoded into garbage.
     let mut broken = blobs.clone();
     broken.skin.truncate(broken.skin.len() / 2);

@@ -8,10 +8,11 @@
 //! | 4 | `LHSK` |
 //! | 1 | version, 1 |
 //! | 1 | bytes per bone index: 1 (fewer than 256 bones) or 2 |
-//! | 2 | zero |
+//! | 1 | weight levels `L` (1 to 255): weights are stored in `1/L` steps |
+//! | 1 | zero |
 //! | 4 | Gaussian count `n` |
 //! | 4 × n × index bytes | slot 0's bone of every Gaussian, then slot 1's, 2's, 3's |
-//! | 3 × n | slot 0's weight × 255 of every Gaussian, then slot 1's, 2's (slot 3's is 255 minus their sum) |
+//! | 3 × n | slot 0's weight × `L` of every Gaussian, then slot 1's, 2's (slot 3's is `L` minus their sum) |
 //!
 //! Each Gaussian's slots are sorted by bone index (zero-weight slots last, bone 0), so that
 //! neighbours bound to the same bones repeat the same bytes.
@@ -26,15 +27,16 @@ const VERSION: u8 = 1;
 const HEADER: usize = 12;
 
 /// The quantised slots of one Gaussian: bones sorted (zero weights last) and weights in
-/// 255ths summing to exactly 255 (largest remainders).
+/// `levels`ths summing to exactly `levels` (largest remainders).
 pub(super) fn quantise(
     bones: &[u16; MAX_INFLUENCES],
     weights: &[f32; MAX_INFLUENCES],
+    levels: u8,
 ) -> ([u16; 4], [u8; 4]) {
     let total: f32 = weights.iter().sum();
-    let scaled = weights.map(|w| w / total * 255.0);
+    let scaled = weights.map(|w| w / total * levels as f32);
     let mut q = scaled.map(|s| s.floor() as i32);
-    let mut left = 255 - q.iter().sum::<i32>();
+    let mut left = levels as i32 - q.iter().sum::<i32>();
     let mut order = [0usize, 1, 2, 3];
     order.sort_by(|&a, &b| {
         (scaled[b] - scaled[b].floor()).total_cmp(&(scaled[a] - scaled[a].floor()))
@@ -62,18 +64,26 @@ pub(super) fn quantise(
     )
 }
 
-/// The gzip-compressed skin blob of `skin`, Gaussians in the given order.
-pub(super) fn encode(skin: &SkinWeights, order: &[u32]) -> Result<Vec<u8>, CompactError> {
+/// The gzip-compressed skin blob of `skin`, Gaussians in the given order, weights in
+/// `levels` steps.
+pub(super) fn encode(
+    skin: &SkinWeights,
+    order: &[u32],
+    levels: u8,
+) -> Result<Vec<u8>, CompactError> {
+    if levels == 0 {
+        return Err(CompactError::Skin("0 weight levels".into()));
+    }
     let n = order.len();
     let wide = skin.bones.iter().flatten().any(|&b| b > 255);
     let index_bytes = if wide { 2 } else { 1 };
     let quantised: Vec<([u16; 4], [u8; 4])> = order
         .iter()
-        .map(|&i| quantise(&skin.bones[i as usize], &skin.weights[i as usize]))
+        .map(|&i| quantise(&skin.bones[i as usize], &skin.weights[i as usize], levels))
         .collect();
     let mut raw = Vec::with_capacity(HEADER + n * (4 * index_bytes + 3));
     raw.extend_from_slice(MAGIC);
-    raw.extend_from_slice(&[VERSION, index_bytes as u8, 0, 0]);
+    raw.extend_from_slice(&[VERSION, index_bytes as u8, levels, 0]);
     raw.extend_from_slice(&(n as u32).to_le_bytes());
     for k in 0..MAX_INFLUENCES {
         for (bones, _) in &quantised {
@@ -84,8 +94,9 @@ pub(super) fn encode(skin: &SkinWeights, order: &[u32]) -> Result<Vec<u8>, Compa
         raw.extend(quantised.iter().map(|(_, w)| w[k]));
     }
     let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
-    gz.write_all(&raw).map_err(CompactError::Gzip)?;
-    gz.finish().map_err(CompactError::Gzip)
+    gz.write_all(&raw)
+        .map_err(|e| CompactError::Gzip("skin", e))?;
+    gz.finish().map_err(|e| CompactError::Gzip("skin", e))
 }
 
 /// The skin of a blob, for `expected` Gaussians.
@@ -97,7 +108,7 @@ pub(super) fn decode(blob: &[u8], expected: usize) -> Result<SkinWeights, Compac
     flate2::read::GzDecoder::new(blob)
         .take(cap)
         .read_to_end(&mut raw)
-        .map_err(CompactError::Gzip)?;
+        .map_err(|e| CompactError::Gzip("skin", e))?;
     if raw.len() < HEADER || &raw[0..4] != MAGIC {
         return Err(bad("not an LHSK skin blob".into()));
     }
@@ -107,6 +118,10 @@ pub(super) fn decode(blob: &[u8], expected: usize) -> Result<SkinWeights, Compac
     let index_bytes = raw[5] as usize;
     if !(1..=2).contains(&index_bytes) {
         return Err(bad(format!("{index_bytes} bytes per bone index (1 or 2)")));
+    }
+    let levels = raw[6] as u32;
+    if levels == 0 {
+        return Err(bad("0 weight levels".into()));
     }
     let n = u32::from_le_bytes(raw[8..12].try_into().expect("4 bytes")) as usize;
     if n != expected {
@@ -135,10 +150,10 @@ pub(super) fn decode(blob: &[u8], expected: usize) -> Result<SkinWeights, Compac
     for i in 0..n {
         let w3 = [0, 1, 2].map(|k| weight_planes[k * n + i] as u32);
         let sum: u32 = w3.iter().sum();
-        if sum > 255 {
-            return Err(bad(format!("Gaussian {i}: weights sum to {sum}/255")));
+        if sum > levels {
+            return Err(bad(format!("Gaussian {i}: weights sum to {sum}/{levels}")));
         }
-        let w = [w3[0], w3[1], w3[2], 255 - sum].map(|q| q as f32 / 255.0);
+        let w = [w3[0], w3[1], w3[2], levels - sum].map(|q| q as f32 / levels as f32);
         skin.bones.push([0, 1, 2, 3].map(|k| bone(k, i)));
         skin.weights.push(w);
     }
@@ -151,13 +166,15 @@ mod tests {
 
     #[test]
     fn quantised_weights_sum_to_255_and_keep_their_bones() {
-        let (b, w) = quantise(&[7, 3, 9, 1], &[0.5, 0.25, 0.0, 0.25]);
+        let (b, w) = quantise(&[7, 3, 9, 1], &[0.5, 0.25, 0.0, 0.25], 255);
         assert_eq!(w.iter().map(|&x| x as u32).sum::<u32>(), 255);
         assert_eq!(b, [1, 3, 7, 0], "sorted by bone, the zero slot last");
         assert_eq!(w[3], 0);
         assert_eq!(w[2], 128, "0.5 of 255, rounded by largest remainder");
-        let (_, w) = quantise(&[0, 1, 2, 3], &[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 0.0]);
+        let (_, w) = quantise(&[0, 1, 2, 3], &[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 0.0], 255);
         assert_eq!(w[..3].iter().map(|&x| x as u32).sum::<u32>(), 255);
+        let (_, w) = quantise(&[0, 1, 2, 3], &[0.7, 0.2, 0.1, 0.0], 63);
+        assert_eq!(w, [44, 13, 6, 0], "0.7, 0.2, 0.1 of 63, summing to 63");
     }
 
     #[test]
@@ -170,7 +187,7 @@ mod tests {
                 [0.25, 0.25, 0.25, 0.25],
             ],
         };
-        let blob = encode(&skin, &[2, 0, 1]).unwrap();
+        let blob = encode(&skin, &[2, 0, 1], 255).unwrap();
         let back = decode(&blob, 3).unwrap();
         // Gaussian 0 of the blob is skin row 2, and so on.
         for (j, &i) in [2usize, 0, 1].iter().enumerate() {

@@ -1,8 +1,9 @@
-//! `lhmpp_msgs/msg/CompactAvatar`: an avatar as SPZ plus a skin blob (built by
+//! `lhmpp_msgs/msg/CompactAvatar`: an avatar as a Gaussians blob (SPZ's quantisation) plus a
+//! skin blob (built by
 //! [`crate::compact::CompactAvatar`]) with the skeleton its bone indices refer to.
 
 use super::message::ros_message;
-use super::{Header, Point};
+use super::Header;
 use serde::{Deserialize, Serialize};
 
 /// `lhmpp_msgs/msg/CompactAvatar`. The blobs' layouts are documented in
@@ -21,7 +22,7 @@ pub struct CompactAvatar {
     pub body_model: String,
     /// Body shape coefficients of the body model.
     pub shape_params: Vec<f32>,
-    /// Whether the SPZ colours are colours to display.
+    /// Whether the Gaussians' colours are colours to display.
     pub rgb_display_ready: bool,
     /// The neural renderer of a latent-RGB avatar, else empty.
     pub neural_renderer: String,
@@ -29,11 +30,11 @@ pub struct CompactAvatar {
     pub bone_names: Vec<String>,
     /// Parent index of each bone, -1 for the root.
     pub bone_parents: Vec<i32>,
-    /// Rest-pose joint position of each bone (metres, canonical frame).
-    pub bone_rest_positions: Vec<Point>,
-    /// SPZ file (gzip) of the canonical Gaussians.
+    /// Rest-pose joint position of each bone (metres, canonical frame), `x y z` per bone.
+    pub bone_rest_positions: Vec<f32>,
+    /// The canonical Gaussians (gzip `LHCA` blob).
     #[serde(with = "serde_bytes")]
-    pub spz: Vec<u8>,
+    pub gaussians: Vec<u8>,
     /// Bones and weights of each Gaussian (gzip `LHSK` blob).
     #[serde(with = "serde_bytes")]
     pub skin: Vec<u8>,

@@ -23,5 +23,8 @@ pub use render::{
     RenderOutput, TILE,
 };
 pub use sh::eval_sh;
-pub use spz::{read_spz, write_spz, SpzError, DEFAULT_FRACTIONAL_BITS, MAX_SPZ_GAUSSIANS};
+pub use spz::{
+    pack_rotation, read_spz, unpack_rotation, write_spz, SpzError, SpzQuantised,
+    DEFAULT_FRACTIONAL_BITS, MAX_SPZ_GAUSSIANS,
+};
 pub use voxel_skinning::{VoxelSkinning, VoxelSkinningError};

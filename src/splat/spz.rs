@@ -67,57 +67,178 @@ fn to_u8(x: f32) -> u8 {
     x.round().clamp(0.0, 255.0) as u8
 }
 
+/// Gaussians quantised as SPZ stores them, one entry per Gaussian, before any layout or
+/// compression: what both [`write_spz`] and the compact avatar's own layout write.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SpzQuantised {
+    /// Fraction bits of the fixed-point positions.
+    pub fractional_bits: u8,
+    /// SH degree of the colours.
+    pub sh_degree: usize,
+    /// Positions in `1 / 2^fractional_bits` steps (24-bit range).
+    pub positions: Vec<[i32; 3]>,
+    /// Opacity × 255.
+    pub alphas: Vec<u8>,
+    /// SH DC coefficient × 0.15 × 255 + 127.5, per channel.
+    pub colors: Vec<[u8; 3]>,
+    /// (ln σ + 10) × 16, per axis.
+    pub scales: Vec<[u8; 3]>,
+    /// Smallest-three rotation words (see [`pack_rotation`]).
+    pub rotations: Vec<u32>,
+    /// SH rest coefficients × 128 + 128, `3 × ((d + 1)² − 1)` per Gaussian.
+    pub sh_rest: Vec<u8>,
+}
+
+impl SpzQuantised {
+    /// Quantises `g` with positions at `fractional_bits` fraction bits (coordinates beyond
+    /// ±2^(23 − fractional_bits) are clamped).
+    pub fn from_gaussians(g: &Gaussians, fractional_bits: u8) -> Result<Self, SpzError> {
+        g.validate()?;
+        if fractional_bits > 23 {
+            return Err(SpzError::Header(format!(
+                "{fractional_bits} fractional bits (at most 23)"
+            )));
+        }
+        let unit = (1u32 << fractional_bits) as f32;
+        let limit = (1i32 << 23) - 1;
+        let k = g.sh_per_gaussian();
+        Ok(Self {
+            fractional_bits,
+            sh_degree: g.sh_degree,
+            positions: g
+                .positions
+                .iter()
+                .map(|p| {
+                    p.to_array()
+                        .map(|c| ((c * unit).round() as i32).clamp(-limit, limit))
+                })
+                .collect(),
+            alphas: g.opacities.iter().map(|a| to_u8(a * 255.0)).collect(),
+            colors: (0..g.len())
+                .map(|i| g.sh_of(i)[0].map(|c| to_u8(c * (COLOR_SCALE * 255.0) + 0.5 * 255.0)))
+                .collect(),
+            scales: g
+                .scales
+                .iter()
+                .map(|s| {
+                    s.to_array()
+                        .map(|v| to_u8((v.max(1e-30).ln() + 10.0) * 16.0))
+                })
+                .collect(),
+            rotations: g.rotations.iter().map(|q| pack_rotation(*q)).collect(),
+            sh_rest: (0..g.len())
+                .flat_map(|i| {
+                    g.sh_of(i)[1..k]
+                        .iter()
+                        .flat_map(|c| c.map(|v| to_u8(v * 128.0 + 128.0)))
+                })
+                .collect(),
+        })
+    }
+
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// True when there are no Gaussians.
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// The Gaussians these values stand for. Fails when the arrays disagree in length.
+    pub fn to_gaussians(&self) -> Result<Gaussians, SpzError> {
+        let n = self.len();
+        let k = super::sh_coeff_count(self.sh_degree);
+        let rest = 3 * (k - 1);
+        let consistent = [
+            self.alphas.len(),
+            self.colors.len(),
+            self.scales.len(),
+            self.rotations.len(),
+        ]
+        .iter()
+        .all(|&l| l == n)
+            && self.sh_rest.len() == n * rest;
+        if self.sh_degree > MAX_SH_DEGREE || self.fractional_bits > 23 || !consistent {
+            return Err(SpzError::Header(format!(
+                "{n} positions with {} alphas, {} colours, {} scales, {} rotations, {} SH rest \
+                 values, SH degree {}, {} fractional bits",
+                self.alphas.len(),
+                self.colors.len(),
+                self.scales.len(),
+                self.rotations.len(),
+                self.sh_rest.len(),
+                self.sh_degree,
+                self.fractional_bits
+            )));
+        }
+        let unit = 1.0 / (1u32 << self.fractional_bits) as f32;
+        let mut sh = Vec::with_capacity(n * k);
+        for i in 0..n {
+            sh.push(self.colors[i].map(|c| (c as f32 / 255.0 - 0.5) / COLOR_SCALE));
+            for c in self.sh_rest[rest * i..rest * (i + 1)].chunks_exact(3) {
+                sh.push([c[0], c[1], c[2]].map(|v| (v as f32 - 128.0) / 128.0));
+            }
+        }
+        let g = Gaussians {
+            positions: self
+                .positions
+                .iter()
+                .map(|p| Vec3::from_array(p.map(|c| c as f32 * unit)))
+                .collect(),
+            scales: self
+                .scales
+                .iter()
+                .map(|s| Vec3::from_array(s.map(|b| (b as f32 / 16.0 - 10.0).exp())))
+                .collect(),
+            rotations: self.rotations.iter().map(|&r| unpack_rotation(r)).collect(),
+            opacities: self.alphas.iter().map(|&a| a as f32 / 255.0).collect(),
+            sh_degree: self.sh_degree,
+            sh,
+            feature_channels: 0,
+            features: Vec::new(),
+        };
+        g.validate()?;
+        Ok(g)
+    }
+
+    /// The SPZ v3 file of these values (gzip-compressed).
+    pub fn to_spz(&self) -> Result<Vec<u8>, SpzError> {
+        let n = self.len();
+        let mut raw = Vec::with_capacity(HEADER + n * bytes_per_gaussian(self.sh_degree));
+        raw.extend_from_slice(&MAGIC.to_le_bytes());
+        raw.extend_from_slice(&VERSION.to_le_bytes());
+        raw.extend_from_slice(&(n as u32).to_le_bytes());
+        raw.extend_from_slice(&[self.sh_degree as u8, self.fractional_bits, 0, 0]);
+        for p in &self.positions {
+            for c in p {
+                raw.extend_from_slice(&c.to_le_bytes()[..3]);
+            }
+        }
+        raw.extend_from_slice(&self.alphas);
+        raw.extend(self.colors.iter().flatten());
+        raw.extend(self.scales.iter().flatten());
+        for r in &self.rotations {
+            raw.extend_from_slice(&r.to_le_bytes());
+        }
+        raw.extend_from_slice(&self.sh_rest);
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+        gz.write_all(&raw).map_err(SpzError::Gzip)?;
+        gz.finish().map_err(SpzError::Gzip)
+    }
+}
+
 /// The SPZ v3 bytes (gzip-compressed) of `g`, positions with `fractional_bits` fraction bits
 /// (coordinates beyond ±2^(23 − fractional_bits) are clamped).
 pub fn write_spz(g: &Gaussians, fractional_bits: u8) -> Result<Vec<u8>, SpzError> {
-    g.validate()?;
-    if fractional_bits > 23 {
-        return Err(SpzError::Header(format!(
-            "{fractional_bits} fractional bits (at most 23)"
-        )));
-    }
-    let n = g.len();
-    let mut raw = Vec::with_capacity(HEADER + n * bytes_per_gaussian(g.sh_degree));
-    raw.extend_from_slice(&MAGIC.to_le_bytes());
-    raw.extend_from_slice(&VERSION.to_le_bytes());
-    raw.extend_from_slice(&(n as u32).to_le_bytes());
-    raw.extend_from_slice(&[g.sh_degree as u8, fractional_bits, 0, 0]);
-    let unit = (1u32 << fractional_bits) as f32;
-    let limit = (1i32 << 23) - 1;
-    for p in &g.positions {
-        for c in p.to_array() {
-            let fixed = ((c * unit).round() as i32).clamp(-limit, limit);
-            raw.extend_from_slice(&fixed.to_le_bytes()[..3]);
-        }
-    }
-    raw.extend(g.opacities.iter().map(|a| to_u8(a * 255.0)));
-    for i in 0..n {
-        let dc = g.sh_of(i)[0];
-        raw.extend(dc.map(|c| to_u8(c * (COLOR_SCALE * 255.0) + 0.5 * 255.0)));
-    }
-    for s in &g.scales {
-        raw.extend(
-            s.to_array()
-                .map(|v| to_u8((v.max(1e-30).ln() + 10.0) * 16.0)),
-        );
-    }
-    for q in &g.rotations {
-        raw.extend_from_slice(&pack_rotation(*q).to_le_bytes());
-    }
-    let k = g.sh_per_gaussian();
-    for i in 0..n {
-        for coefficient in &g.sh_of(i)[1..k] {
-            raw.extend(coefficient.map(|c| to_u8(c * 128.0 + 128.0)));
-        }
-    }
-    let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
-    gz.write_all(&raw).map_err(SpzError::Gzip)?;
-    gz.finish().map_err(SpzError::Gzip)
+    SpzQuantised::from_gaussians(g, fractional_bits)?.to_spz()
 }
 
 /// "Smallest three": the largest component's index in the top 2 bits, then the other three
-/// in index order, 10 bits each (sign, 9-bit magnitude over 1/√2), the last in the low bits.
-fn pack_rotation(q: Quat) -> u32 {
+/// in index order (x y z w), 10 bits each (sign, 9-bit magnitude over 1/√2), the last in the
+/// low bits.
+pub fn pack_rotation(q: Quat) -> u32 {
     let q = q.normalize().to_array();
     let largest = (0..4)
         .max_by(|&a, &b| q[a].abs().total_cmp(&q[b].abs()))
@@ -137,7 +258,8 @@ fn pack_rotation(q: Quat) -> u32 {
     packed
 }
 
-fn unpack_rotation(mut packed: u32) -> Quat {
+/// The unit quaternion of a [`pack_rotation`] word.
+pub fn unpack_rotation(mut packed: u32) -> Quat {
     let largest = (packed >> 30) as usize;
     let mut q = [0.0f32; 4];
     let mut sum = 0.0;
@@ -213,58 +335,38 @@ pub fn read_spz(bytes: &[u8]) -> Result<Gaussians, SpzError> {
     let (colors, rest) = rest.split_at(3 * n);
     let (scales, rest) = rest.split_at(3 * n);
     let (rotations, rest) = rest.split_at(rotation_bytes * n);
-    let unit = 1.0 / (1u32 << fractional_bits) as f32;
-    let coordinate = |b: &[u8]| {
-        let v = i32::from_le_bytes([b[0], b[1], b[2], if b[2] & 0x80 != 0 { 0xff } else { 0 }]);
-        v as f32 * unit
-    };
-    let mut sh = Vec::with_capacity(n * k);
-    for i in 0..n {
-        let c = &colors[3 * i..3 * i + 3];
-        sh.push([0, 1, 2].map(|j| (c[j] as f32 / 255.0 - 0.5) / COLOR_SCALE));
-        for coefficient in rest[3 * (k - 1) * i..3 * (k - 1) * (i + 1)].chunks_exact(3) {
-            sh.push([0, 1, 2].map(|j| (coefficient[j] as f32 - 128.0) / 128.0));
-        }
-    }
-    let g = Gaussians {
+    let coordinate =
+        |b: &[u8]| i32::from_le_bytes([b[0], b[1], b[2], if b[2] & 0x80 != 0 { 0xff } else { 0 }]);
+    let q = SpzQuantised {
+        fractional_bits,
+        sh_degree,
         positions: positions
             .chunks_exact(9)
             .map(|p| {
-                Vec3::new(
+                [
                     coordinate(&p[0..3]),
                     coordinate(&p[3..6]),
                     coordinate(&p[6..9]),
-                )
+                ]
             })
             .collect(),
-        scales: scales
-            .chunks_exact(3)
-            .map(|s| Vec3::from_array([s[0], s[1], s[2]].map(|b| (b as f32 / 16.0 - 10.0).exp())))
-            .collect(),
+        alphas: alphas.to_vec(),
+        colors: colors.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        scales: scales.chunks_exact(3).map(|s| [s[0], s[1], s[2]]).collect(),
         rotations: rotations
             .chunks_exact(rotation_bytes)
             .map(|r| match version {
-                3 => unpack_rotation(u32::from_le_bytes([r[0], r[1], r[2], r[3]])),
+                3 => u32::from_le_bytes([r[0], r[1], r[2], r[3]]),
                 _ => {
                     let xyz = Vec3::from_array([r[0], r[1], r[2]].map(|b| b as f32 / 127.5 - 1.0));
-                    Quat::from_xyzw(
-                        xyz.x,
-                        xyz.y,
-                        xyz.z,
-                        (1.0 - xyz.length_squared()).max(0.0).sqrt(),
-                    )
-                    .normalize()
+                    let w = (1.0 - xyz.length_squared()).max(0.0).sqrt();
+                    pack_rotation(Quat::from_xyzw(xyz.x, xyz.y, xyz.z, w))
                 }
             })
             .collect(),
-        opacities: alphas.iter().map(|&a| a as f32 / 255.0).collect(),
-        sh_degree,
-        sh,
-        feature_channels: 0,
-        features: Vec::new(),
+        sh_rest: rest[..3 * (k - 1) * n].to_vec(),
     };
-    g.validate()?;
-    Ok(g)
+    q.to_gaussians()
 }
 
 #[cfg(test)]

@@ -131,7 +131,7 @@ pub fn avatar_message(update: &AvatarUpdate<'_>) -> Result<GaussianAvatar, Outpu
 }
 
 /// The CompactAvatar message of an avatar revision: the same header, person, revision and
-/// skeleton as [`avatar_message`], the Gaussians as SPZ and the skin as a blob.
+/// skeleton as [`avatar_message`], the Gaussians and the skin as compact blobs.
 pub fn compact_message(update: &AvatarUpdate<'_>) -> Result<CompactAvatar, OutputError> {
     let blobs = update
         .compact()
@@ -148,8 +148,8 @@ pub fn compact_message(update: &AvatarUpdate<'_>) -> Result<CompactAvatar, Outpu
         neural_renderer: update.neural_renderer.to_owned(),
         bone_names: skeleton.bone_names.clone(),
         bone_parents: bone_parents(skeleton),
-        bone_rest_positions: skeleton.joints.iter().map(|j| Point::from(*j)).collect(),
-        spz: blobs.spz.clone(),
+        bone_rest_positions: skeleton.joints.iter().flat_map(|j| j.to_array()).collect(),
+        gaussians: blobs.gaussians.clone(),
         skin: blobs.skin.clone(),
     })
 }
