@@ -31,3 +31,4 @@ pub mod synth;
 pub mod testing;
 pub mod tracking;
 pub mod transport;
+pub mod web;

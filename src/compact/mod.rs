@@ -172,9 +172,10 @@ mod tests {
         let spz = read_spz(&compact.to_spz().unwrap()).unwrap();
         assert_eq!(spz.positions, decoded.canonical.positions);
         assert_eq!(spz.sh, decoded.canonical.sh);
+        let levels = CompactOptions::default().weight_levels as f32;
         assert_eq!(
             decoded.skin.weights[0],
-            [0.75, 0.25, 0.0, 0.0].map(|w| (w * 63.0f32).round() / 63.0)
+            [0.75f32, 0.25, 0.0, 0.0].map(|w| (w * levels).round() / levels)
         );
         let e = CompactAvatar::encode_with(
             &avatar,

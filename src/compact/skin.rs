@@ -170,7 +170,11 @@ mod tests {
         assert_eq!(w.iter().map(|&x| x as u32).sum::<u32>(), 255);
         assert_eq!(b, [1, 3, 7, 0], "sorted by bone, the zero slot last");
         assert_eq!(w[3], 0);
-        assert_eq!(w[2], 128, "0.5 of 255, rounded by largest remainder");
+        assert_eq!(
+            w,
+            [64, 64, 127, 0],
+            "63.75, 63.75, 127.5: the largest remainders round up"
+        );
         let (_, w) = quantise(&[0, 1, 2, 3], &[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 0.0], 255);
         assert_eq!(w[..3].iter().map(|&x| x as u32).sum::<u32>(), 255);
         let (_, w) = quantise(&[0, 1, 2, 3], &[0.7, 0.2, 0.1, 0.0], 63);

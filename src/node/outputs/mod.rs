@@ -1,8 +1,8 @@
 //! The one place results leave the node: every avatar revision, status, rendered frame,
 //! preview and end-of-replay animation frame goes through a [`Publisher`], and a [`Fanout`]
 //! hands them to all of the node's outputs at once: ROS 2 messages ([`ros`]), iceoryx2 shared
-//! memory ([`shm`]) and files on disk ([`files`]); the person masks and the pose perception
-//! reads from the cameras go out the same way.
+//! memory ([`shm`]), the live page ([`web`]) and files on disk ([`files`]); the person masks
+//! and the pose perception reads from the cameras go out the same way.
 //!
 //! Outputs differ in what they take: the live ones ([`Publisher::live`]: ROS 2, shared memory)
 //! take statuses, rendered frames and previews; the files take the avatars and the animation
@@ -12,10 +12,12 @@
 pub mod files;
 pub mod ros;
 pub mod shm;
+pub mod web;
 
 pub use files::FileOutputs;
 pub use ros::{avatar_message, compact_message, frame_message, status_message, RosPublisher};
 pub use shm::ShmOutputs;
+pub use web::WebPublisher;
 
 use crate::avatar::Avatar;
 use crate::compact::CompactAvatar;
@@ -104,6 +106,10 @@ pub trait Publisher {
     fn mask(&self, _camera: &str, _mask: &GrayImage, _stamp_ns: i64, _frame_id: &str) {}
     /// Publishes the pose read from the cameras.
     fn pose(&self, _pose: &BodyPose) {}
+    /// A pose accepted from the pose topic for `person` (it animates their avatar; the
+    /// message's own `person_id` may be empty): outputs that show the avatar take it; the ROS 2
+    /// output does not send it back.
+    fn topic_pose(&self, _person: &str, _pose: &BodyPose) {}
     /// Whether this output takes the live stream: statuses, rendered frames and previews
     /// (true by default). The pipeline renders frames, poses previews and sends statuses only
     /// when some output does.
@@ -160,6 +166,9 @@ impl Publisher for Fanout {
     }
     fn pose(&self, pose: &BodyPose) {
         self.0.iter().for_each(|p| p.pose(pose));
+    }
+    fn topic_pose(&self, person: &str, pose: &BodyPose) {
+        self.0.iter().for_each(|p| p.topic_pose(person, pose));
     }
     fn live(&self) -> bool {
         self.0.iter().any(|p| p.live())

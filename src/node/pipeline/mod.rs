@@ -622,6 +622,7 @@ impl Pipeline {
         });
         match checked {
             Ok(p) => {
+                self.outputs.topic_pose(&person, msg);
                 let state = self.person_mut(&person);
                 state.animation.topic_pose = Some(p);
                 state.animation.topic_pose_at = Some(arrival);
