@@ -1,5 +1,5 @@
 //! The live page in a real browser: the node replays the demo bag with two BodyPoses (a walk
-//! pose at 1.5 s, another at 10 s) and serves `outputs.web`; headless Chromium (Debian) opens
+//! pose at 1.5 s, another at 20 s) and serves `outputs.web`; headless Chromium (Debian) opens
 //! the page, and once it has drawn the avatar at each pose takes a screenshot (DevTools
 //! protocol). Each screenshot is compared with the CPU rasteriser's render of the avatar the
 //! node wrote (PLY), at the same pose and camera: ≥ 30 dB PSNR. The pose moves the avatar: the
@@ -32,13 +32,13 @@ const TARGET: Vec3 = Vec3::new(0.0, 0.9, 0.0);
 /// The demo bag's start (ns).
 const START_NS: u64 = 1_700_000_000_000_000_000;
 const POSE_A_NS: u64 = START_NS + 1_500_000_000;
-const POSE_B_NS: u64 = START_NS + 10_000_000_000;
+const POSE_B_NS: u64 = START_NS + 20_000_000_000;
 
 fn poses() -> [Pose; 2] {
     [walk_pose(8.0), walk_pose(20.0)]
 }
 
-/// The demo bag without its pose, plus pose A at 1.5 s and pose B at 10 s.
+/// The demo bag without its pose, plus pose A at 1.5 s and pose B at 20 s.
 fn write_bag(path: &Path) {
     let demo =
         BagReader::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("bags/demo.mcap")).unwrap();
@@ -117,8 +117,15 @@ async fn page_state(cdp: &mut Cdp) -> Value {
 }
 
 /// Waits until the page has drawn person_0's avatar at the pose stamped `stamp` for 40 more
-/// frames (Spark sorts in a worker), then takes a screenshot (RGB f32).
+/// frames (Spark sorts in a worker), then takes a screenshot (RGB f32, `SIDE`²).
 async fn screenshot_at(cdp: &mut Cdp, stamp: u64, deadline: Instant) -> Vec<f32> {
+    let img = screenshot_png_at(cdp, stamp, deadline).await;
+    assert_eq!(img.dimensions(), (SIDE, SIDE));
+    img.as_raw().iter().map(|&v| v as f32 / 255.0).collect()
+}
+
+/// [`screenshot_at`] as an image of the viewport's size.
+async fn screenshot_png_at(cdp: &mut Cdp, stamp: u64, deadline: Instant) -> image::RgbImage {
     let mut since: Option<u64> = None;
     loop {
         let s = page_state(cdp).await;
@@ -143,12 +150,17 @@ async fn screenshot_at(cdp: &mut Cdp, stamp: u64, deadline: Instant) -> Vec<f32>
     let shot = cdp
         .call("Page.captureScreenshot", json!({"format": "png"}))
         .await;
+    let after = page_state(cdp).await;
+    assert_eq!(
+        after["persons"]["person_0"]["pose_stamp_ns"].as_u64(),
+        Some(stamp),
+        "the pose changed while the screenshot was taken (a slow start: the page came up \
+         after the next pose)"
+    );
     let png = base64::engine::general_purpose::STANDARD
         .decode(shot["data"].as_str().unwrap())
         .unwrap();
-    let img = image::load_from_memory(&png).unwrap().to_rgb8();
-    assert_eq!(img.dimensions(), (SIDE, SIDE));
-    img.as_raw().iter().map(|&v| v as f32 / 255.0).collect()
+    image::load_from_memory(&png).unwrap().to_rgb8()
 }
 
 fn save(path: &Path, rgb: &[f32]) {
@@ -160,6 +172,34 @@ fn save(path: &Path, rgb: &[f32]) {
         .unwrap()
         .save(path)
         .unwrap();
+}
+
+/// The whole page with numbered labels on its parts (docs/live-page.png).
+fn save_labelled(path: &Path, page: image::RgbImage) {
+    use lhmpp::picture::draw_text;
+    let blue = image::Rgb([30, 80, 200]);
+    let (w, h) = page.dimensions();
+    let mut out = image::RgbImage::from_pixel(w, h + 44, image::Rgb([255, 255, 255]));
+    image::imageops::replace(&mut out, &page, 0, 0);
+    draw_text(
+        &mut out,
+        8,
+        h + 6,
+        "1 persons: revision, views, pose age, state",
+        1,
+        blue,
+    );
+    draw_text(
+        &mut out,
+        8,
+        h + 24,
+        "2 each avatar drawn by Spark in the browser, skinned by the pose stream (drag: orbit)",
+        1,
+        blue,
+    );
+    draw_text(&mut out, 200, 8, "1", 2, blue);
+    draw_text(&mut out, 280, 8, "2", 2, blue);
+    out.save(path).unwrap();
 }
 
 fn score(a: &[f32], b: &[f32]) -> f64 {
@@ -276,12 +316,25 @@ fn the_page_draws_the_avatar_at_each_pose_as_the_cpu_rasteriser_does() {
         }
         let a = screenshot_at(&mut cdp, POSE_A_NS, deadline).await;
         let b = screenshot_at(&mut cdp, POSE_B_NS, deadline).await;
-        [a, b]
+        // The whole page, list included, for the docs.
+        cdp.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": 900, "height": 520, "deviceScaleFactor": 1, "mobile": false}),
+        )
+        .await;
+        let page_url = format!("http://127.0.0.1:{port}/?camera={eye_target}");
+        cdp.call("Page.navigate", json!({"url": page_url})).await;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let _ = screenshot_png_at(&mut cdp, POSE_B_NS, deadline).await;
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        let page = screenshot_png_at(&mut cdp, POSE_B_NS, deadline).await;
+        ([a, b], page)
     });
+    let (shots, page) = shots;
     eprintln!("screenshots after {:.1} s", started.elapsed().as_secs_f64());
 
     // The CPU rasteriser's renders of the avatar the node wrote.
-    let ply = read_ply(out.join("avatar_person_0.ply")).unwrap();
+    let ply = read_ply(&out.join("avatar_person_0.ply")).unwrap();
     let avatar = Avatar::new(
         ply.gaussians,
         ply.skin.unwrap(),
@@ -312,6 +365,7 @@ fn the_page_draws_the_avatar_at_each_pose_as_the_cpu_rasteriser_does() {
         .collect();
     let dir = root.join("target/web_page");
     std::fs::create_dir_all(&dir).unwrap();
+    save_labelled(&dir.join("live-page.png"), page);
     for (name, img) in [
         ("browser_pose_a.png", &shots[0]),
         ("browser_pose_b.png", &shots[1]),
@@ -322,6 +376,33 @@ fn the_page_draws_the_avatar_at_each_pose_as_the_cpu_rasteriser_does() {
     }
     let (aa, bb) = (score(&shots[0], &cpu[0]), score(&shots[1], &cpu[1]));
     let (ab, ba) = (score(&shots[0], &cpu[1]), score(&shots[1], &cpu[0]));
+    let tile = |rgb: &[f32]| {
+        let bytes = rgb
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        image::RgbImage::from_raw(SIDE, SIDE, bytes).unwrap()
+    };
+    let tiles = [
+        tile(&shots[0]),
+        tile(&cpu[0]),
+        tile(&shots[1]),
+        tile(&cpu[1]),
+    ];
+    let captions = [
+        "browser, pose A".to_string(),
+        format!("CPU, pose A ({aa:.1} dB)"),
+        "browser, pose B".to_string(),
+        format!("CPU, pose B ({bb:.1} dB)"),
+    ];
+    let row: Vec<(&image::RgbImage, &str)> = tiles
+        .iter()
+        .zip(&captions)
+        .map(|(t, c)| (t, c.as_str()))
+        .collect();
+    lhmpp::picture::captioned_row(&row, 2, 8, image::Rgb([255, 255, 255]))
+        .save(dir.join("browser-vs-cpu.png"))
+        .unwrap();
     eprintln!(
         "PSNR browser vs CPU: pose A {aa:.2} dB, pose B {bb:.2} dB; crossed (A vs B's render) \
          {ab:.2} dB, (B vs A's) {ba:.2} dB; images in {}",

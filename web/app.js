@@ -165,11 +165,11 @@ async function onAvatar(buffer) {
   const mesh = new SplatMesh({ packedSplats: packed });
   const numBones = header.bone_names.length;
   const skinning = new SplatSkinning({ mesh, numSplats: g.n, numBones });
-  const rest = new THREE.Vector3(), ident = new THREE.Quaternion();
-  for (let b = 0; b < numBones; b++) {
-    rest.fromArray(header.bone_rest, 3 * b);
-    skinning.setRestQuatPos(b, ident, rest);
-  }
+  // Every bone rests at the origin, unrotated, so that a bone's posed rotation and position
+  // (applyPose) are its skinning transform itself (Spark's dual-quaternion skinning blends
+  // rest-relative rotations and position offsets).
+  const origin = new THREE.Vector3(), ident = new THREE.Quaternion();
+  for (let b = 0; b < numBones; b++) skinning.setRestQuatPos(b, ident, origin);
   const bi = new THREE.Vector4(), bw = new THREE.Vector4();
   for (let i = 0; i < g.n; i++) {
     bi.fromArray(skin.bones, 4 * i);
@@ -228,8 +228,10 @@ function applyPose(p) {
   const rt = new THREE.Vector3().fromArray(p.pose.root_translation);
   const pivot = n > 0 ? joint(0) : new THREE.Vector3();
   for (let j = 0; j < n; j++) {
+    // World transform W_j = (q, t) of the bone; its skinning transform W_j · T(−joint_j).
     const q = rr.clone().multiply(gq[j]);
     const t = gt[j].clone().sub(pivot).applyQuaternion(rr).add(pivot).add(rt);
+    t.sub(joint(j).applyQuaternion(q));
     p.skinning.setBoneQuatPos(j, q, t);
   }
   p.skinning.updateBones();

@@ -12,6 +12,7 @@ use axum::http::{header, HeaderMap, StatusCode, Uri};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
+use std::borrow::Cow;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use tokio::sync::{broadcast, oneshot};
@@ -152,14 +153,16 @@ async fn file(uri: Uri) -> Response {
 
 fn file_response(path: &str) -> Response {
     match super::assets::file(path) {
-        Some((bytes, kind)) => (
-            [
+        Some((bytes, kind)) => {
+            let headers = [
                 (header::CONTENT_TYPE, kind),
                 (header::CACHE_CONTROL, "no-cache"),
-            ],
-            bytes,
-        )
-            .into_response(),
+            ];
+            match bytes {
+                Cow::Borrowed(b) => (headers, b).into_response(),
+                Cow::Owned(b) => (headers, b).into_response(),
+            }
+        }
         None => refuse(StatusCode::NOT_FOUND, format!("{path}: no such file")),
     }
 }
