@@ -4,8 +4,8 @@
 //! memory ([`shm`]), the live page ([`web`]) and files on disk ([`files`]); the person masks
 //! and the pose perception reads from the cameras go out the same way.
 //!
-//! Outputs differ in what they take: the live ones ([`Publisher::live`]: ROS 2, shared memory)
-//! take statuses, rendered frames and previews; the files take the avatars and the animation
+//! Outputs differ in what they take: the live ones ([`Publisher::live`]: ROS 2, shared memory,
+//! the live page) take statuses, rendered frames and previews; the files take the avatars and the animation
 //! frames ([`Publisher::animation`]). The pipeline renders and poses only for outputs that take
 //! the result. Failures are each output's to log: an output never stops the pipeline.
 
