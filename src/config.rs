@@ -361,6 +361,10 @@ pub struct OutputConfig {
     pub masks: bool,
     /// Publish the pose read from the cameras on `inputs.pose_topic`.
     pub camera_pose: bool,
+    /// `host:port` of the live page (one HTML page and a WebSocket: each person's avatar
+    /// rendered in the browser, moved by the pose stream); empty disables it. An address other
+    /// than loopback needs `lhmpp run --web-token`.
+    pub web: String,
 }
 
 impl OutputConfig {
@@ -467,6 +471,7 @@ impl Default for OutputConfig {
             shm: false,
             masks: true,
             camera_pose: true,
+            web: String::new(),
         }
     }
 }

@@ -390,6 +390,15 @@ pub fn parameters() -> Vec<Parameter> {
              `inputs.pose_topic`, for other nodes",
         ),
         p(
+            "outputs.web",
+            string(),
+            "`host:port` of the live page (e.g. `127.0.0.1:8765`): one HTML page and a \
+             WebSocket showing each person's avatar rendered in the browser (Spark), moved by \
+             the pose stream, with their status; empty disables it. An address other than \
+             loopback needs `lhmpp run --web-token TOKEN` (open the page with `?token=TOKEN`); \
+             cross-origin WebSocket upgrades are refused",
+        ),
+        p(
             "replay.bag",
             path(),
             "MCAP bag played into the node instead of live topics",

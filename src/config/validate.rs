@@ -194,6 +194,16 @@ impl NodeConfig {
                 ),
             ));
         }
+        if !out.web.is_empty() && out.web.parse::<std::net::SocketAddr>().is_err() {
+            return Err(bad(
+                "outputs.web",
+                format!(
+                    "`{}` is not a host:port address (e.g. 127.0.0.1:8765, or empty to disable \
+                     the live page)",
+                    out.web
+                ),
+            ));
+        }
         if out.render_device == RenderDevice::Cuda && !cfg!(feature = "cuda") {
             return Err(bad(
                 "outputs.render_device",

@@ -27,12 +27,15 @@ impl Pipeline {
                 .map_err(|e| e.to_string())
         });
         match checked {
-            Ok(p) => self.person_mut(&person).pose.topic_pose(
-                p,
-                arrival,
-                msg.header.stamp.as_nanos(),
-                msg.header.frame_id.clone(),
-            ),
+            Ok(p) => {
+                self.outputs.topic_pose(&person, msg);
+                self.person_mut(&person).pose.topic_pose(
+                    p,
+                    arrival,
+                    msg.header.stamp.as_nanos(),
+                    msg.header.frame_id.clone(),
+                )
+            }
             Err(e) => {
                 self.stats.rejections.add(RejectReason::Pose);
                 tracing::warn!(%topic, "body pose rejected: {e}");

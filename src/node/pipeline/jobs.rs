@@ -88,6 +88,7 @@ impl Pipeline {
             shape_params: &shape_params,
             rgb_display_ready: self.recon.rgb_kind().display_ready(),
             neural_renderer: &self.neural_renderer_id,
+            compact: Default::default(),
         });
     }
 }
