@@ -14,6 +14,7 @@
 pub mod avatar;
 pub mod bag;
 pub mod body;
+pub mod compact;
 pub mod config;
 pub mod eval;
 pub mod kernels;
@@ -31,3 +32,4 @@ pub mod synth;
 pub mod testing;
 pub mod tracking;
 pub mod transport;
+pub mod web;

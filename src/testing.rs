@@ -47,6 +47,18 @@ pub fn max_abs_diff<A: Values + ?Sized, B: Values + ?Sized>(a: &A, b: &B) -> f32
         .fold(0.0, f32::max)
 }
 
+/// Bytes of every file below `dir` (panics on an unreadable entry).
+pub fn bytes_under(dir: &std::path::Path) -> u64 {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| match p.is_dir() {
+            true => bytes_under(&p),
+            false => std::fs::metadata(&p).unwrap().len(),
+        })
+        .sum()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
