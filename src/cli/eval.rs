@@ -62,7 +62,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         true => ColourSource::Network,
         false => ColourSource::Views(config.perception.delight),
     };
-    let refine = (!args.no_refine).then(|| dev_overrides(config.refine.fit_config()));
+    let refine = (!args.no_refine).then(|| config.refine.fit_config());
     let stages = EvalStages {
         crop,
         shape: parse_shape(&args.shape)?,
@@ -166,27 +166,4 @@ fn parse_shape(spec: &str) -> Result<ShapeSource> {
                 })
         }
     }
-}
-
-/// TEMPORARY development overrides of the fit's settings (LHMPP_REFINE_DEV="k=v,...").
-fn dev_overrides(mut c: lhmpp::refine::RefineConfig) -> lhmpp::refine::RefineConfig {
-    let Ok(spec) = std::env::var("LHMPP_REFINE_DEV") else {
-        return c;
-    };
-    for kv in spec.split(',').filter(|s| !s.is_empty()) {
-        let (k, v) = kv.split_once('=').expect("k=v");
-        match k {
-            "views_per_step" => c.views_per_step = v.parse().unwrap(),
-            "anchor_weight" => c.anchor_weight = v.parse().unwrap(),
-            "albedo_weight" => c.albedo_weight = v.parse().unwrap(),
-            "silhouette_weight" => c.silhouette_weight = v.parse().unwrap(),
-            "patience" => c.patience = v.parse().unwrap(),
-            "grow" => c.grow = v.parse().unwrap(),
-            "max_side" => c.max_side = v.parse().unwrap(),
-            "iterations" => c.max_iterations = v.parse().unwrap(),
-            "budget" => c.budget = std::time::Duration::from_secs_f32(v.parse().unwrap()),
-            _ => panic!("unknown {k}"),
-        }
-    }
-    c
 }

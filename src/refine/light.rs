@@ -65,7 +65,9 @@ impl Light {
         let (dir, strength) = if key.key != Vec3::ZERO {
             (key.key.normalize(), key.strength.max(Vec3::splat(0.05)))
         } else {
-            (Vec3::new(0.0, 0.7, 0.7).normalize(), Vec3::splat(1.0))
+            // No light found: a faint one from above in front, which the fit strengthens only
+            // where the views show shading.
+            (Vec3::new(0.0, 0.7, 0.7).normalize(), Vec3::splat(0.05))
         };
         // A + K = FACING with K = strength · A.
         let ambient = Vec3::splat(FACING) / (Vec3::ONE + strength);
@@ -224,11 +226,7 @@ impl Light {
         self.log_fill += mean;
         // A + K = FACING in luminance: the rest goes into the albedo.
         let facing = (self.log_ambient.exp() + self.log_key.exp()).dot(LUMA);
-        let target: f32 = std::env::var("LHMPP_FACING")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(FACING);
-        let c = (target / facing).ln();
+        let c = (FACING / facing).ln();
         self.log_ambient += Vec3::splat(c);
         self.log_key += Vec3::splat(c);
         self.log_fill += Vec3::splat(c);

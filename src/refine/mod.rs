@@ -88,7 +88,7 @@ impl Default for RefineConfig {
             min_views: 3,
             silhouette_weight: 1.0,
             anchor_weight: 0.05,
-            albedo_weight: 0.05,
+            albedo_weight: 0.3,
             check_every: 10,
             patience: 6,
             grow: true,
@@ -235,10 +235,7 @@ pub fn refine(
             });
         }
     }
-    let held = std::env::var("LHMPP_HELD")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| held_out_view(avatar, &views));
+    let held = held_out_view(avatar, &views);
     tracing::debug!(held, name = %views[held].name, "held-out view");
     report.held_view = Some(views[held].name.clone());
     report.views_fitted = views.len() - 1;

@@ -114,32 +114,6 @@ impl Params {
         self.skin.bones.push(self.skin.bones[i]);
         self.skin.weights.push(self.skin.weights[i]);
     }
-
-    /// Keeps only the Gaussians for which `keep` is true.
-    pub fn retain(&mut self, keep: &[bool]) {
-        fn filter<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
-            let mut k = keep.iter();
-            v.retain(|_| *k.next().unwrap_or(&true));
-        }
-        filter(&mut self.position, keep);
-        filter(&mut self.anchor, keep);
-        filter(&mut self.log_scale, keep);
-        filter(&mut self.rotation, keep);
-        filter(&mut self.opacity_logit, keep);
-        filter(&mut self.colour, keep);
-        filter(&mut self.skin.bones, keep);
-        filter(&mut self.skin.weights, keep);
-        if self.rest_per > 0 {
-            let per = self.rest_per;
-            let rest = std::mem::take(&mut self.sh_rest);
-            self.sh_rest = rest
-                .chunks_exact(per)
-                .zip(keep)
-                .filter(|(_, k)| **k)
-                .flat_map(|(c, _)| c.iter().copied())
-                .collect();
-        }
-    }
 }
 
 /// Gradients of the loss with respect to [`Params`] (same layout).
@@ -199,21 +173,6 @@ impl Moments {
             *x -= lr * mh / (vh.sqrt() + EPS);
         }
     }
-
-    fn retain(&mut self, keep: &[bool], per: usize) {
-        for buf in [&mut self.m, &mut self.v] {
-            if buf.is_empty() {
-                continue;
-            }
-            let old = std::mem::take(buf);
-            *buf = old
-                .chunks_exact(per)
-                .zip(keep)
-                .filter(|(_, k)| **k)
-                .flat_map(|(c, _)| c.iter().copied())
-                .collect();
-        }
-    }
 }
 
 /// Adam (Kingma & Ba) over every parameter group, one learning rate per group.
@@ -261,14 +220,6 @@ impl Adam {
         );
         for c in &mut p.colour {
             *c = c.clamp(Vec3::ZERO, Vec3::ONE);
-        }
-    }
-
-    /// Keeps the moments of the Gaussians `keep` says (after [`Params::retain`]).
-    pub fn retain(&mut self, keep: &[bool]) {
-        let per = [3, 3, 4, 1, 3];
-        for (m, per) in self.groups.iter_mut().zip(per) {
-            m.retain(keep, per);
         }
     }
 }
