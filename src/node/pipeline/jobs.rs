@@ -29,7 +29,8 @@ impl Pipeline {
         );
         let colours = self.colours_from_views.then_some(self.delight);
         match work.run(&mut self.recon, colours) {
-            Ok(avatar) => {
+            Ok(made) => {
+                let avatar = made.avatar;
                 self.publish_avatar(job, &avatar, work.view_count(), work.stamp_ns());
                 let skeleton = self.recon.template().skeleton.clone();
                 let Some(person) = self.persons.get_mut(&id) else {

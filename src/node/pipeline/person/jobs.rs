@@ -1,5 +1,5 @@
-//! Work that runs for one person. Today that is the network's reconstruction of their avatar
-//! from the views they hold; refinement of the avatar between reruns belongs here too. A job
+//! Work that runs for one person: the network's reconstruction of their avatar from the views
+//! they hold, then its refinement against those views ([`super::refinement`]). A job
 //! takes a copy of what it reads (the views, the body shape) when it starts, so it holds no
 //! borrow of the person: their pose path and frame store go on taking frames while it works,
 //! and the job could as well run on a worker thread.
@@ -9,6 +9,7 @@ use crate::config::Delight;
 use crate::node::frame_store::ViewSet;
 use crate::node::scheduler::Job;
 use crate::reconstruct::photo_colours::{colour_from_evidence, ViewEvidence};
+use crate::reconstruct::delight::KeyLight;
 use crate::reconstruct::preprocess::Preprocessed;
 use crate::reconstruct::shape::AcceptedShape;
 use crate::reconstruct::{ReconstructError, Reconstructor};
@@ -23,6 +24,15 @@ pub struct Reconstruction {
     pub shape: Option<AcceptedShape>,
 }
 
+/// The network's avatar and the key light its colours were de-lit by (when they were).
+pub struct Made {
+    /// The avatar.
+    pub avatar: Avatar,
+    /// The key light divided out of the views' colours, its exposures in the order of the
+    /// views holding evidence.
+    pub light: Option<KeyLight>,
+}
+
 impl Reconstruction {
     /// Runs the network on the views with the person's shape; with `colours`, recolours the
     /// avatar from what perception saw in each view (`perception.colours_from_views`), with a
@@ -31,7 +41,7 @@ impl Reconstruction {
         &self,
         recon: &mut Reconstructor,
         colours: Option<Delight>,
-    ) -> Result<Avatar, ReconstructError> {
+    ) -> Result<Made, ReconstructError> {
         let views: Vec<(u64, &Preprocessed)> = self
             .views
             .views
@@ -40,6 +50,7 @@ impl Reconstruction {
             .collect();
         recon.use_shape(self.shape.clone())?;
         let mut avatar = recon.reconstruct(&views)?;
+        let mut light = None;
         if let Some(delight) = colours {
             let seen: Vec<&ViewEvidence> = self
                 .views
@@ -47,9 +58,12 @@ impl Reconstruction {
                 .iter()
                 .filter_map(|v| v.evidence.as_deref())
                 .collect();
-            colour_from_evidence(&mut avatar, recon.template(), &seen, delight);
+            let report = colour_from_evidence(&mut avatar, recon.template(), &seen, delight);
+            if delight != Delight::Never {
+                light = Some(report.lights.into_iter().next().unwrap_or_default());
+            }
         }
-        Ok(avatar)
+        Ok(Made { avatar, light })
     }
 
     /// Views the avatar is built from.

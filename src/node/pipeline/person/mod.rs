@@ -6,9 +6,11 @@
 
 mod jobs;
 mod pose;
+mod refinement;
 mod shape;
 
-pub use jobs::Reconstruction;
+pub use jobs::{Made, Reconstruction};
+pub use refinement::Refinement;
 pub use pose::PosePath;
 pub use shape::ShapeState;
 
