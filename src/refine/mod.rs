@@ -140,6 +140,24 @@ pub struct RefineReport {
     pub stop: Stop,
     /// Time spent in each part of the steps.
     pub times: StageTimes,
+    /// Each check of the held-out view: (seconds since the fit began, its loss).
+    pub trace: Vec<(f64, f32)>,
+}
+
+impl RefineReport {
+    /// Seconds the fit took to reach `share` (0..=1) of the held-out gain it finally kept;
+    /// `None` when it kept nothing.
+    pub fn time_to_gain(&self, share: f32) -> Option<f64> {
+        let gain = self.held.0 - self.held.1;
+        if !self.improved || gain <= 0.0 {
+            return None;
+        }
+        let target = self.held.0 - share * gain;
+        self.trace
+            .iter()
+            .find(|(_, held)| *held <= target)
+            .map(|(t, _)| *t)
+    }
 }
 
 /// Seconds spent in each part of a fit's steps.
@@ -260,6 +278,9 @@ pub fn refine(
         }
         if it % config.check_every == 0 {
             let held_loss = fit.held_loss();
+            report
+                .trace
+                .push((start.elapsed().as_secs_f64(), held_loss));
             let keep_going = on_check(&Progress {
                 iteration: it,
                 loss,

@@ -7,6 +7,7 @@ mod cpu_peer;
 mod model;
 mod perception;
 mod points;
+mod refine;
 mod render;
 mod transport;
 
@@ -38,6 +39,9 @@ enum BenchCommand {
     /// The compact avatar (SPZ + skin) against GaussianAvatar for avatar PLYs the node wrote:
     /// message sizes and ratio, encode/decode times, round-trip render PSNR.
     Compact(compact::CompactBenchArgs),
+    /// Refinement of dressed people's avatars at the node's settings: time to 90 % of the
+    /// held-out gain, time per step by stage, held-out PSNR before and after.
+    Refine(refine::RefineBenchArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -50,5 +54,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::CpuPeer(a) => cpu_peer::run(a),
         BenchCommand::Perception(a) => perception::run(a),
         BenchCommand::Compact(a) => compact::run(a),
+        BenchCommand::Refine(a) => refine::run(a),
     }
 }

@@ -10,8 +10,8 @@ mod refinement;
 mod shape;
 
 pub use jobs::{Made, Reconstruction};
-pub use refinement::Refinement;
 pub use pose::PosePath;
+pub use refinement::Refinement;
 pub use shape::ShapeState;
 
 use super::render::{display_pose, render_frames, FrameRenderer, RenderedFrame, VirtualCameras};
