@@ -395,6 +395,17 @@ pub fn write_bag(
         &BodyPose::from_pose(header(ns, WORLD_FRAME), "person_0", &pose),
     )?;
     tracing::debug!(shape = ?subject.shape(), "the person's body shape");
+    if let Subject::Dressed(p) = &subject {
+        if let Ok(room) = super::dressing_room::DressingRoom::shared() {
+            let worn: Vec<&str> = p
+                .wardrobe
+                .garments
+                .iter()
+                .filter_map(|g| room.library.garments.get(g.index).map(|g| g.name.as_str()))
+                .collect();
+            tracing::info!(?worn, scalp = ?p.wardrobe.scalp, "the person's outfit");
+        }
+    }
     if options.publish_shape {
         bag.write(
             SHAPE_TOPIC,
