@@ -753,6 +753,12 @@ pub fn colour_from_photos(
         return report;
     }
     let m = fit_colour_transform(&pairs, cfg.ridge);
+    // Cameras that see no colour say nothing of the person's hues: the avatar is grey all
+    // round, not grey where seen and the network's colours elsewhere.
+    let monochrome = photos.iter().all(|p| is_monochrome(p.image, p.mask));
+    if monochrome {
+        tracing::info!("every photo is monochrome: the avatar is grey all round");
+    }
     for i in 0..n {
         let rgb = if let Some(rgb) = seen[i] {
             report.seen += 1;
@@ -762,9 +768,42 @@ pub fn colour_from_photos(
             let h = network[i].extend(1.0);
             Vec3::new(m[0].dot(h), m[1].dot(h), m[2].dot(h))
         };
+        let rgb = if monochrome {
+            Vec3::splat(rgb.dot(MONO_LUMA))
+        } else {
+            rgb
+        };
         g.sh[i * k] = rgb_to_sh_dc(rgb.clamp(Vec3::ZERO, Vec3::ONE));
+        if monochrome {
+            // Higher bands would tint the grey by view direction.
+            for c in &mut g.sh[i * k + 1..(i + 1) * k] {
+                let mean = (c[0] + c[1] + c[2]) / 3.0;
+                *c = [mean; 3];
+            }
+        }
     }
     report
+}
+
+/// Rec. 709 luminance weights (the grey a monochrome camera records of a colour).
+const MONO_LUMA: Vec3 = Vec3::new(0.2126, 0.7152, 0.0722);
+
+/// Whether `image` holds no colour where `mask` shows the person: at least 99 % of those
+/// pixels have channels within 3 levels of each other (a grey camera's frame, even after
+/// compression).
+pub fn is_monochrome(image: &RgbImage, mask: &GrayImage) -> bool {
+    let (mut person, mut coloured) = (0usize, 0usize);
+    for (p, m) in image.pixels().zip(mask.pixels()) {
+        if m[0] < 128 {
+            continue;
+        }
+        person += 1;
+        let [r, g, b] = p.0.map(i16::from);
+        if (r - g).abs() > 3 || (g - b).abs() > 3 || (r - b).abs() > 3 {
+            coloured += 1;
+        }
+    }
+    person > 0 && coloured * 100 <= person
 }
 
 /// A view's original frame as perception saw the person in it, kept (at most

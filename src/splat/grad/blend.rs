@@ -14,6 +14,8 @@ use rayon::prelude::*;
 const MIN_TRANSMITTANCE: f32 = 1e-4;
 /// Highest alpha of one sample (as the blend stage).
 const MAX_ALPHA: f32 = 0.99;
+/// Pixels a row's reach is widened by beyond the α ≥ 1/255 ellipse's chord (rounding).
+const CHORD_MARGIN: f32 = 0.05;
 
 /// One splat's gradients in screen space.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -47,9 +49,11 @@ impl SplatGrad {
 fn sample(g: &Splat2D, dx: f32, dy: f32) -> (f32, f32, bool) {
     let [ca, cb, cc] = g.conic;
     let power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
+    if !(power <= 0.0 && power >= g.min_power) {
+        return (power, 0.0, false);
+    }
     let alpha = MAX_ALPHA.min(g.opacity * fast_exp(power));
-    let sampled = power <= 0.0 && power >= g.min_power && alpha >= MIN_ALPHA;
-    (power, alpha, sampled)
+    (power, alpha, alpha >= MIN_ALPHA)
 }
 
 /// Per splat (indexed like `splats`), the gradients of the loss whose frame gradients are
@@ -113,6 +117,8 @@ fn tile_backward(
     let (x0, y0) = (col * TILE, row * TILE);
     let (tw, th) = (TILE.min(width - x0), TILE.min(height - y0));
     let reach = PixelLists::new(splats, list, x0, y0, tw, th);
+    // The tile's splats in list order, so that the per-pixel sweeps read them in place.
+    let local: Vec<Option<Splat2D>> = list.iter().map(|&i| splats[i as usize]).collect();
     let mut samples = Vec::new();
     for ly in 0..th {
         for lx in 0..tw {
@@ -123,11 +129,8 @@ fn tile_backward(
                 continue;
             }
             let (px, py) = ((x0 + lx) as f32, (y0 + ly) as f32);
-            let t_final =
-                pixel_samples(splats, list, reach.of(ly * TILE + lx), px, py, &mut samples);
-            pixel_backward(
-                splats, list, &samples, t_final, bg, d_rgb, d_alpha, &mut acc,
-            );
+            let t_final = pixel_samples(&local, reach.of(ly * TILE + lx), px, py, &mut samples);
+            pixel_backward(&local, &samples, t_final, bg, d_rgb, d_alpha, &mut acc);
         }
     }
     acc
@@ -150,29 +153,53 @@ impl PixelLists {
         tw: usize,
         th: usize,
     ) -> Self {
-        // Each splat's box within the tile, as pixel ranges.
-        let boxes: Vec<Option<(usize, usize, usize, usize)>> = list
-            .iter()
-            .map(|&i| {
-                let g = splats[i as usize].as_ref()?;
-                let range = |centre: f32, extent: f32, origin: usize, len: usize| {
-                    let lo = (centre - extent - origin as f32).ceil().max(0.0);
-                    let hi = (centre + extent - origin as f32)
-                        .floor()
-                        .min(len as f32 - 1.0);
-                    (lo <= hi).then_some((lo as usize, hi as usize))
-                };
-                let (xa, xb) = range(g.mean[0], g.extent[0], x0, tw)?;
-                let (ya, yb) = range(g.mean[1], g.extent[1], y0, th)?;
-                Some((xa, xb, ya, yb))
-            })
-            .collect();
-        let mut offsets = vec![0u32; TILE * TILE + 1];
-        for &(xa, xb, ya, yb) in boxes.iter().flatten() {
+        // Each splat's rows within the tile, each with the pixel range of its α ≥ 1/255
+        // ellipse's chord (widened a little against rounding, as the forward's row spans).
+        let mut spans: Vec<(u32, u8, u8, u8)> = Vec::new();
+        for (k, &i) in list.iter().enumerate() {
+            let Some(g) = splats[i as usize].as_ref() else {
+                continue;
+            };
+            let range = |centre: f32, extent: f32, origin: usize, len: usize| {
+                let lo = (centre - extent - origin as f32).ceil().max(0.0);
+                let hi = (centre + extent - origin as f32)
+                    .floor()
+                    .min(len as f32 - 1.0);
+                (lo <= hi).then_some((lo as usize, hi as usize))
+            };
+            let (Some((xa, xb)), Some((ya, yb))) = (
+                range(g.mean[0], g.extent[0], x0, tw),
+                range(g.mean[1], g.extent[1], y0, th),
+            ) else {
+                continue;
+            };
+            let [ca, cb, cc] = g.conic;
+            let (inv_a, k0, k1) = (1.0 / ca, -2.0 * ca * g.min_power, ca * cc - cb * cb);
             for y in ya..=yb {
-                for x in xa..=xb {
-                    offsets[y * TILE + x + 1] += 1;
+                let dy = g.mean[1] - (y0 + y) as f32;
+                let disc = k0 - k1 * dy * dy;
+                let (mut lo, mut hi) = (xa, xb);
+                if disc.is_finite() && inv_a.is_finite() && ca > 0.0 {
+                    if disc < 0.0 {
+                        continue;
+                    }
+                    let half_chord = disc.sqrt() * inv_a;
+                    let centre = g.mean[0] + cb * dy * inv_a - x0 as f32;
+                    let a = (centre - half_chord - CHORD_MARGIN).ceil();
+                    let b = (centre + half_chord + CHORD_MARGIN).floor();
+                    if b < xa as f32 || a > xb as f32 {
+                        continue;
+                    }
+                    lo = lo.max(a.max(0.0) as usize);
+                    hi = hi.min(b as usize);
                 }
+                spans.push((k as u32, y as u8, lo as u8, hi as u8));
+            }
+        }
+        let mut offsets = vec![0u32; TILE * TILE + 1];
+        for &(_, y, xa, xb) in &spans {
+            for x in xa..=xb {
+                offsets[y as usize * TILE + x as usize + 1] += 1;
             }
         }
         for p in 0..TILE * TILE {
@@ -180,16 +207,11 @@ impl PixelLists {
         }
         let mut fill = offsets.clone();
         let mut entries = vec![0u32; offsets[TILE * TILE] as usize];
-        for (k, b) in boxes.iter().enumerate() {
-            let Some((xa, xb, ya, yb)) = *b else {
-                continue;
-            };
-            for y in ya..=yb {
-                for x in xa..=xb {
-                    let p = y * TILE + x;
-                    entries[fill[p] as usize] = k as u32;
-                    fill[p] += 1;
-                }
+        for &(k, y, xa, xb) in &spans {
+            for x in xa..=xb {
+                let p = y as usize * TILE + x as usize;
+                entries[fill[p] as usize] = k;
+                fill[p] += 1;
             }
         }
         Self { offsets, entries }
@@ -200,12 +222,12 @@ impl PixelLists {
     }
 }
 
-/// The samples the forward blended at pixel `(px, py)` among the tile-list places `reach`
+/// The samples the forward blended at pixel `(px, py)` among the tile's splats `local` at the
+/// places `reach`
 /// (front to back), into `samples`; returns the final transmittance.
 #[inline]
 fn pixel_samples(
-    splats: &[Option<Splat2D>],
-    list: &[u32],
+    local: &[Option<Splat2D>],
     reach: &[u32],
     px: f32,
     py: f32,
@@ -214,7 +236,7 @@ fn pixel_samples(
     samples.clear();
     let mut t = 1.0f32;
     for &k in reach {
-        let Some(g) = &splats[list[k as usize] as usize] else {
+        let Some(g) = &local[k as usize] else {
             continue;
         };
         let (dx, dy) = (g.mean[0] - px, g.mean[1] - py);
@@ -243,8 +265,7 @@ fn pixel_samples(
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn pixel_backward(
-    splats: &[Option<Splat2D>],
-    list: &[u32],
+    local: &[Option<Splat2D>],
     samples: &[Sample],
     t_final: f32,
     bg: [f32; 3],
@@ -257,7 +278,7 @@ fn pixel_backward(
     let mut behind = [0.0f32; 3];
     let bg_dot: f32 = (0..3).map(|c| bg[c] * d_rgb[c]).sum();
     for s in samples.iter().rev() {
-        let g = splats[list[s.k as usize] as usize]
+        let g = local[s.k as usize]
             .as_ref()
             .expect("a sampled splat is visible");
         let (dx, dy, alpha) = (s.dx, s.dy, s.alpha);
