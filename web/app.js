@@ -3,7 +3,9 @@
 //
 // URL parameters: token (the node's --web-token, when it has one); camera=ex,ey,ez,tx,ty,tz
 // and fov=degrees fix the camera (otherwise it frames the first avatar); bare=1 hides the list.
-// window.lhmppState tells what was last drawn (tests read it).
+// window.lhmppState tells what was last drawn (tests read it). latency=1 records, for each
+// pose, when the first frame showing it was drawn (window.lhmppTakeDraws(): [person, pose
+// stamp ns, drawn ms since the epoch] rows, at most DRAWS_KEPT; `lhmpp bench latency` reads them).
 
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
@@ -15,6 +17,10 @@ const COLOR_SCALE = 0.15;
 
 const persons = new Map(); // id -> { mesh, skinning, skeleton, header, status, pose, poseAt, el }
 window.lhmppState = { frames: 0, persons: {} };
+const latency = params.get("latency") === "1";
+const DRAWS_KEPT = 10000;
+const draws = [];
+window.lhmppTakeDraws = () => draws.splice(0);
 
 if (params.get("bare") === "1") document.body.classList.add("bare");
 
@@ -63,6 +69,7 @@ resize();
 renderer.setAnimationLoop(() => {
   controls.update();
   renderer.render(scene, camera);
+  if (latency) noteDraws();
   const state = window.lhmppState;
   state.frames += 1;
   for (const [id, p] of persons) {
@@ -74,6 +81,20 @@ renderer.setAnimationLoop(() => {
   }
 });
 setInterval(refreshList, 250);
+
+// Waits for the frame just rendered to be drawn (reading a pixel back finishes it), then
+// records each person's pose drawn for the first time.
+function noteDraws() {
+  const gl = renderer.getContext();
+  gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
+  const at = performance.timeOrigin + performance.now();
+  for (const [id, p] of persons) {
+    if (p.drawnStamp == null || p.drawnStamp === p.reportedStamp) continue;
+    p.reportedStamp = p.drawnStamp;
+    draws.push([id, p.drawnStamp, at]);
+  }
+  if (draws.length > DRAWS_KEPT) draws.splice(0, draws.length - DRAWS_KEPT);
+}
 
 // ---- decoding ----------------------------------------------------------------------------
 async function gunzip(bytes) {

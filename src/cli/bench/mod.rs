@@ -4,6 +4,7 @@ use clap::{Args, Subcommand};
 
 mod compact;
 mod cpu_peer;
+mod latency;
 mod model;
 mod perception;
 mod points;
@@ -38,6 +39,10 @@ enum BenchCommand {
     /// The compact avatar (SPZ + skin) against GaussianAvatar for avatar PLYs the node wrote:
     /// message sizes and ratio, encode/decode times, round-trip render PSNR.
     Compact(compact::CompactBenchArgs),
+    /// Camera frame stamp → pose, → rendered frame, → live page frame drawn (p50/p95/p99/max),
+    /// one person and three, with reconstructions running: the node, `lhmpp loadgen` and
+    /// headless Chromium on this machine's loopback.
+    Latency(latency::LatencyBenchArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -50,5 +55,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::CpuPeer(a) => cpu_peer::run(a),
         BenchCommand::Perception(a) => perception::run(a),
         BenchCommand::Compact(a) => compact::run(a),
+        BenchCommand::Latency(a) => latency::run(a),
     }
 }

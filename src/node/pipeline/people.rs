@@ -151,8 +151,8 @@ impl Pipeline {
         match outcome {
             InsertOutcome::Dropped { .. } => self.stats.duplicates += 1,
             InsertOutcome::DroppedHidden => {}
-            InsertOutcome::AddedEvicting { evicted } => self.recon.forget(evicted),
-            InsertOutcome::Replaced { replaced, .. } => self.recon.forget(replaced),
+            InsertOutcome::AddedEvicting { evicted } => self.network.forget(evicted),
+            InsertOutcome::Replaced { replaced, .. } => self.network.forget(replaced),
             InsertOutcome::Added => {}
         }
     }
@@ -200,7 +200,7 @@ impl Pipeline {
         for person in gone {
             let released = self.persons.remove(&person).expect("listed above");
             for frame_id in released.frame_ids() {
-                self.recon.forget(frame_id);
+                self.network.forget(frame_id);
             }
             self.stats.persons_released += 1;
             tracing::info!(person, "person no longer tracked: released");

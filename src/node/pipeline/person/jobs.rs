@@ -1,8 +1,11 @@
-//! Work that runs for one person. Today that is the network's reconstruction of their avatar
-//! from the views they hold; refinement of the avatar between reruns belongs here too. A job
-//! takes a copy of what it reads (the views, the body shape) when it starts, so it holds no
-//! borrow of the person: their pose path and frame store go on taking frames while it works,
-//! and the job could as well run on a worker thread.
+//! Work that runs for one person, beside their pose path. Today that is the network's
+//! reconstruction of their avatar from the views they hold; refinement of the avatar between
+//! reruns belongs here too. A job takes a copy of what it reads (the views, the body shape, and
+//! for a refinement the current avatar, which is shared) when it starts, so it holds no borrow
+//! of the person: their pose path and frame store go on taking frames while it works. The
+//! pipeline runs it on its jobs lane (a thread of its own when live, see
+//! `node::pipeline::lane`) and takes its result back as a message; a job must not assume it
+//! runs on the pipeline's thread.
 
 use crate::avatar::Avatar;
 use crate::config::Delight;
