@@ -1,10 +1,11 @@
 //! The pose path never waits for a reconstruction. The pipeline works as the live node runs it
 //! (perception on its worker, reconstructions and renders beside the pose path,
 //! `Pipeline::work_beside`), fed a 30 Hz camera of a walking synthetic person on the node's
-//! clock, with a network slow enough on this machine that each reconstruction takes seconds
-//! (the `s` preset, seeded random weights) and every frame a new view (reconstructions rerun
-//! back to back). While a reconstruction runs, the pipeline's calls return at once and the
-//! pose read from the camera keeps being published; so do the rendered frames.
+//! clock, with the default network on twice its anchor points (a reconstruction takes from a
+//! good part of a second to seconds on 2 cores, at background priority) and every frame a new
+//! view (reconstructions rerun back to back). While a reconstruction runs, the pipeline's calls
+//! return at once and the pose read from the camera keeps being published; so do the rendered
+//! frames. (Run inline, as before, the pose stops for the whole of each reconstruction.)
 
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{BodyPose, ReconstructionStatus};
@@ -53,6 +54,13 @@ impl Publisher for Recorder {
 }
 
 const RATE_HZ: f64 = 30.0;
+/// Anchor points of the test's network (the default is 4,096).
+const NUM_POINTS: usize = 8_192;
+/// Reconstructions shorter than this cannot show a stall at 30 Hz; they are not judged.
+const JUDGED_RUN: Duration = Duration::from_millis(300);
+/// Reconstructions judged before the test ends (it feeds up to `FEED_LIMIT`).
+const JUDGED: usize = 2;
+const FEED_LIMIT: Duration = Duration::from_secs(60);
 
 #[test]
 fn poses_keep_flowing_while_a_slow_reconstruction_runs() {
@@ -65,9 +73,9 @@ fn poses_keep_flowing_while_a_slow_reconstruction_runs() {
     cfg.outputs.dir = String::new();
     cfg.outputs.render_rate_hz = 10.0;
     cfg.outputs.preview_rate_hz = 0.0;
-    cfg.model.preset = "s".into();
-    cfg.model.checkpoint = "random".into();
-    cfg.model.num_points = 4096;
+    // The embedded default network on more anchor points: a reconstruction long enough to
+    // stall an inline pipeline for many frames.
+    cfg.model.num_points = NUM_POINTS;
     cfg.frame_store.duplicate_similarity = 1.0;
     cfg.frame_store.debounce_ms = 0;
     let stream = render_stream(
@@ -94,8 +102,8 @@ fn poses_keep_flowing_while_a_slow_reconstruction_runs() {
     let start = Instant::now();
     let clock = move || start.elapsed();
     let period = Duration::from_secs_f64(1.0 / RATE_HZ);
-    // Feed until two reconstructions have ended after a third started (the first may have
-    // been made of the first few views only), at most 120 s.
+    // Feed until `JUDGED` reconstructions long enough to judge have ended after the first
+    // (made of the first few views only, on a cold network), at most `FEED_LIMIT`.
     let mut longest_call = Duration::ZERO;
     let mut tick = 0u64;
     loop {
@@ -115,14 +123,8 @@ fn poses_keep_flowing_while_a_slow_reconstruction_runs() {
         pipeline.step(clock(), clock);
         longest_call = longest_call.max(called.elapsed());
         tick += 1;
-        let published = seen
-            .0
-            .lock()
-            .unwrap()
-            .iter()
-            .filter(|(_, s)| matches!(s, Seen::Published))
-            .count();
-        if published >= 3 || start.elapsed() > Duration::from_secs(120) {
+        if judged(&windows(&seen.0.lock().unwrap())).len() >= JUDGED || start.elapsed() > FEED_LIMIT
+        {
             break;
         }
     }
@@ -139,23 +141,21 @@ fn poses_keep_flowing_while_a_slow_reconstruction_runs() {
         stats.rendered_frames
     );
     drop(pipeline);
-    // Each reconstruction's window: its "reconstructing" status to its "avatar published".
-    let mut windows = Vec::new();
-    let mut open = None;
-    for (at, s) in &events {
-        match s {
-            Seen::Reconstructing => open = Some(*at),
-            Seen::Published => {
-                if let Some(from) = open.take() {
-                    windows.push((from, *at));
-                }
-            }
-            _ => {}
-        }
-    }
-    assert!(windows.len() >= 3, "reconstructions seen: {windows:?}");
-    // The windows after the first: the network is warm, the store full of views.
-    for (from, to) in &windows[1..] {
+    let windows = windows(&events);
+    eprintln!(
+        "reconstructions (ms): {:?}",
+        windows
+            .iter()
+            .map(|(from, to)| (*to - *from).as_millis())
+            .collect::<Vec<_>>()
+    );
+    let judged = judged(&windows);
+    assert!(
+        judged.len() >= JUDGED,
+        "{} reconstructions of at least {JUDGED_RUN:?} after the first in {FEED_LIMIT:?}",
+        judged.len()
+    );
+    for (from, to) in &judged {
         let run = *to - *from;
         let poses: Vec<Instant> = events
             .iter()
@@ -181,10 +181,6 @@ fn poses_keep_flowing_while_a_slow_reconstruction_runs() {
             gap.as_secs_f64() * 1e3
         );
         assert!(
-            run >= Duration::from_millis(600),
-            "the reconstruction took only {run:?}: too fast to show a stall on this machine"
-        );
-        assert!(
             poses.len() as f64 >= 0.25 * run.as_secs_f64() * RATE_HZ,
             "{} poses published during a {run:?} reconstruction",
             poses.len()
@@ -206,4 +202,33 @@ fn poses_keep_flowing_while_a_slow_reconstruction_runs() {
         longest_call < Duration::from_millis(300),
         "the pipeline's thread waited {longest_call:?} in one call"
     );
+}
+
+/// Each reconstruction's window: its "reconstructing" status to its "avatar published".
+fn windows(events: &[(Instant, Seen)]) -> Vec<(Instant, Instant)> {
+    let mut windows = Vec::new();
+    let mut open = None;
+    for (at, s) in events {
+        match s {
+            Seen::Reconstructing => open = Some(*at),
+            Seen::Published => {
+                if let Some(from) = open.take() {
+                    windows.push((from, *at));
+                }
+            }
+            _ => {}
+        }
+    }
+    windows
+}
+
+/// The windows after the first (the network is warm, the store holds views) long enough to
+/// show a stall.
+fn judged(windows: &[(Instant, Instant)]) -> Vec<(Instant, Instant)> {
+    windows
+        .iter()
+        .skip(1)
+        .filter(|(from, to)| *to - *from >= JUDGED_RUN)
+        .copied()
+        .collect()
 }

@@ -200,17 +200,16 @@ impl Person {
     }
 
     /// Their reconstruction `job` made `current`, published at `now`: it becomes their latest
-    /// avatar, unless the job is no longer theirs to finish (handed to another cluster member
-    /// while it ran).
+    /// avatar (it was published, even if the job is no longer theirs to finish: handed to
+    /// another cluster member while it ran, the `Err`).
     pub fn finished(
         &mut self,
         job: &Job,
         current: Current,
         now: Duration,
     ) -> Result<Completion, SchedulerError> {
-        let done = self.schedule.finished(&job.person, job.revision, now)?;
         self.current = Some(Arc::new(current));
-        Ok(done)
+        self.schedule.finished(&job.person, job.revision, now)
     }
 
     /// Their reconstruction `job` failed (its revision is spent).
