@@ -1,6 +1,7 @@
 //! Each person's due job, run on the network all persons share, beside the pose path: the
-//! person lends the job a copy of the views and shape they hold
-//! ([`Reconstruction`](super::person::Reconstruction)); the job runs on the jobs lane
+//! person lends the job a copy of what it reads (any [`PersonJob`]; today the
+//! [`Reconstruction`](super::person::Reconstruction) of the views and shape they hold); the
+//! job runs on the jobs lane
 //! ([`lane`](super::lane): inline in a replay, on a thread of its own live), publishes its
 //! avatar to the outputs itself, and sends back a [`JobDone`], which the pipeline takes on its
 //! next step: the avatar becomes the person's latest, the status says it was published.
@@ -10,7 +11,7 @@
 //! and views that leave a frame store are forgotten by the network before its next job.
 
 use super::lane::LaneFull;
-use super::person::{Current, Reconstruction};
+use super::person::{Current, PersonJob};
 use super::Pipeline;
 use crate::avatar::Avatar;
 use crate::body::Skeleton;
@@ -83,7 +84,7 @@ impl SharedNetwork {
     /// how it went; `colours` recolours the avatar from the views (`perception.colours_from_views`).
     fn task(
         &self,
-        work: Reconstruction,
+        work: impl PersonJob,
         outputs: Arc<Fanout>,
         colours: Option<Delight>,
     ) -> impl FnOnce() -> JobDone + Send + 'static {
@@ -98,8 +99,8 @@ impl SharedNetwork {
                 let skeleton = recon.template().skeleton.clone();
                 let shape_params = recon.shape().map_or_else(Vec::new, AcceptedShape::params);
                 outputs.avatar(&AvatarUpdate {
-                    person: &work.job.person,
-                    revision: work.job.revision,
+                    person: &work.job().person,
+                    revision: work.job().revision,
                     views_used: work.view_count(),
                     stamp_ns: work.stamp_ns(),
                     avatar: &avatar,
@@ -113,7 +114,7 @@ impl SharedNetwork {
             });
             JobDone {
                 views: work.view_count(),
-                job: work.job,
+                job: work.job().clone(),
                 outcome,
                 ended: Instant::now(),
             }
@@ -155,7 +156,7 @@ impl Pipeline {
         let Some(work) = person.start(job) else {
             return;
         };
-        let (id, revision) = (work.job.person.clone(), work.job.revision);
+        let (id, revision) = (work.job().person.clone(), work.job().revision);
         self.publish_status(
             &id,
             revision.saturating_sub(1),
@@ -163,7 +164,7 @@ impl Pipeline {
             ReconstructionStatus::STATE_RECONSTRUCTING,
             "reconstructing",
         );
-        let job = work.job.clone();
+        let job = work.job().clone();
         let colours = self.colours_from_views.then_some(self.delight);
         let task = self.network.task(work, self.outputs.clone(), colours);
         if let Err(LaneFull) = self.jobs.submit(task) {

@@ -16,6 +16,27 @@ use crate::reconstruct::preprocess::Preprocessed;
 use crate::reconstruct::shape::AcceptedShape;
 use crate::reconstruct::{ReconstructError, Reconstructor};
 
+/// A kind of job that runs for one person on the network all persons share, beside their
+/// pose path, and makes a new revision of their avatar. To add a kind (refinement between
+/// network reruns, say): a struct holding copies of what it reads, this trait, and the
+/// [`Person`](super::Person) step that makes it when due; the pipeline's jobs lane runs any
+/// kind alike, publishes its avatar and hands it back to the person as their latest.
+pub trait PersonJob: Send + 'static {
+    /// What the scheduler started (person, revision, set version).
+    fn job(&self) -> &Job;
+    /// Makes the avatar on `recon` (the shared network, held by this job while it runs); with
+    /// `colours`, recolours it from the views (`perception.colours_from_views`).
+    fn run(
+        &self,
+        recon: &mut Reconstructor,
+        colours: Option<Delight>,
+    ) -> Result<Avatar, ReconstructError>;
+    /// Views the avatar is built from.
+    fn view_count(&self) -> usize;
+    /// Stamp of the newest view it reads (ns since the epoch; 0 without views).
+    fn stamp_ns(&self) -> i64;
+}
+
 /// A reconstruction of one person's avatar from the views they held when it started.
 pub struct Reconstruction {
     /// What the scheduler started (person, revision, set version).
@@ -26,11 +47,15 @@ pub struct Reconstruction {
     pub shape: Option<AcceptedShape>,
 }
 
-impl Reconstruction {
+impl PersonJob for Reconstruction {
+    fn job(&self) -> &Job {
+        &self.job
+    }
+
     /// Runs the network on the views with the person's shape; with `colours`, recolours the
     /// avatar from what perception saw in each view (`perception.colours_from_views`), with a
     /// fitted key light divided out as that setting says (`perception.delight`).
-    pub fn run(
+    fn run(
         &self,
         recon: &mut Reconstructor,
         colours: Option<Delight>,
@@ -55,13 +80,11 @@ impl Reconstruction {
         Ok(avatar)
     }
 
-    /// Views the avatar is built from.
-    pub fn view_count(&self) -> usize {
+    fn view_count(&self) -> usize {
         self.views.views.len()
     }
 
-    /// Stamp of the newest view (ns since the epoch; 0 without views).
-    pub fn stamp_ns(&self) -> i64 {
+    fn stamp_ns(&self) -> i64 {
         self.views
             .views
             .iter()

@@ -8,7 +8,7 @@ mod jobs;
 mod pose;
 mod shape;
 
-pub use jobs::Reconstruction;
+pub use jobs::{PersonJob, Reconstruction};
 pub use pose::PosePath;
 pub use shape::ShapeState;
 
