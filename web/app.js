@@ -67,6 +67,9 @@ window.addEventListener("resize", resize);
 resize();
 
 renderer.setAnimationLoop(() => {
+  for (const p of persons.values()) {
+    if (p.posePending && p.skinning) { p.posePending = false; applyPose(p); }
+  }
   controls.update();
   renderer.render(scene, camera);
   if (latency) noteDraws();
@@ -312,22 +315,39 @@ function connect() {
   const url = `${scheme}://${location.host}/ws${token ? `?token=${encodeURIComponent(token)}` : ""}`;
   const ws = new WebSocket(url);
   ws.binaryType = "arraybuffer";
-  let queue = Promise.resolve();
   ws.onopen = () => { link.textContent = `live: ${location.host}`; };
   ws.onclose = () => { link.textContent = "disconnected; retrying…"; setTimeout(connect, 1000); };
   ws.onmessage = (event) => {
     if (typeof event.data !== "string") {
-      queue = queue.then(() => onAvatar(event.data)).catch((e) => { link.textContent = `avatar: ${e.message}`; console.error(e); });
+      queueAvatar(event.data);
       return;
     }
+    // Poses and statuses never wait for an avatar being decoded: the newest pose is applied
+    // once per drawn frame (and to an avatar when it is ready).
     const msg = JSON.parse(event.data);
-    const apply = () => {
-      const p = person(msg.person);
-      if (msg.type === "pose") { p.pose = msg; p.poseAt = performance.now(); applyPose(p); }
-      else if (msg.type === "status") { p.status = msg; }
-    };
-    // In order with the avatars being decoded.
-    queue = queue.then(apply);
+    const p = person(msg.person);
+    if (msg.type === "pose") { p.pose = msg; p.poseAt = performance.now(); p.posePending = true; }
+    else if (msg.type === "status") { p.status = msg; }
   };
+}
+
+// Avatars are decoded one at a time; while one is decoded, only each person's newest waits.
+const avatarsWaiting = new Map(); // person -> ArrayBuffer
+let decodingAvatar = false;
+function queueAvatar(buffer) {
+  const headerLength = new DataView(buffer).getUint32(4, true);
+  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 8, headerLength)));
+  avatarsWaiting.delete(header.person);
+  avatarsWaiting.set(header.person, buffer);
+  if (!decodingAvatar) decodeAvatars();
+}
+async function decodeAvatars() {
+  decodingAvatar = true;
+  while (avatarsWaiting.size > 0) {
+    const [id, buffer] = avatarsWaiting.entries().next().value;
+    avatarsWaiting.delete(id);
+    try { await onAvatar(buffer); } catch (e) { link.textContent = `avatar: ${e.message}`; console.error(e); }
+  }
+  decodingAvatar = false;
 }
 connect();

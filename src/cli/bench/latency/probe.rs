@@ -73,7 +73,8 @@ pub enum Item {
 /// The subscriptions and the runtime their readers run on.
 pub struct Probe {
     rx: mpsc::Receiver<Item>,
-    _node: ros2_client::Node,
+    /// Dropped before the runtime its spinner runs on.
+    node: Option<ros2_client::Node>,
     runtime: Option<tokio::runtime::Runtime>,
 }
 
@@ -171,7 +172,7 @@ impl Probe {
         }
         Ok(Self {
             rx,
-            _node: node,
+            node: Some(node),
             runtime: Some(runtime),
         })
     }
@@ -184,6 +185,7 @@ impl Probe {
 
 impl Drop for Probe {
     fn drop(&mut self) {
+        drop(self.node.take());
         if let Some(r) = self.runtime.take() {
             r.shutdown_timeout(std::time::Duration::from_secs(2));
         }
