@@ -3,7 +3,9 @@
 //
 // URL parameters: token (the node's --web-token, when it has one); camera=ex,ey,ez,tx,ty,tz
 // and fov=degrees fix the camera (otherwise it frames the first avatar); bare=1 hides the list.
-// window.lhmppState tells what was last drawn (tests read it).
+// window.lhmppState tells what was last drawn (tests read it). latency=1 records, for each
+// pose, when the first frame showing it was drawn (window.lhmppTakeDraws(): [person, pose
+// stamp ns, drawn ms since the epoch] rows, at most DRAWS_KEPT; `lhmpp bench latency` reads them).
 
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
@@ -15,6 +17,10 @@ const COLOR_SCALE = 0.15;
 
 const persons = new Map(); // id -> { mesh, skinning, skeleton, header, status, pose, poseAt, el }
 window.lhmppState = { frames: 0, persons: {} };
+const latency = params.get("latency") === "1";
+const DRAWS_KEPT = 10000;
+const draws = [];
+window.lhmppTakeDraws = () => draws.splice(0);
 
 if (params.get("bare") === "1") document.body.classList.add("bare");
 
@@ -61,8 +67,12 @@ window.addEventListener("resize", resize);
 resize();
 
 renderer.setAnimationLoop(() => {
+  for (const p of persons.values()) {
+    if (p.posePending && p.skinning) { p.posePending = false; applyPose(p); }
+  }
   controls.update();
   renderer.render(scene, camera);
+  if (latency) noteDraws();
   const state = window.lhmppState;
   state.frames += 1;
   for (const [id, p] of persons) {
@@ -74,6 +84,20 @@ renderer.setAnimationLoop(() => {
   }
 });
 setInterval(refreshList, 250);
+
+// Waits for the frame just rendered to be drawn (reading a pixel back finishes it), then
+// records each person's pose drawn for the first time.
+function noteDraws() {
+  const gl = renderer.getContext();
+  gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
+  const at = performance.timeOrigin + performance.now();
+  for (const [id, p] of persons) {
+    if (p.drawnStamp == null || p.drawnStamp === p.reportedStamp) continue;
+    p.reportedStamp = p.drawnStamp;
+    draws.push([id, p.drawnStamp, at]);
+  }
+  if (draws.length > DRAWS_KEPT) draws.splice(0, draws.length - DRAWS_KEPT);
+}
 
 // ---- decoding ----------------------------------------------------------------------------
 async function gunzip(bytes) {
@@ -291,22 +315,39 @@ function connect() {
   const url = `${scheme}://${location.host}/ws${token ? `?token=${encodeURIComponent(token)}` : ""}`;
   const ws = new WebSocket(url);
   ws.binaryType = "arraybuffer";
-  let queue = Promise.resolve();
   ws.onopen = () => { link.textContent = `live: ${location.host}`; };
   ws.onclose = () => { link.textContent = "disconnected; retrying…"; setTimeout(connect, 1000); };
   ws.onmessage = (event) => {
     if (typeof event.data !== "string") {
-      queue = queue.then(() => onAvatar(event.data)).catch((e) => { link.textContent = `avatar: ${e.message}`; console.error(e); });
+      queueAvatar(event.data);
       return;
     }
+    // Poses and statuses never wait for an avatar being decoded: the newest pose is applied
+    // once per drawn frame (and to an avatar when it is ready).
     const msg = JSON.parse(event.data);
-    const apply = () => {
-      const p = person(msg.person);
-      if (msg.type === "pose") { p.pose = msg; p.poseAt = performance.now(); applyPose(p); }
-      else if (msg.type === "status") { p.status = msg; }
-    };
-    // In order with the avatars being decoded.
-    queue = queue.then(apply);
+    const p = person(msg.person);
+    if (msg.type === "pose") { p.pose = msg; p.poseAt = performance.now(); p.posePending = true; }
+    else if (msg.type === "status") { p.status = msg; }
   };
+}
+
+// Avatars are decoded one at a time; while one is decoded, only each person's newest waits.
+const avatarsWaiting = new Map(); // person -> ArrayBuffer
+let decodingAvatar = false;
+function queueAvatar(buffer) {
+  const headerLength = new DataView(buffer).getUint32(4, true);
+  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 8, headerLength)));
+  avatarsWaiting.delete(header.person);
+  avatarsWaiting.set(header.person, buffer);
+  if (!decodingAvatar) decodeAvatars();
+}
+async function decodeAvatars() {
+  decodingAvatar = true;
+  while (avatarsWaiting.size > 0) {
+    const [id, buffer] = avatarsWaiting.entries().next().value;
+    avatarsWaiting.delete(id);
+    try { await onAvatar(buffer); } catch (e) { link.textContent = `avatar: ${e.message}`; console.error(e); }
+  }
+  decodingAvatar = false;
 }
 connect();

@@ -96,7 +96,7 @@ enum Command {
     Render(render::RenderArgs),
     /// Print avatars and frames received over shared memory (iceoryx2), one line each.
     ShmEcho(shm_echo::ShmEchoArgs),
-    /// Benchmarks that print tables (`bench render|model|points|transport`).
+    /// Benchmarks that print tables (`bench render|model|points|transport|compact|latency`).
     Bench(bench::BenchArgs),
     /// Publish synthetic camera streams on loopback for load and soak tests, sampling the
     /// node's memory (`loadgen --seconds 600 --watch-pid PID`).

@@ -57,6 +57,12 @@ pub fn run(args: RunArgs) -> Result<()> {
         s.last_render_ms,
         summary.wall.as_secs_f64()
     );
+    if s.refinements > 0 {
+        println!(
+            "refinements {} (kept {}, {} steps in all; refine.enabled)",
+            s.refinements, s.refinements_kept, s.refine_steps
+        );
+    }
     if config.replay.bag.is_empty() {
         println!(
             "inputs: received {}, queue dropped {}, rate-limited {}; queue wait {}; frame age {}; \

@@ -1,7 +1,8 @@
 //! Running the node: wires an input source (live ROS 2 subscriptions or a bag replay) and the
-//! ROS 2 publishers to the synchronous [`Pipeline`] on the calling thread, until the bag ends
-//! (`replay.exit_when_done`) or SIGINT/SIGTERM. The tokio runtime hosts only the DDS endpoint
-//! and the signal handlers.
+//! ROS 2 publishers to the [`Pipeline`] on the calling thread, until the bag ends
+//! (`replay.exit_when_done`) or SIGINT/SIGTERM. Live, the pipeline's reconstructions and
+//! renders run on threads of their own beside it ([`Pipeline::work_beside`]). The tokio
+//! runtime hosts only the DDS endpoint, the live page and the signal handlers.
 
 use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs, WebPublisher};
 use super::pipeline::membership::HEARTBEAT_PERIOD;
@@ -197,10 +198,19 @@ pub fn run_with(
     pipeline.set_publisher(
         (!publishers.is_empty()).then(|| Box::new(Fanout(publishers)) as Box<dyn Publisher>),
     );
+    if live {
+        // Live, the pose path must not wait for reconstructions or renders; a replay runs
+        // them in order on this thread (the same avatars whatever the machine's speed).
+        pipeline.work_beside();
+    }
     let mut animation_frames = 0;
     if let Some(replay) = &mut replay {
         tracing::info!(bag = %config.replay.bag, messages = replay.len(), "replaying");
         run_replay(&mut pipeline, replay, config.replay.rate, &stop, &clock);
+        if !stop.load(Ordering::SeqCst) && pipeline.refine_at_end(clock()) {
+            tracing::info!("refining the avatars against their views (refine.enabled)");
+            settle(&mut pipeline, &stop, &clock);
+        }
         if !stop.load(Ordering::SeqCst) && config.replay.exit_when_done {
             animation_frames = pipeline.write_animation(ANIMATION_FRAMES);
         } else if !config.replay.exit_when_done {
@@ -331,6 +341,11 @@ pub fn run_replay(
         pipeline.step(clock(), clock);
     }
     // The bag is over: let the debounce expire and the last reconstruction run.
+    settle(pipeline, stop, clock);
+}
+
+/// Steps `pipeline` until nothing is due or in flight (or `stop`).
+fn settle(pipeline: &mut Pipeline, stop: &AtomicBool, clock: &impl Fn() -> Duration) {
     while !pipeline.idle() && !stop.load(Ordering::SeqCst) {
         let now = clock();
         if let Some(d) = pipeline.next_deadline() {

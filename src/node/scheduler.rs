@@ -125,6 +125,17 @@ impl Schedule {
         self.last_change = now;
     }
 
+    /// Runs the last started set again once due (nothing when one is pending or none was
+    /// started): to refine it at the end of a replay. `now` is the current clock.
+    pub fn rerun(&mut self, last_arrival: Duration, now: Duration) {
+        if self.pending.is_some() || self.last_revision == 0 {
+            return;
+        }
+        self.pending = Some((self.started_version, last_arrival));
+        self.first_change = now;
+        self.last_change = now;
+    }
+
     /// The job for `person` to start at `now`, if one is due (none while one is in flight),
     /// with when its first unhandled change came (the longest waiting goes first).
     pub fn poll(&mut self, person: &str, now: Duration) -> Option<(Duration, Job)> {
@@ -188,6 +199,13 @@ impl Schedule {
 
     /// Last revision handed out (0 before the first).
     pub fn last_revision(&self) -> u64 {
+        self.last_revision
+    }
+
+    /// Hands out the next revision for work beside the scheduled jobs (an avatar refined
+    /// after its job), so that revisions keep increasing.
+    pub fn reserve_revision(&mut self) -> u64 {
+        self.last_revision += 1;
         self.last_revision
     }
 

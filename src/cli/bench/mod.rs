@@ -4,6 +4,7 @@ use clap::{Args, Subcommand};
 
 mod compact;
 mod cpu_peer;
+mod latency;
 mod model;
 mod perception;
 mod points;
@@ -42,6 +43,10 @@ enum BenchCommand {
     /// Refinement of dressed people's avatars at the node's settings: time to 90 % of the
     /// held-out gain, time per step by stage, held-out PSNR before and after.
     Refine(refine::RefineBenchArgs),
+    /// Camera frame stamp → pose, → rendered frame, → live page frame drawn (p50/p95/p99/max),
+    /// one person and three, with reconstructions running: the node, `lhmpp loadgen` and
+    /// headless Chromium on this machine's loopback.
+    Latency(latency::LatencyBenchArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -55,5 +60,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Perception(a) => perception::run(a),
         BenchCommand::Compact(a) => compact::run(a),
         BenchCommand::Refine(a) => refine::run(a),
+        BenchCommand::Latency(a) => latency::run(a),
     }
 }

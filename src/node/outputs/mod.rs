@@ -93,8 +93,10 @@ impl AvatarUpdate<'_> {
 }
 
 /// One output of the node (ROS 2, shared memory, files).
-/// Failures are the output's to log: publishing never stops the pipeline.
-pub trait Publisher {
+/// Failures are the output's to log: publishing never stops the pipeline. Outputs are shared
+/// by the pipeline's thread and the lanes beside it (reconstructions publish their avatars,
+/// the drawing lane its frames), hence `Send + Sync`.
+pub trait Publisher: Send + Sync {
     /// Publishes a new avatar revision.
     fn avatar(&self, update: &AvatarUpdate<'_>);
     /// Publishes the reconstruction status.

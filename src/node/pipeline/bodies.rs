@@ -19,9 +19,8 @@ impl Pipeline {
             return;
         };
         let checked = msg.to_pose().map_err(|e| e.to_string()).and_then(|p| {
-            self.recon
-                .template()
-                .skeleton
+            self.network
+                .skeleton()
                 .check_pose(&p)
                 .map(|()| p)
                 .map_err(|e| e.to_string())
@@ -60,7 +59,10 @@ impl Pipeline {
         } else {
             frame.arrival.as_secs_f64()
         };
-        let Some(pose) = state.pose.camera_landmarks(&frame.topic, t, world, now) else {
+        let Some(pose) = state
+            .pose
+            .camera_landmarks(&frame.topic, (t, frame.stamp_ns), world, now)
+        else {
             return;
         };
         self.stats.camera_poses += 1;
@@ -123,7 +125,7 @@ impl Pipeline {
             );
             return;
         };
-        let accepted = match shape::check_shape(topic, msg, self.recon.body_model()) {
+        let accepted = match shape::check_shape(topic, msg, self.network.body_model()) {
             Ok(s) => s,
             Err(e) => {
                 self.stats.shapes_rejected += 1;
@@ -132,14 +134,8 @@ impl Pipeline {
                 return;
             }
         };
-        // Applying it checks that it fits the body; the person's reconstruction applies it
-        // again (the network serves every person).
-        if let Err(e) = self.recon.use_shape(Some(accepted.clone())) {
-            self.stats.shapes_rejected += 1;
-            self.stats.rejections.add(RejectReason::Shape);
-            tracing::warn!(%topic, "body shape rejected: {e}");
-            return;
-        }
+        // The person's next reconstruction applies it to the network (which serves every
+        // person); a shape for the network's body model always fits it.
         self.person_mut(&person).shape.given_by_topic();
         self.apply_shape(&person, accepted, arrival, now);
         tracing::debug!(%topic, person, "body shape from the shape topic");

@@ -10,16 +10,21 @@
 //!    [`bodies`] does the same for poses and body shapes;
 //! 4. [`person`]: each person's frame store, shape, pose path and schedule, and the steps that
 //!    run for them (reconstruction, rendering);
-//! 5. [`publish`]: avatars, statuses, frames, previews and the end-of-replay animation leave
-//!    through one [`Fanout`] of [`crate::node::outputs`]: the files (when `outputs.dir` is
-//!    usable) and the live publishers (ROS 2, shared memory).
+//! 5. [`jobs`], [`publish`]: avatars, statuses, frames, previews and the end-of-replay
+//!    animation leave through one [`Fanout`] of [`crate::node::outputs`]: the files (when
+//!    `outputs.dir` is usable) and the live publishers (ROS 2, shared memory, the live page).
 //!
-//! Live topics and bag replay feed it the same events, so both share this code path.
+//! The pose path (a perceived frame → the person's pose → published) never waits for a
+//! reconstruction or a render: those run on [`lane`]s beside it, inline in a bag replay (the
+//! same avatars whatever the machine's speed) and, once [`Pipeline::work_beside`] is called
+//! (live runs), on threads of their own at a lower priority, their results coming back as
+//! messages. Live topics and bag replay feed it the same events, so both share this code path.
 
 mod bodies;
 pub mod calibration;
 mod intake;
 mod jobs;
+mod lane;
 pub mod masks;
 pub mod membership;
 pub mod neural_frames;
@@ -44,15 +49,23 @@ use crate::node::rejections::{RejectReason, Rejections};
 use crate::node::scheduler::{first_waiting_first, SchedulerConfig};
 use crate::perception::pose::PoseEstimator;
 use crate::reconstruct::preprocess::PreprocessConfig;
-use crate::reconstruct::Reconstructor;
 use calibration::Calibration;
+use jobs::{JobDone, SharedNetwork};
+use lane::{Background, Lane};
 use masks::MaskPairing;
 use membership::Membership;
 use perceive::Perception;
 use person::Person;
+use publish::Drawn;
 use render::{FrameRenderer, VirtualCameras};
 use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
+
+/// How often the pipeline looks for the lanes' results while they work.
+const LANE_POLL: Duration = Duration::from_millis(5);
+/// Tasks the drawing lane holds at once: a batch of frames and a preview.
+const DRAWINGS_WAITING: usize = 2;
 
 /// What every person is made with when first seen.
 struct PersonSetup {
@@ -81,7 +94,16 @@ pub struct Pipeline {
     persons: BTreeMap<String, Person>,
     setup: PersonSetup,
     /// The network, shared by every person's reconstructions.
-    recon: Reconstructor,
+    network: SharedNetwork,
+    /// Where persons' jobs run (reconstructions).
+    jobs: Lane<JobDone>,
+    /// Where frames are rendered and the preview posed.
+    drawing: Lane<Drawn>,
+    /// A batch of frames, a preview is on the drawing lane.
+    drawing_frames: bool,
+    drawing_preview: bool,
+    /// When the pipeline next looks for the lanes' results.
+    lanes_due: Duration,
     preprocess: PreprocessConfig,
     next_frame_id: u64,
     masks: MaskPairing,
@@ -96,13 +118,21 @@ pub struct Pipeline {
     /// fitted key light divided out from these views (`perception.delight`).
     colours_from_views: bool,
     delight: Delight,
+    /// Refinement of each job's avatar (`refine.*`; `None`: off).
+    refine: Option<jobs::RefinePlan>,
+    /// What stops a fit in flight (shared with [`jobs::RefinePlan::news`]).
+    refine_news: Arc<std::sync::atomic::AtomicU64>,
+    /// A replay's jobs are refined too (set at its end by [`Pipeline::refine_at_end`]).
+    refine_inline: bool,
     /// Camera calibration (and the shape reader).
     calibration: Calibration,
-    /// Where results go: the files first, then the live publishers.
-    outputs: Fanout,
+    /// Where results go: the files first, then the live publishers (shared with the lanes).
+    outputs: Arc<Fanout>,
     publish_masks: bool,
-    cameras: VirtualCameras,
-    frames: FrameRenderer,
+    cameras: Arc<VirtualCameras>,
+    frames: Arc<Mutex<FrameRenderer>>,
+    /// Frames go through the neural renderer.
+    neural_frames: bool,
     render_period: Option<Duration>,
     render_rate_hz: f64,
     next_render: Duration,
@@ -112,7 +142,6 @@ pub struct Pipeline {
     drop_debt: f64,
     /// Whether the "renders slower than the rate" warning was logged.
     slow_render_noted: bool,
-    neural_renderer_id: String,
     stats: PipelineStats,
     /// Rejections counted by the live subscriptions, as last reported.
     input_rejections: Rejections,
@@ -131,9 +160,27 @@ impl Pipeline {
 
     /// Replaces the live publishers (ROS 2, shared memory); the files stay (the node sets
     /// them once the ROS 2 endpoint is up: the pipeline is built first, so a config that
-    /// cannot run fails before DDS starts).
+    /// cannot run fails before DDS starts). Set before any work runs: while a lane holds the
+    /// outputs, the publishers stay as they are (logged).
     pub fn set_publisher(&mut self, publisher: Option<Box<dyn Publisher>>) {
-        self.outputs.replace_live(publisher);
+        match Arc::get_mut(&mut self.outputs) {
+            Some(outputs) => outputs.replace_live(publisher),
+            None => tracing::error!("the outputs are in use: the live publishers stay"),
+        }
+    }
+
+    /// Runs reconstructions and the rendering of frames on threads of their own from now on,
+    /// at a lower priority than the pose path, computing on a pool of their own (one thread
+    /// per core): the live node calls this once, before any input. Without it (bag replay,
+    /// tests) they run inline, on the caller's thread.
+    pub fn work_beside(&mut self) {
+        if self.jobs.threaded() {
+            return;
+        }
+        let background = Background::new();
+        // Nothing is in flight before the first input: the inline lanes are empty.
+        self.jobs = Lane::thread("lhmpp-jobs", jobs::JOBS_WAITING, background.clone());
+        self.drawing = Lane::thread("lhmpp-drawing", DRAWINGS_WAITING, background);
     }
 
     /// Sets the camera topics (resolved) that have their own mask topic: their frames wait up
@@ -216,13 +263,16 @@ impl Pipeline {
         if self.tracking && self.membership.refresh(now) {
             self.reassign(now);
         }
+        self.take_finished_jobs(&clock);
         self.run_due_jobs(now, &clock);
-        self.publish_due(now, &clock);
+        self.take_drawn();
+        self.publish_due(now);
         self.refresh_status(now);
+        self.lanes_due = now + LANE_POLL;
     }
 
     /// Starts every person's job due at `now`, the person who has waited longest first, each
-    /// on the shared network in turn.
+    /// on the shared network in turn (inline, each one's result is taken as it ends).
     fn run_due_jobs(&mut self, now: Duration, clock: &impl Fn() -> Duration) {
         let due = first_waiting_first(
             self.persons
@@ -231,7 +281,8 @@ impl Pipeline {
                 .collect(),
         );
         for job in due {
-            self.reconstruct(job, clock);
+            self.start_job(job);
+            self.take_finished_jobs(clock);
         }
     }
 
@@ -242,25 +293,31 @@ impl Pipeline {
             && self.masks.waiting() == 0
             && self.next_job_due().is_none()
             && !self.persons.values().any(Person::busy)
+            && self.jobs.in_flight() == 0
+            && self.drawing.in_flight() == 0
     }
 
     /// When the next scheduled work is due (reconstruction debounce, frame rendering, a mask
-    /// wait, perception results).
+    /// wait, perception results, the lanes' results).
     pub fn next_deadline(&self) -> Option<Duration> {
+        // While a batch is drawn, the lanes' poll looks for its end.
         let render = self
             .render_period
-            .filter(|_| self.any_avatar() && self.outputs.live())
+            .filter(|_| self.any_avatar() && self.outputs.live() && !self.drawing_frames)
             .map(|_| self.next_render);
         let perception = self
             .perception
             .as_ref()
             .filter(|p| p.busy())
             .map(|_| self.perception_due);
+        let lanes =
+            (self.jobs.in_flight() + self.drawing.in_flight() > 0).then_some(self.lanes_due);
         [
             self.next_job_due(),
             render,
             self.masks.next_deadline(),
             perception,
+            lanes,
         ]
         .into_iter()
         .flatten()
@@ -279,11 +336,4 @@ impl Pipeline {
     fn any_avatar(&self) -> bool {
         self.persons.values().any(|p| p.current().is_some())
     }
-}
-
-/// Nanoseconds since the epoch by this machine's clock (0 if it is set before 1970).
-fn unix_now_ns() -> i64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as i64)
 }

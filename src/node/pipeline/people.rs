@@ -148,11 +148,15 @@ impl Pipeline {
             hidden,
         };
         let outcome = self.person_mut(person).add_view(view, now);
+        if outcome.changed() {
+            // A fit in flight stops: a new network avatar is due.
+            self.refine_news.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
         match outcome {
             InsertOutcome::Dropped { .. } => self.stats.duplicates += 1,
             InsertOutcome::DroppedHidden => {}
-            InsertOutcome::AddedEvicting { evicted } => self.recon.forget(evicted),
-            InsertOutcome::Replaced { replaced, .. } => self.recon.forget(replaced),
+            InsertOutcome::AddedEvicting { evicted } => self.network.forget(evicted),
+            InsertOutcome::Replaced { replaced, .. } => self.network.forget(replaced),
             InsertOutcome::Added => {}
         }
     }
@@ -200,7 +204,7 @@ impl Pipeline {
         for person in gone {
             let released = self.persons.remove(&person).expect("listed above");
             for frame_id in released.frame_ids() {
-                self.recon.forget(frame_id);
+                self.network.forget(frame_id);
             }
             self.stats.persons_released += 1;
             tracing::info!(person, "person no longer tracked: released");

@@ -1,14 +1,30 @@
 //! Results to the outputs: each person's statuses (on every state change, and again when the
 //! rejection counts change), the person masks perception made, and, at the render and preview
-//! rates, every person's frames and the avatar preview.
+//! rates, every person's frames and the avatar preview (drawn on the drawing lane, beside the
+//! pose path).
 
 use super::perceive::PersonSeen;
+use super::person::PosedAvatar;
+use super::render::unix_now_ns;
 use super::Pipeline;
 use crate::msgs::ReconstructionStatus;
 use crate::node::inputs::CameraFrame;
 use crate::node::outputs::{status_message, Publisher};
 use image::GrayImage;
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// What the drawing lane sends back.
+pub(super) enum Drawn {
+    /// A batch of frames: how many, and how long rendering and handing them out took.
+    Frames {
+        /// Frames rendered.
+        count: usize,
+        /// Time the batch took.
+        took: Duration,
+    },
+    /// The preview was posed and handed out.
+    Preview,
+}
 
 /// Shortest time between statuses republished only because the rejection counts changed.
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
@@ -111,59 +127,81 @@ impl Pipeline {
         }
     }
 
-    /// Renders the frames and poses the preview when their periods are due (for live outputs).
-    pub(super) fn publish_due(&mut self, now: Duration, clock: &impl Fn() -> Duration) {
-        if let (Some(period), true) = (self.render_period, self.outputs.live()) {
-            if self.any_avatar() && now >= self.next_render {
-                let started = clock();
-                self.publish_frames(now);
-                let took = clock().saturating_sub(started);
+    /// Renders the frames and poses the preview when their periods are due (for live outputs),
+    /// on the drawing lane: the pose path does not wait for them. A batch of frames starts only
+    /// when the one before has ended (the newest pose wins); [`Pipeline::take_drawn`] counts
+    /// what it skipped.
+    pub(super) fn publish_due(&mut self, now: Duration) {
+        if !self.outputs.live() || !self.any_avatar() {
+            return;
+        }
+        if let Some(period) = self.render_period {
+            if now >= self.next_render && !self.drawing_frames {
+                let batch: Vec<(String, PosedAvatar)> = self
+                    .persons
+                    .iter()
+                    .filter_map(|(id, p)| p.posed_at(now).map(|a| (id.clone(), a)))
+                    .collect();
+                let (cameras, renderer, outputs) = (
+                    self.cameras.clone(),
+                    self.frames.clone(),
+                    self.outputs.clone(),
+                );
+                let task = move || {
+                    let started = Instant::now();
+                    let mut renderer = renderer.lock().unwrap_or_else(|e| e.into_inner());
+                    let mut count = 0;
+                    for (id, posed) in &batch {
+                        let frames = posed.render(&cameras, &mut renderer);
+                        for (i, f) in frames.iter().enumerate() {
+                            outputs.frame(id, i, f, posed.stamp_ns);
+                        }
+                        count += frames.len();
+                    }
+                    Drawn::Frames {
+                        count,
+                        took: started.elapsed(),
+                    }
+                };
+                self.drawing_frames = self.drawing.submit(task).is_ok();
                 self.next_render = now + period;
-                self.note_render_time(took, period);
+                self.take_drawn();
             }
         }
-        if let (Some(period), true) = (self.preview_period, self.outputs.live()) {
-            if self.any_avatar() && now >= self.next_preview {
-                self.publish_preview(now);
+        if let Some(period) = self.preview_period {
+            if now >= self.next_preview && !self.drawing_preview {
+                // The configured person's avatar; with tracking, the first tracked person's
+                // that has one.
+                if let Some(posed) = self.persons.values().find_map(|p| p.posed_at(now)) {
+                    let outputs = self.outputs.clone();
+                    let task = move || {
+                        outputs.preview(&posed.posed(), unix_now_ns());
+                        Drawn::Preview
+                    };
+                    self.drawing_preview = self.drawing.submit(task).is_ok();
+                }
                 self.next_preview = now + period;
+                self.take_drawn();
             }
         }
     }
 
-    /// Poses the avatar (the configured person's; with tracking, the first tracked person's
-    /// that has one) at the pose its frames use and hands it to the publishers' preview.
-    fn publish_preview(&self, now: Duration) {
-        let Some(person) = self.persons.values().find(|p| p.current().is_some()) else {
-            return;
-        };
-        if !self.outputs.live() {
-            return;
-        }
-        if let Some(posed) = person.posed(now) {
-            self.outputs.preview(&posed, super::unix_now_ns());
-        }
-    }
-
-    /// Renders every person's latest avatar from every virtual camera at the pose their
-    /// frames use and hands the frames to the outputs.
-    fn publish_frames(&mut self, now: Duration) {
-        if !self.outputs.live() {
-            return;
-        }
-        let started = std::time::Instant::now();
-        let stamp = super::unix_now_ns();
-        let mut count = 0;
-        for (id, person) in &self.persons {
-            let Some(frames) = person.render(now, &self.cameras, &mut self.frames) else {
-                continue;
-            };
-            for (i, f) in frames.iter().enumerate() {
-                self.outputs.frame(id, i, f, stamp);
+    /// Takes what the drawing lane finished: the frames' count and render time (a batch that
+    /// took longer than the render period skipped periods, counted as dropped frames).
+    pub(super) fn take_drawn(&mut self) {
+        for drawn in self.drawing.take() {
+            match drawn {
+                Drawn::Frames { count, took } => {
+                    self.drawing_frames = false;
+                    self.stats.last_render_ms = took.as_secs_f64() * 1e3 / count.max(1) as f64;
+                    self.stats.rendered_frames += count as u64;
+                    if let Some(period) = self.render_period {
+                        self.note_render_time(took, period);
+                    }
+                }
+                Drawn::Preview => self.drawing_preview = false,
             }
-            count += frames.len();
         }
-        self.stats.last_render_ms = started.elapsed().as_secs_f64() * 1e3 / count.max(1) as f64;
-        self.stats.rendered_frames += count as u64;
     }
 
     /// Counts the render periods a batch that took `took` skipped (the next batch starts when
@@ -196,7 +234,7 @@ impl Pipeline {
             self.render_rate_hz,
             took.as_secs_f64() * 1e3,
             rendered,
-            if self.frames.is_neural() {
+            if self.neural_frames {
                 "neural"
             } else {
                 "gaussians"
@@ -228,15 +266,14 @@ impl Pipeline {
             return 0;
         };
         let mut written = 0;
+        let mut renderer = self.frames.lock().unwrap_or_else(|e| e.into_inner());
         for (id, person) in &self.persons {
-            if person.current().is_none() {
-                continue;
-            }
             for (f, pose) in person.animation(frames).iter().enumerate() {
                 let started = std::time::Instant::now();
-                let Some(images) = person.render_at(pose, &self.cameras, &mut self.frames) else {
+                let Some(posed) = person.posed_as(pose) else {
                     continue;
                 };
+                let images = posed.render(&self.cameras, &mut renderer);
                 self.stats.last_render_ms =
                     started.elapsed().as_secs_f64() * 1e3 / images.len().max(1) as f64;
                 for (c, image) in images.iter().enumerate() {
@@ -245,6 +282,7 @@ impl Pipeline {
                 }
             }
         }
+        drop(renderer);
         animation.finish();
         self.stats.rendered_frames += written as u64;
         written

@@ -27,7 +27,7 @@ impl Pipeline {
     /// Whether frames go through the network's neural renderer (`outputs.renderer` resolved
     /// to `neural`).
     pub fn neural_frames(&self) -> bool {
-        self.frames.is_neural()
+        self.neural_frames
     }
 
     /// This node's `(cluster.index, cluster.members)`, when heartbeats are expected.
@@ -86,9 +86,10 @@ impl Pipeline {
             .map(|c| &c.avatar)
     }
 
-    /// Views the network has encoded (each held view once, thanks to the token cache).
+    /// Views the network has encoded (each held view once, thanks to the token cache); waits
+    /// for a job in flight.
     pub fn encoded_views(&self) -> usize {
-        self.recon.encode_count()
+        self.network.wait().encode_count()
     }
 
     /// Frames perception dropped unperceived (live: replaced by a newer frame of their camera
@@ -97,13 +98,18 @@ impl Pipeline {
         self.perception.as_ref().map_or(0, Perception::dropped)
     }
 
-    /// The body shape in use, as `GaussianAvatar.shape_params` carries it (empty if none).
+    /// The body shape the network last reconstructed with, as `GaussianAvatar.shape_params`
+    /// carries it (empty if none); waits for a job in flight.
     pub fn shape_params(&self) -> Vec<f32> {
-        self.recon.shape().map_or_else(Vec::new, |s| s.params())
+        self.network
+            .wait()
+            .shape()
+            .map_or_else(Vec::new, |s| s.params())
     }
 
-    /// Anchor positions the next reconstruction starts from (canonical frame, metres).
+    /// Anchor positions the network's last reconstruction started from (canonical frame,
+    /// metres); waits for a job in flight.
     pub fn anchor_positions(&self) -> Result<Vec<glam::Vec3>, ReconstructError> {
-        self.recon.anchor_positions()
+        self.network.wait().anchor_positions()
     }
 }

@@ -55,6 +55,13 @@ impl VirtualCameras {
     }
 }
 
+/// Nanoseconds since the epoch by this machine's clock (0 if it is set before 1970).
+pub fn unix_now_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i64)
+}
+
 /// The pose the avatar is shown in at `time_s`: the latest received pose if any, else the
 /// built-in walk cycle.
 pub fn display_pose(latest: Option<&Pose>, time_s: f32) -> Pose {

@@ -3,6 +3,8 @@
 //! gets a copy of.
 
 use super::calibration::Calibration;
+use super::jobs::{self, SharedNetwork};
+use super::lane::Lane;
 use super::masks::MaskPairing;
 use super::membership::Membership;
 use super::neural_frames::{choose_renderer, FrameSource, NeuralFrames, RendererSetupError};
@@ -21,7 +23,7 @@ use crate::reconstruct::preprocess::PreprocessConfig;
 use crate::reconstruct::{ReconstructError, Reconstructor};
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Masks kept to pair with frames by stamp (and camera, for per-camera mask topics).
@@ -89,14 +91,13 @@ pub(super) fn pipeline(
         .map(|f| Box::new(f) as Box<dyn Publisher>);
     // The files first (an avatar's PLY is written before it is published), then the live
     // publishers.
-    let outputs = Fanout(files.into_iter().chain(publisher).collect());
+    let outputs = Arc::new(Fanout(files.into_iter().chain(publisher).collect()));
     let cameras = VirtualCameras::ring(
         config.outputs.virtual_cameras,
         config.outputs.render_size,
         recon.template().height(),
     );
     let rasterizer = FrameRasterizer::new(config.outputs.render_device)?;
-    let neural_renderer_id = recon.neural_renderer_id();
     let decision = choose_renderer(
         config.outputs.renderer,
         rgb,
@@ -139,6 +140,7 @@ pub(super) fn pipeline(
     } else {
         None
     };
+    let neural_frames = neural.is_some();
     let calibration = Calibration::new(
         &config.outputs.world_frame,
         reader,
@@ -158,6 +160,7 @@ pub(super) fn pipeline(
         input = %format!("{h}x{w}"),
         "reconstruction network ready"
     );
+    let refine_news = Arc::new(std::sync::atomic::AtomicU64::new(0));
     Ok(Pipeline {
         default_person: config.person_id.clone(),
         tracking: config.tracking.enabled,
@@ -173,7 +176,12 @@ pub(super) fn pipeline(
                 .camera_pose
                 .then(|| config.outputs.world_frame.clone()),
         },
-        recon,
+        network: SharedNetwork::new(recon),
+        jobs: Lane::inline(),
+        drawing: Lane::inline(),
+        drawing_frames: false,
+        drawing_preview: false,
+        lanes_due: Duration::ZERO,
         preprocess: PreprocessConfig {
             out_height: h,
             out_width: w,
@@ -187,11 +195,18 @@ pub(super) fn pipeline(
         perception_due: Duration::ZERO,
         colours_from_views: config.perception.colours_from_views,
         delight: config.perception.delight,
+        refine: config.refine.enabled.then(|| jobs::RefinePlan {
+            config: config.refine.fit_config(),
+            news: refine_news.clone(),
+        }),
+        refine_news,
+        refine_inline: false,
         calibration,
         outputs,
         publish_masks: config.outputs.masks,
-        cameras,
-        frames: FrameRenderer::new(rasterizer, neural),
+        cameras: Arc::new(cameras),
+        frames: Arc::new(Mutex::new(FrameRenderer::new(rasterizer, neural))),
+        neural_frames,
         render_period,
         render_rate_hz: config.outputs.render_rate_hz,
         next_render: Duration::ZERO,
@@ -200,7 +215,6 @@ pub(super) fn pipeline(
         next_preview: Duration::ZERO,
         drop_debt: 0.0,
         slow_render_noted: false,
-        neural_renderer_id,
         stats: PipelineStats::default(),
         input_rejections: Rejections::default(),
         status_refresh_due: Duration::ZERO,

@@ -64,6 +64,13 @@ pub struct PipelineStats {
     pub persons_started: u64,
     /// Tracked persons let go (the tracker forgot or dropped them), with their views.
     pub persons_released: u64,
+    /// Refinements run (`refine.enabled`), and those whose avatar was kept (it beat the
+    /// network's on the view held out of the fit).
+    pub refinements: u64,
+    /// Refined avatars published.
+    pub refinements_kept: u64,
+    /// Optimiser steps over all refinements.
+    pub refine_steps: u64,
 }
 
 impl PipelineStats {
@@ -74,6 +81,15 @@ impl PipelineStats {
         self.latencies.record(latency);
         push_bounded(&mut self.run_times_ms, run.as_secs_f64() * 1e3);
         self.reconstructions += 1;
+    }
+}
+
+impl PipelineStats {
+    /// Counts a refinement.
+    pub(super) fn refined(&mut self, report: &crate::refine::RefineReport) {
+        self.refinements += 1;
+        self.refinements_kept += u64::from(report.improved);
+        self.refine_steps += report.iterations as u64;
     }
 }
 

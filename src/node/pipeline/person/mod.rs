@@ -9,18 +9,20 @@ mod pose;
 mod refinement;
 mod shape;
 
-pub use jobs::{Made, Reconstruction};
+pub use jobs::{PersonJob, Reconstruction};
 pub use pose::PosePath;
 pub use refinement::Refinement;
 pub use shape::ShapeState;
 
-use super::render::{display_pose, render_frames, FrameRenderer, RenderedFrame, VirtualCameras};
+use super::render::VirtualCameras;
+use super::render::{display_pose, render_frames, unix_now_ns, FrameRenderer, RenderedFrame};
 use crate::avatar::Avatar;
 use crate::body::{Pose, Skeleton};
 use crate::msgs::ReconstructionStatus;
 use crate::node::frame_store::{InsertOutcome, PersonViews, StoreLimits, View};
 use crate::node::scheduler::{Completion, Job, Schedule, SchedulerConfig, SchedulerError};
 use crate::reconstruct::shape::AcceptedShape;
+use std::sync::Arc;
 use std::time::Duration;
 
 /// The latest avatar, its revision and the skeleton of the body it was built on.
@@ -33,6 +35,40 @@ pub struct Current {
     pub skeleton: Skeleton,
 }
 
+/// Their latest avatar at the pose their frames show at some moment: what rendering their
+/// frames or posing their preview needs, shared with the lane that draws them.
+pub struct PosedAvatar {
+    /// The avatar (shared, not copied).
+    pub current: Arc<Current>,
+    /// The pose.
+    pub pose: Pose,
+    /// The stamp of frames rendered at it ([`Person::frame_stamp_ns`]).
+    pub stamp_ns: i64,
+}
+
+impl PosedAvatar {
+    /// The avatar from every virtual camera.
+    pub fn render(
+        &self,
+        cameras: &VirtualCameras,
+        frames: &mut FrameRenderer,
+    ) -> Vec<RenderedFrame> {
+        render_frames(
+            &self.current.avatar,
+            &self.current.skeleton,
+            &self.pose,
+            cameras,
+            frames,
+        )
+    }
+
+    /// The avatar's Gaussians posed (the preview).
+    pub fn posed(&self) -> crate::splat::Gaussians {
+        let matrices = self.current.skeleton.skinning_matrices(&self.pose);
+        self.current.avatar.animate(&matrices)
+    }
+}
+
 /// One person's state and steps.
 pub struct Person {
     views: PersonViews,
@@ -41,11 +77,13 @@ pub struct Person {
     pub shape: ShapeState,
     /// What drives their frames.
     pub pose: PosePath,
-    current: Option<Current>,
+    current: Option<Arc<Current>>,
     /// The last status published for them.
     pub last_status: Option<ReconstructionStatus>,
     /// Whether this node reconstructs them (`cluster`); others are only followed.
     owned: bool,
+    /// Their next job remakes the current avatar from the same views ([`Person::rerun`]).
+    remake: bool,
 }
 
 impl Person {
@@ -64,6 +102,7 @@ impl Person {
             current: None,
             last_status: None,
             owned,
+            remake: false,
         }
     }
 
@@ -84,7 +123,7 @@ impl Person {
 
     /// The latest avatar.
     pub fn current(&self) -> Option<&Current> {
-        self.current.as_ref()
+        self.current.as_deref()
     }
 
     /// The latest avatar revision (0 before the first).
@@ -136,6 +175,16 @@ impl Person {
         }
     }
 
+    /// Reconstructs their views again (to refine the avatar at the end of a replay), when this
+    /// node reconstructs them and they have an avatar and nothing pending.
+    pub fn rerun(&mut self, now: Duration) {
+        if self.owned && self.current.is_some() && !self.views.is_empty() && !self.busy() {
+            let arrival = self.views.snapshot().last_arrival().unwrap_or(now);
+            self.schedule.rerun(arrival, now);
+            self.remake = self.schedule.next_deadline().is_some();
+        }
+    }
+
     /// Their job due at `now`, if any, with when its first unhandled change came.
     pub fn poll(&mut self, id: &str, now: Duration) -> Option<(Duration, Job)> {
         self.schedule.poll(id, now)
@@ -152,8 +201,9 @@ impl Person {
     }
 
     /// The reconstruction `job` asks for, on the views and shape they hold now (`None`: no
-    /// views; the job is then failed).
-    pub fn start(&mut self, job: Job) -> Option<Reconstruction> {
+    /// views; the job is then failed); with `refine`, its avatar is then refined against the
+    /// views under a revision of its own.
+    pub fn start(&mut self, job: Job, refine: bool) -> Option<Reconstruction> {
         if self.views.is_empty() {
             let _ = self.schedule.failed(&job.person, job.revision);
             return None;
@@ -162,22 +212,31 @@ impl Person {
             job,
             views: self.views.snapshot(),
             shape: self.shape.shape().cloned(),
+            refined_revision: refine.then(|| self.schedule.reserve_revision()),
+            remakes_current: std::mem::take(&mut self.remake),
         })
     }
 
-    /// Their reconstruction `job` made `avatar` (built on `skeleton`), published at `now`.
+    /// Their reconstruction `job` made `current`, published at `now`: it becomes their latest
+    /// avatar (it was published, even if the job is no longer theirs to finish: handed to
+    /// another cluster member while it ran, the `Err`).
     pub fn finished(
         &mut self,
         job: &Job,
-        avatar: Avatar,
-        skeleton: Skeleton,
+        current: Current,
         now: Duration,
     ) -> Result<Completion, SchedulerError> {
-        self.current = Some(Current {
-            revision: job.revision,
-            avatar,
-            skeleton,
-        });
+        self.current = Some(Arc::new(current));
+        self.schedule.finished(&job.person, job.revision, now)
+    }
+
+    /// Their reconstruction `job` ended without a new avatar (it remade the current one and
+    /// its refinement did not beat it).
+    pub fn finished_unchanged(
+        &mut self,
+        job: &Job,
+        now: Duration,
+    ) -> Result<Completion, SchedulerError> {
         self.schedule.finished(&job.person, job.revision, now)
     }
 
@@ -186,40 +245,33 @@ impl Person {
         let _ = self.schedule.failed(&job.person, job.revision);
     }
 
-    /// Their latest avatar from every virtual camera, at the pose their frames use at `now`
-    /// (`None`: no avatar yet).
-    pub fn render(
-        &self,
-        now: Duration,
-        cameras: &VirtualCameras,
-        frames: &mut FrameRenderer,
-    ) -> Option<Vec<RenderedFrame>> {
-        let current = self.current.as_ref()?;
-        let pose = display_pose(self.pose.pose(now), now.as_secs_f32());
-        Some(render_frames(
-            &current.avatar,
-            &current.skeleton,
-            &pose,
-            cameras,
-            frames,
-        ))
+    /// Their latest avatar at the pose their frames show at `now` (`None`: no avatar yet).
+    pub fn posed_at(&self, now: Duration) -> Option<PosedAvatar> {
+        let current = self.current.clone()?;
+        Some(PosedAvatar {
+            current,
+            pose: display_pose(self.pose.pose(now), now.as_secs_f32()),
+            stamp_ns: self.frame_stamp_ns(now),
+        })
     }
 
-    /// Their latest avatar from every virtual camera at `pose`.
-    pub fn render_at(
-        &self,
-        pose: &Pose,
-        cameras: &VirtualCameras,
-        frames: &mut FrameRenderer,
-    ) -> Option<Vec<RenderedFrame>> {
-        let current = self.current.as_ref()?;
-        Some(render_frames(
-            &current.avatar,
-            &current.skeleton,
-            pose,
-            cameras,
-            frames,
-        ))
+    /// The stamp of their frames rendered at `now`: the header stamp of the pose message or
+    /// camera frame their pose came from, so that a frame says which moment it shows; the
+    /// time now (ns since the epoch) for the walk cycle or an unstamped pose.
+    pub fn frame_stamp_ns(&self, now: Duration) -> i64 {
+        match self.pose.stamped_pose(now) {
+            Some((_, stamp)) if stamp > 0 => stamp,
+            _ => unix_now_ns(),
+        }
+    }
+
+    /// Their latest avatar at `pose` (`None`: no avatar yet), stamped now.
+    pub fn posed_as(&self, pose: &Pose) -> Option<PosedAvatar> {
+        Some(PosedAvatar {
+            current: self.current.clone()?,
+            pose: pose.clone(),
+            stamp_ns: unix_now_ns(),
+        })
     }
 
     /// The poses of their end-of-replay animation: the poses read from the cameras when they
@@ -233,13 +285,5 @@ impl Person {
         } else {
             track
         }
-    }
-
-    /// Their latest avatar posed as their frames are at `now`, for the preview.
-    pub fn posed(&self, now: Duration) -> Option<crate::splat::Gaussians> {
-        let current = self.current.as_ref()?;
-        let pose = display_pose(self.pose.pose(now), now.as_secs_f32());
-        let matrices = current.skeleton.skinning_matrices(&pose);
-        Some(current.avatar.animate(&matrices))
     }
 }

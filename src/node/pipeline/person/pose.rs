@@ -29,6 +29,8 @@ struct CameraPose {
     pose: Pose,
     camera: String,
     at: Duration,
+    /// The camera frame's header stamp (ns since the epoch; 0 when unstamped).
+    stamp_ns: i64,
 }
 
 /// What drives a person's frames and where their pose comes from.
@@ -69,14 +71,15 @@ impl PosePath {
         self.topic_pose_stamp = Some((stamp_ns, frame));
     }
 
-    /// `camera`'s world landmarks of the person at `t` seconds: when that camera drives the
-    /// pose (the current pose camera, or any camera once it has not seen the person for
-    /// [`POSE_CAMERA_HOLD`]), the estimator turns them into the camera pose, which is returned
-    /// (`None`: another camera drives it, or no pose is read from the cameras).
+    /// `camera`'s world landmarks of the person at `t` seconds, in a frame stamped `stamp_ns`:
+    /// when that camera drives the pose (the current pose camera, or any camera once it has
+    /// not seen the person for [`POSE_CAMERA_HOLD`]), the estimator turns them into the camera
+    /// pose, which is returned (`None`: another camera drives it, or no pose is read from the
+    /// cameras).
     pub fn camera_landmarks(
         &mut self,
         camera: &str,
-        t: f64,
+        (t, stamp_ns): (f64, i64),
         world: &[Landmark; BODY_LANDMARKS],
         now: Duration,
     ) -> Option<Pose> {
@@ -98,25 +101,36 @@ impl PosePath {
             pose: pose.clone(),
             camera: camera.to_owned(),
             at: now,
+            stamp_ns,
         });
         Some(pose)
     }
 
     /// The pose the frames show at `now` (`None`: the walk cycle).
     pub fn pose(&self, now: Duration) -> Option<&Pose> {
-        let camera = self.camera_pose.as_ref().map(|c| &c.pose);
+        self.stamped_pose(now).map(|(pose, _)| pose)
+    }
+
+    /// [`PosePath::pose`] with the header stamp of the message or camera frame it came from
+    /// (ns since the epoch; 0 when unstamped): the stamp of the frames rendered in it.
+    pub fn stamped_pose(&self, now: Duration) -> Option<(&Pose, i64)> {
+        let camera = self.camera_pose.as_ref().map(|c| (&c.pose, c.stamp_ns));
+        let topic = self
+            .topic_pose
+            .as_ref()
+            .map(|p| (p, self.topic_pose_stamp.as_ref().map_or(0, |s| s.0)));
         match self.source {
             PoseSource::Walk => None,
-            PoseSource::Topic => self.topic_pose.as_ref(),
+            PoseSource::Topic => topic,
             PoseSource::Camera => camera,
             PoseSource::Auto => {
                 let fresh = self
                     .topic_pose_at
                     .is_some_and(|at| now.saturating_sub(at) < TOPIC_POSE_FRESH);
                 if fresh {
-                    self.topic_pose.as_ref()
+                    topic
                 } else {
-                    camera.or(self.topic_pose.as_ref())
+                    camera.or(topic)
                 }
             }
         }

@@ -68,11 +68,6 @@ impl Refinement {
         })
     }
 
-    /// Views the fit uses (one of them held out to stop it).
-    pub fn view_count(&self) -> usize {
-        self.views.len()
-    }
-
     /// Fits `avatar`; stops early (keeping the best so far) once `cancelled` says so, which is
     /// asked at each check of the held-out view.
     pub fn run(
