@@ -47,12 +47,25 @@ fn without_mask_topics_perception_crops_every_frame_to_the_person() {
     assert_eq!(s.masked, 0, "no mask topic");
     assert_eq!(s.no_person, 0);
     assert_eq!(summary.views_held, 4);
-    assert_eq!(summary.revision, 1);
     assert!(s.camera_poses >= 1, "the cameras give the pose");
     assert_eq!(
         s.calibrated_views, 4,
         "CameraInfo, /tf_static and the pose topic place every view's colours"
     );
+    // At the end of the replay the avatar is refined against the calibrated views (refine
+    // is on by default) and published under a revision of its own when the fit beat the
+    // network's avatar on the view it held out.
+    assert_eq!(s.refinements, 1, "one refinement at the end of the replay");
+    assert_eq!(s.refinements_kept, 1, "the fit beats the network's avatar");
+    assert!(s.refine_steps > 0);
+    assert!(summary.revision >= 2, "revision {}", summary.revision);
+}
+
+#[test]
+fn refinement_off_publishes_the_networks_avatar_only() {
+    let summary = run_perceived_demo(&["refine.enabled=false"]);
+    assert_eq!(summary.stats.refinements, 0);
+    assert_eq!(summary.stats.reconstructions, 1);
 }
 
 #[test]
