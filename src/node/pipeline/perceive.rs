@@ -3,14 +3,20 @@
 //! the newest wins, so perception never stalls the pipeline and its memory stays bounded).
 //!
 //! One person ([`Finders::One`]): each camera's frames go through its own [`PersonTracker`]
-//! (person mask, landmarks). Several people ([`Finders::Many`], `tracking.enabled`): every
-//! frame is split into persons by a [`PeopleFinder`] and one [`PersonTracks`] over all cameras
-//! gives each a stable id (using where they stand when the camera is calibrated).
+//! (person mask, landmarks; MoveNet MultiPose finds the person to follow unless
+//! `perception.person_detector` says BlazePose). Several people ([`Finders::Many`],
+//! `tracking.enabled`): every frame is split into persons by a [`PeopleFinder`] and one
+//! [`PersonTracks`] over all cameras gives each a stable id (using where they stand when the
+//! camera is calibrated).
+//!
+//! A camera in which nobody is found for `perception::nobody::NOBODY_SECONDS` of frames is
+//! named in one warning that says what looked for people and what to try.
 
 use crate::node::inputs::CameraFrame;
+use crate::perception::nobody::{NobodyStretch, NobodyWatch};
 use crate::perception::{
-    Landmark, PeopleConfig, PeopleFinder, PersonTracker, PoseNetworks, TrackerConfig,
-    BODY_LANDMARKS,
+    Landmark, PeopleConfig, PeopleFinder, PersonDetector, PersonTracker, PoseNetworks,
+    TrackerConfig, BODY_LANDMARKS,
 };
 use crate::tracking::{BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats};
 use image::GrayImage;
@@ -114,6 +120,47 @@ impl Finders {
             Self::Many { tracks, .. } => Some(tracks.stats()),
         }
     }
+
+    /// What looks for people in `topic`'s `width × height` frames, in words.
+    fn searched_with(&self, topic: &str, width: u32, height: u32) -> String {
+        match self {
+            Self::One { trackers, .. } => trackers
+                .get(topic)
+                .map(|t| t.searched_with(width, height))
+                .unwrap_or_default(),
+            Self::Many { finder, .. } => finder.searched_with(width, height),
+        }
+    }
+}
+
+/// The warning for `topic`, in which nobody was found over `stretch`; `searched` says what
+/// looked for people, `detector` which one-person detector ran (`None`: several people).
+pub fn nobody_found_warning(
+    topic: &str,
+    stretch: NobodyStretch,
+    searched: &str,
+    detector: Option<PersonDetector>,
+) -> String {
+    let mut tips = vec![
+        "people who stand far from the camera (under about a sixth of the frame's height) \
+         need a larger perception.people_detector_side (384 or 512: more time per search)"
+            .to_owned(),
+    ];
+    if detector == Some(PersonDetector::BlazePose) {
+        tips.insert(
+            0,
+            "perception.person_detector: movenet finds people who fill little of the frame"
+                .to_owned(),
+        );
+    }
+    tips.push("more light on the people, or a camera nearer to where they stand".to_owned());
+    format!(
+        "camera {topic}: nobody found in {} frames over {:.1} s. Looked with {searched}, then \
+         BlazePose's landmark model on the person's crop. Try: {}",
+        stretch.frames,
+        stretch.seconds,
+        tips.join("; ")
+    )
 }
 
 /// The finders and what they run on.
@@ -122,10 +169,38 @@ struct CameraTrackers {
     finders: Finders,
     masks: MaskSettings,
     pool: rayon::ThreadPool,
+    /// Cameras watched for frames in which nobody is found, by topic.
+    nobody: HashMap<String, NobodyWatch>,
+    /// The warnings given (one per camera at most).
+    warnings: Vec<String>,
 }
 
 impl CameraTrackers {
     fn perceive(&mut self, job: Submitted) -> PerceivedFrame {
+        let done = self.find(job);
+        self.watch(&done);
+        done
+    }
+
+    /// Logs the one warning for a camera in which nobody has been found for long enough.
+    fn watch(&mut self, done: &PerceivedFrame) {
+        let frame = &done.frame;
+        let watch = self.nobody.entry(frame.topic.clone()).or_default();
+        let Some(stretch) = watch.observe(!done.people.is_empty(), seconds(frame)) else {
+            return;
+        };
+        let (w, h) = frame.image.dimensions();
+        let detector = match &self.finders {
+            Finders::One { config, .. } => Some(config.detector),
+            Finders::Many { .. } => None,
+        };
+        let searched = self.finders.searched_with(&frame.topic, w, h);
+        let warning = nobody_found_warning(&frame.topic, stretch, &searched, detector);
+        tracing::warn!("{warning}");
+        self.warnings.push(warning);
+    }
+
+    fn find(&mut self, job: Submitted) -> PerceivedFrame {
         let started = Instant::now();
         let Submitted { frame, camera } = job;
         let people = match &mut self.finders {
@@ -163,12 +238,7 @@ impl CameraTrackers {
                                 Detection::seen(&frame.image, &p.mask, bbox, camera.as_ref())
                             })
                             .collect();
-                        let stamp = if frame.stamp_ns > 0 {
-                            frame.stamp_ns as f64 * 1e-9
-                        } else {
-                            frame.arrival.as_secs_f64()
-                        };
-                        let ids = tracks.update(&frame.topic, stamp, &detections);
+                        let ids = tracks.update(&frame.topic, seconds(&frame), &detections);
                         found
                             .into_iter()
                             .zip(ids)
@@ -203,6 +273,15 @@ impl CameraTrackers {
     }
 }
 
+/// A frame's time in seconds: its stamp, else its arrival.
+fn seconds(frame: &CameraFrame) -> f64 {
+    if frame.stamp_ns > 0 {
+        frame.stamp_ns as f64 * 1e-9
+    } else {
+        frame.arrival.as_secs_f64()
+    }
+}
+
 /// Frames waiting for the worker and results waiting for the pipeline.
 #[derive(Default)]
 struct Exchange {
@@ -210,6 +289,8 @@ struct Exchange {
     pending: BTreeMap<String, Submitted>,
     /// The tracker's counters after the last frame (several people only).
     tracking: Option<TrackingStats>,
+    /// The nobody-found warnings given so far.
+    warnings: Vec<String>,
     results: VecDeque<PerceivedFrame>,
     /// Pending frames replaced by a newer one of their camera.
     replaced: u64,
@@ -258,6 +339,9 @@ impl Worker {
                     let mut x = lock.lock().expect("perception exchange poisoned");
                     x.working = false;
                     x.tracking = trackers.finders.tracking_stats();
+                    if x.warnings.len() != trackers.warnings.len() {
+                        x.warnings.clone_from(&trackers.warnings);
+                    }
                     x.results.push_back(done);
                     while x.results.len() > RESULTS_KEPT {
                         x.results.pop_front();
@@ -324,6 +408,8 @@ impl Perception {
             finders,
             masks,
             pool,
+            nobody: HashMap::new(),
+            warnings: Vec::new(),
         };
         let runner = if live {
             Runner::Worker(Worker::start(trackers))
@@ -380,6 +466,15 @@ impl Perception {
         match &self.runner {
             Runner::Inline { trackers, .. } => trackers.finders.tracking_stats(),
             Runner::Worker(worker) => worker.exchange().tracking,
+        }
+    }
+
+    /// The warnings given for cameras in which nobody was found for
+    /// `perception::nobody::NOBODY_SECONDS` of frames (one per camera at most).
+    pub fn nobody_warnings(&self) -> Vec<String> {
+        match &self.runner {
+            Runner::Inline { trackers, .. } => trackers.warnings.clone(),
+            Runner::Worker(worker) => worker.exchange().warnings.clone(),
         }
     }
 
