@@ -24,7 +24,7 @@ use crate::node::scheduler::{Job, Scheduler, SchedulerConfig};
 use crate::node::timings::Timings;
 use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig};
 use crate::perception::shape::ShapeReader;
-use crate::perception::{Landmark, PerceptionError, TrackerConfig, BODY_LANDMARKS};
+use crate::perception::{Landmark, PerceptionError, BODY_LANDMARKS};
 use crate::reconstruct::photo_colours::{colour_from_evidence, ViewEvidence};
 use crate::reconstruct::preprocess::{preprocess, PreprocessConfig, Subject};
 use crate::reconstruct::shape::AcceptedShape;
@@ -1482,11 +1482,7 @@ fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, Perceptio
         );
         Finders::many(networks.clone(), p.people(), config.tracking.tracker())
     } else {
-        Finders::one(TrackerConfig {
-            min_detection_score: p.min_detection_score,
-            min_presence: p.min_presence,
-            smooth_masks: live,
-        })
+        Finders::one(p.tracker(live))
     };
     Ok(Some(Perception::new(
         networks,
