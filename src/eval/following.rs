@@ -1,0 +1,428 @@
+//! One-person perception scored on crowd bags (`lhmpp eval-tracking --one-person`): each
+//! camera's frames go, in time order, through a [`PersonTracker`] of their own, as the node's
+//! one-person mode runs them, and each frame is scored against the bag's id maps.
+//!
+//! The measures, per frame:
+//! - **visible**: the true persons with at least [`MIN_PERSON_PIXELS`] pixels in the id map;
+//!   the frame's class is the height of the tallest of them (their id-map pixels' box) as a
+//!   share of the frame's height;
+//! - **found**: perception's mask (thresholded as the node does) covers a visible true person
+//!   ([`covered_person`]: the person holding half its pixels); a mask covering nobody is a
+//!   **false** find;
+//! - **switches**: per camera, a frame whose found person differs from the one found last
+//!   while that one is still visible (following flipped from one person to another);
+//! - **time**: the tracker's time for the frame (networks, mask), split into frames where the
+//!   person was followed from the previous frame's landmarks and frames that ran the detector.
+//!
+//! On bags without id maps (real video, [`follow_frames`] alone) the found person's box gives
+//! the switches instead: a jump of the box centre by more than [`JUMP_HEIGHTS`] box heights
+//! between consecutive frames.
+
+use super::tracking::{covered_person, CrowdImage};
+use crate::perception::follow::PixelBox;
+use crate::perception::{Perceived, PerceptionError, PersonTracker};
+use image::GrayImage;
+use std::collections::BTreeMap;
+
+/// Id-map pixels from which a true person counts as visible in a frame.
+pub const MIN_PERSON_PIXELS: usize = 50;
+/// Box-centre jump, in box heights, from which consecutive finds count as a switch on bags
+/// without truth.
+pub const JUMP_HEIGHTS: f32 = 0.5;
+
+/// Height classes of a frame's tallest visible person: lower bound (share of the frame's
+/// height) and label.
+pub const HEIGHT_CLASSES: [(f64, &str); 7] = [
+    (0.0, "under 1/10"),
+    (0.1, "1/10 – 1/8"),
+    (0.125, "1/8 – 1/6"),
+    (1.0 / 6.0, "1/6 – 1/4"),
+    (0.25, "1/4 – 1/3"),
+    (1.0 / 3.0, "1/3 – 1/2"),
+    (0.5, "1/2 and more"),
+];
+
+/// The class of a height share.
+pub fn height_class(share: f64) -> usize {
+    HEIGHT_CLASSES
+        .iter()
+        .rposition(|(low, _)| share >= *low)
+        .unwrap_or(0)
+}
+
+/// What the tracker gave for one frame.
+#[derive(Debug, Clone)]
+pub struct FollowedFrame {
+    /// Index of the image in the bag's order.
+    pub image: usize,
+    /// The camera.
+    pub camera: String,
+    /// The person's mask (mono8, as the node thresholds it) and landmark box, if found.
+    pub found: Option<(GrayImage, PixelBox)>,
+    /// The detector ran in this frame (nobody was followed, or the person was lost).
+    pub ran_detector: bool,
+    /// The tracker's time for the frame, milliseconds.
+    pub ms: f64,
+}
+
+/// Runs `images` (time order) through one fresh tracker per camera made by `tracker`;
+/// `each(index, image, perceived)` sees every frame's result.
+pub fn follow_frames(
+    images: &[CrowdImage],
+    mut tracker: impl FnMut() -> PersonTracker,
+    mask: impl Fn(&Perceived) -> GrayImage,
+    mut each: impl FnMut(usize, &CrowdImage, Option<&Perceived>),
+) -> Result<Vec<FollowedFrame>, PerceptionError> {
+    let mut trackers: BTreeMap<String, PersonTracker> = BTreeMap::new();
+    let mut out = Vec::with_capacity(images.len());
+    for (index, image) in images.iter().enumerate() {
+        let t = trackers
+            .entry(image.camera.clone())
+            .or_insert_with(&mut tracker);
+        let started = std::time::Instant::now();
+        let perceived = t.perceive(&image.rgb)?;
+        let found = perceived
+            .as_ref()
+            .map(|p| (mask(p), PixelBox::around_landmarks(&p.landmarks.image)));
+        let ms = started.elapsed().as_secs_f64() * 1e3;
+        each(index, image, perceived.as_ref());
+        out.push(FollowedFrame {
+            image: index,
+            camera: image.camera.clone(),
+            found,
+            ran_detector: t.ran_detector(),
+            ms,
+        });
+    }
+    Ok(out)
+}
+
+/// True persons visible in an id map with their heights as a share of the frame's height,
+/// `(k, share)` for `person_k`.
+pub fn visible_heights(ids: &GrayImage) -> Vec<(usize, f64)> {
+    let mut rows: BTreeMap<u8, (u32, u32, usize)> = BTreeMap::new();
+    for (_, y, p) in ids.enumerate_pixels() {
+        let k = p.0[0];
+        if k == 0 {
+            continue;
+        }
+        let r = rows.entry(k).or_insert((y, y, 0));
+        r.0 = r.0.min(y);
+        r.1 = r.1.max(y);
+        r.2 += 1;
+    }
+    rows.into_iter()
+        .filter(|(_, (_, _, n))| *n >= MIN_PERSON_PIXELS)
+        .map(|(k, (top, bottom, _))| {
+            let share = f64::from(bottom - top + 1) / f64::from(ids.height().max(1));
+            (usize::from(k) - 1, share)
+        })
+        .collect()
+}
+
+/// Frames and finds of one height class.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ClassCount {
+    /// Frames whose tallest visible person is in the class.
+    pub frames: usize,
+    /// Of those, frames in which a visible person was found.
+    pub found: usize,
+}
+
+/// Per-frame times, milliseconds.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FrameTimes {
+    /// Every frame.
+    pub all: Vec<f64>,
+    /// Frames where the person was followed from the previous frame's landmarks.
+    pub followed: Vec<f64>,
+    /// Frames that ran the detector.
+    pub detector: Vec<f64>,
+}
+
+impl FrameTimes {
+    fn push(&mut self, f: &FollowedFrame) {
+        self.all.push(f.ms);
+        if f.ran_detector {
+            self.detector.push(f.ms);
+        } else {
+            self.followed.push(f.ms);
+        }
+    }
+
+    /// Appends another's times.
+    pub fn extend(&mut self, other: &FrameTimes) {
+        self.all.extend_from_slice(&other.all);
+        self.followed.extend_from_slice(&other.followed);
+        self.detector.extend_from_slice(&other.detector);
+    }
+}
+
+/// The `q` quantile (0..=1) of `values` (nearest rank), `None` when empty.
+pub fn quantile(values: &[f64], q: f64) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let rank = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len());
+    Some(v[rank - 1])
+}
+
+/// What one-person perception scored on a crowd bag.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FollowingScore {
+    /// Frames.
+    pub frames: usize,
+    /// By [`HEIGHT_CLASSES`]: frames with someone visible, and found.
+    pub classes: [ClassCount; HEIGHT_CLASSES.len()],
+    /// Frames with nobody visible in which a person was found anyway.
+    pub found_in_empty: usize,
+    /// Finds covering no true person (with someone visible or not).
+    pub false_finds: usize,
+    /// Frames whose found person differs from the camera's last found one while that one is
+    /// still visible.
+    pub switches: usize,
+    /// Per-frame times.
+    pub times: FrameTimes,
+}
+
+impl FollowingScore {
+    /// Frames with someone visible whose tallest visible person is at least `share` of the
+    /// frame's height (a class bound), and of those found.
+    pub fn at_least(&self, share: f64) -> ClassCount {
+        let first = height_class(share);
+        self.classes[first..]
+            .iter()
+            .fold(ClassCount::default(), |a, c| ClassCount {
+                frames: a.frames + c.frames,
+                found: a.found + c.found,
+            })
+    }
+
+    /// Adds another bag's score.
+    pub fn add(&mut self, other: &FollowingScore) {
+        self.frames += other.frames;
+        for (a, b) in self.classes.iter_mut().zip(&other.classes) {
+            a.frames += b.frames;
+            a.found += b.found;
+        }
+        self.found_in_empty += other.found_in_empty;
+        self.false_finds += other.false_finds;
+        self.switches += other.switches;
+        self.times.extend(&other.times);
+    }
+}
+
+/// Scores the tracker's frames against the id maps of `images`.
+pub fn score_following(images: &[CrowdImage], frames: &[FollowedFrame]) -> FollowingScore {
+    let mut score = FollowingScore {
+        frames: frames.len(),
+        ..FollowingScore::default()
+    };
+    let mut last: BTreeMap<&str, usize> = BTreeMap::new();
+    for f in frames {
+        score.times.push(f);
+        let image = &images[f.image];
+        let visible = visible_heights(&image.ids);
+        let covered = f
+            .found
+            .as_ref()
+            .map(|(mask, _)| covered_person(mask, &image.ids));
+        let tallest = visible
+            .iter()
+            .map(|(_, h)| *h)
+            .fold(None, |a: Option<f64>, h| Some(a.map_or(h, |a| a.max(h))));
+        let found_visible = match covered {
+            Some(Some(k)) => visible.iter().any(|(v, _)| *v == k).then_some(k),
+            _ => None,
+        };
+        if let Some(t) = tallest {
+            let class = &mut score.classes[height_class(t)];
+            class.frames += 1;
+            class.found += usize::from(found_visible.is_some());
+        } else if f.found.is_some() {
+            score.found_in_empty += 1;
+        }
+        if matches!(covered, Some(None)) {
+            score.false_finds += 1;
+        }
+        if let Some(k) = found_visible {
+            if let Some(prev) = last.insert(&f.camera, k) {
+                if prev != k && visible.iter().any(|(v, _)| *v == prev) {
+                    score.switches += 1;
+                }
+            }
+        }
+    }
+    score
+}
+
+/// One camera's finds on a bag without truth.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CameraFollowing {
+    /// The camera.
+    pub camera: String,
+    /// Frames.
+    pub frames: usize,
+    /// Frames in which a person was found.
+    pub found: usize,
+    /// Frames that ran the detector.
+    pub detector_frames: usize,
+    /// Consecutive finds whose box centres are more than [`JUMP_HEIGHTS`] box heights apart.
+    pub jumps: usize,
+    /// The largest such jump, in box heights.
+    pub largest_jump: f32,
+    /// Per-frame times.
+    pub times: FrameTimes,
+}
+
+/// Per camera (in name order): finds, detector frames, box jumps and times.
+pub fn camera_following(frames: &[FollowedFrame]) -> Vec<CameraFollowing> {
+    let mut cameras: BTreeMap<&str, (CameraFollowing, Option<PixelBox>)> = BTreeMap::new();
+    for f in frames {
+        let (c, last) = cameras.entry(&f.camera).or_insert_with(|| {
+            (
+                CameraFollowing {
+                    camera: f.camera.clone(),
+                    ..CameraFollowing::default()
+                },
+                None,
+            )
+        });
+        c.frames += 1;
+        c.detector_frames += usize::from(f.ran_detector);
+        c.times.push(f);
+        match &f.found {
+            Some((_, b)) => {
+                c.found += 1;
+                if let Some(prev) = last {
+                    let jump = b.centre().distance(prev.centre()) / prev.height().max(1.0);
+                    c.largest_jump = c.largest_jump.max(jump);
+                    c.jumps += usize::from(jump > JUMP_HEIGHTS);
+                }
+                *last = Some(*b);
+            }
+            None => *last = None,
+        }
+    }
+    cameras.into_values().map(|(c, _)| c).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec2;
+    use image::{Luma, RgbImage};
+
+    /// A 100 × 100 frame: person 0 in rows 10..60 at x 10..20, person 1 in rows 20..40 at x
+    /// 60..70.
+    fn image(camera: &str) -> CrowdImage {
+        let ids = GrayImage::from_fn(100, 100, |x, y| {
+            Luma([match (x, y) {
+                (10..20, 10..60) => 1,
+                (60..70, 20..40) => 2,
+                _ => 0,
+            }])
+        });
+        CrowdImage {
+            camera: camera.into(),
+            stamp_ns: 0,
+            rgb: RgbImage::new(100, 100),
+            ids,
+            camera_model: None,
+            distortion: None,
+        }
+    }
+
+    fn mask_over(x0: u32, x1: u32, y0: u32, y1: u32) -> GrayImage {
+        GrayImage::from_fn(100, 100, |x, y| {
+            Luma([if (x0..x1).contains(&x) && (y0..y1).contains(&y) {
+                255
+            } else {
+                0
+            }])
+        })
+    }
+
+    fn frame(i: usize, mask: Option<GrayImage>, detector: bool) -> FollowedFrame {
+        FollowedFrame {
+            image: i,
+            camera: "cam0".into(),
+            found: mask.map(|m| (m, PixelBox::new(Vec2::ZERO, Vec2::ONE))),
+            ran_detector: detector,
+            ms: i as f64,
+        }
+    }
+
+    #[test]
+    fn heights_are_shares_of_the_frame() {
+        let v = visible_heights(&image("cam0").ids);
+        assert_eq!(v.len(), 2);
+        assert_eq!(v[0].0, 0);
+        assert!((v[0].1 - 0.5).abs() < 1e-9);
+        assert!((v[1].1 - 0.2).abs() < 1e-9);
+        assert_eq!(height_class(0.5), 6);
+        assert_eq!(height_class(0.12), 1);
+        assert_eq!(height_class(0.05), 0);
+    }
+
+    #[test]
+    fn finds_switches_and_false_finds_are_counted() {
+        let images: Vec<CrowdImage> = (0..4).map(|_| image("cam0")).collect();
+        let person0 = mask_over(10, 20, 10, 60);
+        let person1 = mask_over(60, 70, 20, 40);
+        let nobody = mask_over(80, 90, 80, 90);
+        let frames = vec![
+            frame(0, Some(person0.clone()), true),
+            frame(1, Some(person0), false),
+            // following flips to person 1 while person 0 is still in view
+            frame(2, Some(person1), false),
+            frame(3, Some(nobody), true),
+        ];
+        let s = score_following(&images, &frames);
+        assert_eq!(s.frames, 4);
+        assert_eq!(
+            s.classes[6],
+            ClassCount {
+                frames: 4,
+                found: 3
+            }
+        );
+        assert_eq!(
+            s.at_least(0.125),
+            ClassCount {
+                frames: 4,
+                found: 3
+            }
+        );
+        assert_eq!(s.switches, 1);
+        assert_eq!(s.false_finds, 1);
+        assert_eq!(s.times.detector, vec![0.0, 3.0]);
+        assert_eq!(s.times.followed, vec![1.0, 2.0]);
+        assert_eq!(quantile(&s.times.all, 0.5), Some(1.0));
+        assert_eq!(quantile(&s.times.all, 0.95), Some(3.0));
+    }
+
+    #[test]
+    fn a_box_that_jumps_counts_on_bags_without_truth() {
+        let at = |x: f32| {
+            Some((
+                GrayImage::new(1, 1),
+                PixelBox::new(Vec2::new(x, 0.0), Vec2::new(x + 10.0, 40.0)),
+            ))
+        };
+        let frames: Vec<FollowedFrame> = [0.0, 5.0, 60.0, 62.0]
+            .iter()
+            .enumerate()
+            .map(|(i, &x)| FollowedFrame {
+                found: at(x),
+                ..frame(i, None, false)
+            })
+            .collect();
+        let c = camera_following(&frames);
+        assert_eq!(c.len(), 1);
+        assert_eq!((c[0].frames, c[0].found, c[0].jumps), (4, 4, 1));
+        assert!((c[0].largest_jump - 55.0 / 40.0).abs() < 1e-5);
+    }
+}
