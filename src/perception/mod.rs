@@ -21,12 +21,14 @@ mod error;
 pub mod follow;
 pub mod landmark;
 pub mod landmarks;
+pub mod looks;
 pub mod multipose;
 pub mod network;
 pub mod nobody;
 pub mod overlay;
 pub mod people;
 pub mod pose;
+pub mod pose_networks;
 pub mod roi;
 pub mod segmentation;
 pub mod shape;
@@ -38,7 +40,6 @@ pub use landmark::{Landmark, LandmarkId, BODY_LANDMARKS};
 pub use multipose::{MultiPoseDetector, PersonInstance};
 pub use network::{Network, NetworkOutputs};
 pub use people::{FoundPerson, PeopleConfig, PeopleFinder};
-pub use tracker::{
-    Detected, Perceived, PersonDetector, PersonTracker, PoseNetworks, TrackerConfig,
-};
+pub use pose_networks::PoseNetworks;
+pub use tracker::{Detected, Perceived, PersonDetector, PersonTracker, TrackerConfig};
 pub use weights::LandmarkModel;

@@ -18,9 +18,9 @@ use super::landmarks::{PoseLandmarks, MIN_PRESENCE};
 use super::multipose::{
     Keypoint, MultiPoseDetector, PersonInstance, KEYPOINTS, NATIVE_SIDE, SIDE_MULTIPLE,
 };
+use super::pose_networks::PoseNetworks;
 use super::roi::RotatedRect;
 use super::segmentation::ProbabilityMap;
-use super::tracker::PoseNetworks;
 use super::PerceptionError;
 
 /// MoveNet keypoint indices the crop is placed from (COCO order).

@@ -3,134 +3,28 @@
 //! landmark model's presence score decides whether the person is still there. The detector is
 //! MoveNet MultiPose by default (it finds people who fill a small part of the frame; the person
 //! taken up is chosen by [`super::follow`]), or BlazePose's own.
+//!
+//! Where two people cross, the crop can slide from the person followed onto the other. The
+//! followed person's colours ([`Looks`]) are kept: a frame whose person looks too unlike them
+//! runs the detector, and the person who looks most like them is followed, if anyone does.
+//! Someone else is taken up only once the person followed has been gone [`HOLD_FRAMES`].
 
-use super::crop::{crop_into, ValueRange};
-use super::detection::{
-    decode_detections, pose_anchors, Anchor, PersonDetection, DETECTOR_INPUT, MIN_DETECTION_SCORE,
-};
+use super::detection::{PersonDetection, DETECTOR_INPUT, MIN_DETECTION_SCORE};
 use super::follow::{by_prominence, near_followed, PixelBox};
-use super::landmarks::{
-    decode_landmarks, LandmarkOutputs, PoseLandmarks, LANDMARK_INPUT, MIN_PRESENCE,
-};
+use super::landmarks::{PoseLandmarks, MIN_PRESENCE};
+use super::looks::Looks;
 use super::multipose::PersonInstance;
-use super::network::Network;
 use super::people::{person_roi, PeopleConfig, PeopleFinder};
+use super::pose_networks::PoseNetworks;
 use super::roi::RotatedRect;
 use super::segmentation::ProbabilityMap;
-use super::weights::LandmarkModel;
 use super::PerceptionError;
 use image::RgbImage;
-use std::path::Path;
 use std::sync::Arc;
 
 /// Share of the previous mask blended in where the new one is uncertain (MediaPipe's pose
 /// graph uses 0.7).
 const MASK_SMOOTHING: f32 = 0.7;
-
-/// The person detector and a landmark model, loaded once and shared by every camera.
-pub struct PoseNetworks {
-    detector: Network,
-    landmarks: Network,
-    model: LandmarkModel,
-    anchors: Vec<Anchor>,
-}
-
-impl PoseNetworks {
-    /// Loads the embedded detector and landmark model `model` (`heavy_weights`: the converted
-    /// heavy model, which is not embedded).
-    pub fn load(
-        model: LandmarkModel,
-        heavy_weights: Option<&Path>,
-    ) -> Result<Self, PerceptionError> {
-        Ok(Self {
-            detector: super::weights::pose_detector()?,
-            landmarks: model.load(heavy_weights)?,
-            model,
-            anchors: pose_anchors(),
-        })
-    }
-
-    /// Which landmark model runs.
-    pub fn landmark_model(&self) -> LandmarkModel {
-        self.model
-    }
-
-    /// Every person the detector finds in `image` scoring at least `min_score`, best first.
-    pub fn detect(
-        &self,
-        image: &RgbImage,
-        min_score: f32,
-        input: &mut Vec<f32>,
-    ) -> Result<Vec<PersonDetection>, PerceptionError> {
-        let letterbox = RotatedRect::letterbox(image.width(), image.height());
-        crop_into(
-            image,
-            &letterbox,
-            DETECTOR_INPUT,
-            DETECTOR_INPUT,
-            ValueRange::SIGNED,
-            input,
-        );
-        let out = self.detector.run(input)?;
-        let boxes = output(&out, "Identity", "detector")?;
-        let scores = output(&out, "Identity_1", "detector")?;
-        Ok(decode_detections(
-            boxes,
-            scores,
-            &self.anchors,
-            &letterbox,
-            min_score,
-        ))
-    }
-
-    /// Landmarks and segmentation of the person in `roi` of `image`.
-    pub fn landmarks(
-        &self,
-        image: &RgbImage,
-        roi: &RotatedRect,
-        input: &mut Vec<f32>,
-    ) -> Result<(PoseLandmarks, ProbabilityMap), PerceptionError> {
-        crop_into(
-            image,
-            roi,
-            LANDMARK_INPUT,
-            LANDMARK_INPUT,
-            ValueRange::UNIT,
-            input,
-        );
-        let out = self.landmarks.run(input)?;
-        let what = self.model.name();
-        let presence = output(&out, "Identity_1", what)?
-            .first()
-            .copied()
-            .unwrap_or(0.0);
-        let pose = decode_landmarks(
-            LandmarkOutputs {
-                landmarks: output(&out, "Identity", what)?,
-                presence,
-                heatmaps: output(&out, "Identity_3", what)?,
-                world: output(&out, "Identity_4", what)?,
-            },
-            roi,
-        );
-        let mask = ProbabilityMap::from_crop_logits(
-            output(&out, "Identity_2", what)?,
-            roi,
-            image.width(),
-            image.height(),
-        );
-        Ok((pose, mask))
-    }
-}
-
-fn output<'a>(
-    out: &'a super::network::NetworkOutputs,
-    name: &str,
-    network: &str,
-) -> Result<&'a [f32], PerceptionError> {
-    out.get(name)
-        .ok_or_else(|| PerceptionError::format(network, format!("no output `{name}`")))
-}
 
 /// Which network finds the person a camera starts following (one-person mode).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -155,13 +49,20 @@ impl PersonDetector {
     }
 }
 
-/// Frames after losing the followed person during which only someone where they were last
-/// seen is taken up again (someone else elsewhere is not: the person may be hidden for a
-/// moment behind another).
-pub const HOLD_FRAMES: u32 = 0;
-/// People of one MoveNet pass the landmark model reads at most, in the order they are
-/// preferred, until one of them is present.
+/// Frames after losing the followed person during which nobody else is taken up (they may be
+/// hidden behind someone for a moment); the detector looks for them in each.
+pub const HOLD_FRAMES: u32 = 10;
+/// People of one detector pass the landmark model reads at most.
 const MAX_TRIES: usize = 3;
+/// Likeness to the followed person's looks below which a frame's person is checked against the
+/// others the detector finds.
+pub const CHECK_BELOW: f32 = 0.8;
+/// Likeness a person needs to be taken for the one followed, after a check or a loss.
+pub const SAME_FROM: f32 = 0.6;
+/// How fast the followed person's looks learn from frames that look like them.
+const LOOKS_RATE: f32 = 0.1;
+/// Landmark boxes overlapping at least this much (IoU) are one person read twice.
+const SAME_PERSON_IOU: f32 = 0.3;
 
 /// Thresholds of one camera's tracking.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -235,18 +136,29 @@ pub struct Perceived {
 struct LastSeen {
     /// Their landmarks' box.
     bbox: PixelBox,
-    /// Frames since (0: the previous frame).
+    /// Frames since (0: this frame).
     frames_ago: u32,
 }
 
+/// One reading of a crop: what the landmark model saw there and how it looks.
+struct Reading {
+    landmarks: PoseLandmarks,
+    mask: ProbabilityMap,
+    looks: Option<Looks>,
+    detection: Option<Detected>,
+}
+
 /// Tracks one person in one camera's frames: the detector only while nobody is followed,
-/// then the crop the previous frame's landmarks place (MediaPipe's pose graph).
+/// then the crop the previous frame's landmarks place (MediaPipe's pose graph), checked
+/// against the person's looks.
 pub struct PersonTracker {
     networks: Arc<PoseNetworks>,
     config: TrackerConfig,
     roi: Option<RotatedRect>,
     previous_mask: Option<ProbabilityMap>,
     last_seen: Option<LastSeen>,
+    /// What the followed person looks like.
+    looks: Option<Looks>,
     /// MoveNet, made at the first frame that needs it.
     people: Option<PeopleFinder>,
     ran_detector: bool,
@@ -262,6 +174,7 @@ impl PersonTracker {
             roi: None,
             previous_mask: None,
             last_seen: None,
+            looks: None,
             people: None,
             ran_detector: false,
             input: Vec::new(),
@@ -278,8 +191,8 @@ impl PersonTracker {
         self.roi.is_some()
     }
 
-    /// Whether the last frame ran the detector (nobody was followed, or the followed person
-    /// was lost in it).
+    /// Whether the last frame ran the detector (nobody was followed, the followed person was
+    /// lost in it, or looked unlike themself).
     pub fn ran_detector(&self) -> bool {
         self.ran_detector
     }
@@ -289,6 +202,7 @@ impl PersonTracker {
     pub fn reset(&mut self) {
         self.lose();
         self.last_seen = None;
+        self.looks = None;
     }
 
     /// Stops following from the previous frame's crop (the detector runs next).
@@ -312,6 +226,12 @@ impl PersonTracker {
         }
     }
 
+    /// How much `reading` looks like the person followed (`None`: nobody's looks are known,
+    /// or the reading shows none).
+    fn likeness(&self, reading: &Reading) -> Option<f32> {
+        Some(self.looks.as_ref()?.likeness(reading.looks.as_ref()?))
+    }
+
     /// The person in `image`, or `None` when nobody is found. A person lost while tracked is
     /// looked for again with the detector in the same frame.
     pub fn perceive(&mut self, image: &RgbImage) -> Result<Option<Perceived>, PerceptionError> {
@@ -319,43 +239,94 @@ impl PersonTracker {
         if let Some(last) = &mut self.last_seen {
             last.frames_ago += 1;
         }
+        let mut suspect = None;
         if let Some(roi) = self.roi {
-            if let Some(found) = self.read(image, roi, None)? {
-                return Ok(Some(found));
+            if let Some(reading) = self.read(image, roi, None)? {
+                let likeness = self.likeness(&reading);
+                tracing::trace!(?likeness, "followed from the last crop");
+                if likeness.is_none_or(|l| l >= CHECK_BELOW) {
+                    return Ok(Some(self.commit(reading, true)));
+                }
+                suspect = Some(reading);
             }
             self.lose();
         }
         self.ran_detector = true;
-        let found = match self.config.detector {
-            PersonDetector::BlazePose => self.detect_blazepose(image)?,
-            PersonDetector::MultiPose => self.detect_multipose(image)?,
+        let mut readings: Vec<Reading> = suspect.into_iter().collect();
+        match self.config.detector {
+            PersonDetector::BlazePose => self.detect_blazepose(image, &mut readings)?,
+            PersonDetector::MultiPose => self.detect_multipose(image, &mut readings)?,
+        }
+        let held = self
+            .last_seen
+            .is_some_and(|last| last.frames_ago <= HOLD_FRAMES);
+        let chosen = match (&self.looks, held, self.last_seen) {
+            (Some(_), true, Some(last)) => self.choose_followed(readings, &last.bbox),
+            // Nobody followed (or gone for long): whoever came first.
+            _ => {
+                self.looks = None;
+                readings.into_iter().next().map(|r| (r, true))
+            }
         };
-        if found.is_none() {
-            self.lose();
-            if self
-                .last_seen
-                .is_some_and(|last| last.frames_ago > HOLD_FRAMES)
-            {
-                self.last_seen = None;
+        match chosen {
+            Some((reading, learn)) => Ok(Some(self.commit(reading, learn))),
+            None => {
+                if !held {
+                    self.last_seen = None;
+                    self.looks = None;
+                }
+                Ok(None)
             }
         }
-        Ok(found)
+    }
+
+    /// Among `readings`, the person followed, and whether to learn their looks from it: when
+    /// all of them read one person near where the followed one was last seen (`last`), that
+    /// person, learning (they may have turned round); else the one most like them, if alike
+    /// enough ([`SAME_FROM`]).
+    fn choose_followed(&self, readings: Vec<Reading>, last: &PixelBox) -> Option<(Reading, bool)> {
+        let boxes: Vec<PixelBox> = readings
+            .iter()
+            .map(|r| PixelBox::around_landmarks(&r.landmarks.image))
+            .collect();
+        let first = *boxes.first()?;
+        let alone = boxes.iter().all(|b| b.iou(&first) >= SAME_PERSON_IOU)
+            && !near_followed(&[first], last).is_empty();
+        let (likeness, best) = readings
+            .into_iter()
+            .map(|r| (self.likeness(&r).unwrap_or(0.0), r))
+            .max_by(|a, b| a.0.total_cmp(&b.0))?;
+        tracing::trace!(likeness, alone, "checked against the others");
+        if alone {
+            Some((best, true))
+        } else {
+            (likeness >= SAME_FROM).then_some((best, likeness >= CHECK_BELOW))
+        }
     }
 
     /// BlazePose's detector: its best detection, if present.
-    fn detect_blazepose(&mut self, image: &RgbImage) -> Result<Option<Perceived>, PerceptionError> {
+    fn detect_blazepose(
+        &mut self,
+        image: &RgbImage,
+        readings: &mut Vec<Reading>,
+    ) -> Result<(), PerceptionError> {
         let detections =
             self.networks
                 .detect(image, self.config.min_detection_score, &mut self.input)?;
-        let Some(best) = detections.first().copied() else {
-            return Ok(None);
-        };
-        self.read(image, best.roi(), Some(Detected::BlazePose(best)))
+        if let Some(best) = detections.first().copied() {
+            readings.extend(self.read(image, best.roi(), Some(Detected::BlazePose(best)))?);
+        }
+        Ok(())
     }
 
-    /// MoveNet: the person last seen where they were (while held), else the most prominent;
-    /// the first of them (at most [`MAX_TRIES`]) the landmark model finds present.
-    fn detect_multipose(&mut self, image: &RgbImage) -> Result<Option<Perceived>, PerceptionError> {
+    /// MoveNet: the people near where the followed person was last seen, then the others by
+    /// prominence ([`by_prominence`]); those of them (at most [`MAX_TRIES`]) the landmark
+    /// model finds present.
+    fn detect_multipose(
+        &mut self,
+        image: &RgbImage,
+        readings: &mut Vec<Reading>,
+    ) -> Result<(), PerceptionError> {
         let people = self.config.people;
         let finder = self
             .people
@@ -365,53 +336,78 @@ impl PersonTracker {
             .iter()
             .map(|p| PixelBox::new(p.min, p.max))
             .collect();
-        let order = match self.last_seen {
-            Some(last) => {
-                let near = near_followed(&boxes, &last.bbox);
-                if near.is_empty() && last.frames_ago > HOLD_FRAMES {
-                    by_prominence(&boxes, image.width(), image.height())
-                } else {
-                    near
-                }
-            }
-            None => by_prominence(&boxes, image.width(), image.height()),
+        let mut order = match self.last_seen {
+            Some(last) => near_followed(&boxes, &last.bbox),
+            None => Vec::new(),
         };
+        for i in by_prominence(&boxes, image.width(), image.height()) {
+            if !order.contains(&i) {
+                order.push(i);
+            }
+        }
+        // Someone must look like the person followed: read a few; otherwise the first present.
+        let wanted = if self.looks.is_some() { MAX_TRIES } else { 1 };
+        let before = readings.len();
         for i in order.into_iter().take(MAX_TRIES) {
             let p = &instances[i];
             let roi = person_roi(p.min, p.max, &p.keypoints, people.min_keypoint_score);
-            if let Some(found) = self.read(image, roi, Some(Detected::MultiPose(p.clone())))? {
-                return Ok(Some(found));
+            readings.extend(self.read(image, roi, Some(Detected::MultiPose(p.clone())))?);
+            if readings.len() - before >= wanted {
+                break;
             }
         }
-        Ok(None)
+        Ok(())
     }
 
-    /// Runs the landmark model on `roi`; keeps tracking when the person is present.
+    /// Runs the landmark model on `roi`: a reading when the person is present.
     fn read(
         &mut self,
         image: &RgbImage,
         roi: RotatedRect,
         detection: Option<Detected>,
-    ) -> Result<Option<Perceived>, PerceptionError> {
-        let (landmarks, mut mask) = self.networks.landmarks(image, &roi, &mut self.input)?;
+    ) -> Result<Option<Reading>, PerceptionError> {
+        let (landmarks, mask) = self.networks.landmarks(image, &roi, &mut self.input)?;
         if landmarks.presence < self.config.min_presence {
             return Ok(None);
         }
+        let looks = Looks::of(image, &mask, &landmarks);
+        Ok(Some(Reading {
+            landmarks,
+            mask,
+            looks,
+            detection,
+        }))
+    }
+
+    /// Follows the person of `reading`: the next frame's crop from their landmarks; their looks
+    /// are learned (`learn`), or taken as they are when nobody's are known.
+    fn commit(&mut self, reading: Reading, learn: bool) -> Perceived {
+        let Reading {
+            landmarks,
+            mut mask,
+            looks,
+            detection,
+        } = reading;
         if self.config.smooth_masks {
             if let Some(previous) = &self.previous_mask {
                 mask.smooth_with(previous, MASK_SMOOTHING);
             }
             self.previous_mask = Some(mask.clone());
         }
+        match (&mut self.looks, looks) {
+            (Some(known), Some(new)) if learn => known.learn(&new, LOOKS_RATE),
+            (known @ None, new) => *known = new,
+            _ => {}
+        }
         self.roi = Some(landmarks.next_roi);
         self.last_seen = Some(LastSeen {
             bbox: PixelBox::around_landmarks(&landmarks.image),
             frames_ago: 0,
         });
-        Ok(Some(Perceived {
+        Perceived {
             landmarks,
             mask,
             detection,
-        }))
+        }
     }
 }
