@@ -70,6 +70,17 @@ impl PixelBox {
     pub fn centre(&self) -> Vec2 {
         0.5 * (self.min + self.max)
     }
+
+    /// Intersection over union with `other` (0 when either is empty).
+    pub fn iou(&self, other: &PixelBox) -> f32 {
+        let inter = PixelBox::new(self.min.max(other.min), self.max.min(other.max)).area();
+        let union = self.area() + other.area() - inter;
+        if union > 0.0 {
+            inter / union
+        } else {
+            0.0
+        }
+    }
 }
 
 /// The order in which to try the people of a frame when nobody is followed: the largest box
@@ -164,5 +175,13 @@ mod tests {
             (b.min, b.max),
             (Vec2::new(40.0, 10.0), Vec2::new(70.0, 90.0))
         );
+    }
+
+    #[test]
+    fn overlap_is_intersection_over_union() {
+        let a = at(0.0, 0.0, 10.0, 10.0);
+        assert!((a.iou(&a) - 1.0).abs() < 1e-6);
+        assert!((a.iou(&at(5.0, 0.0, 10.0, 10.0)) - 50.0 / 150.0).abs() < 1e-6);
+        assert_eq!(a.iou(&at(20.0, 0.0, 10.0, 10.0)), 0.0);
     }
 }

@@ -75,6 +75,16 @@ impl ProbabilityMap {
         self.values[((y - self.y0) * (self.x1 - self.x0) + (x - self.x0)) as usize]
     }
 
+    /// The pixels `(x, y)` whose probability is at least `threshold` (> 0), row by row.
+    pub fn pixels_at_least(&self, threshold: f32) -> impl Iterator<Item = (u32, u32)> + '_ {
+        let row = (self.x1 - self.x0).max(1) as usize;
+        self.values
+            .iter()
+            .enumerate()
+            .filter(move |(_, &p)| p >= threshold)
+            .map(move |(i, _)| (self.x0 + (i % row) as u32, self.y0 + (i / row) as u32))
+    }
+
     /// Blends towards `previous` where this map is uncertain (near 0.5): MediaPipe's
     /// polynomial for the binary entropy, weighted by `ratio` (0.7 in its pose graph). Outside
     /// this map's region it is a certain 0 and stays so. Maps of another size are ignored.
