@@ -122,6 +122,9 @@ pub struct PipelineStats {
     pub perception_times: Timings,
     /// Poses read from the cameras.
     pub camera_poses: u64,
+    /// A camera frame's stamp → the pose read from it published, for stamps of the last 10
+    /// minutes by this machine's clock (live streams).
+    pub pose_ages: Timings,
     /// Persons the pipeline started following (1 without tracking once a frame arrived).
     pub persons_started: u64,
     /// Tracked persons let go (the tracker forgot or dropped them), with their views.
@@ -947,6 +950,9 @@ impl Pipeline {
             let header = Header::new(Time::from_nanos(frame.stamp_ns), world_frame.as_str());
             self.outputs
                 .pose(&BodyPose::from_pose(header, person.to_owned(), &pose));
+            if let Some(age) = live_age(frame.stamp_ns) {
+                self.stats.pose_ages.record(age);
+            }
         }
         animation.track.push_back(pose.clone());
         while animation.track.len() > POSE_TRACK_KEPT {
