@@ -490,3 +490,96 @@ impl Perception {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::perception::LandmarkModel;
+    use image::RgbImage;
+
+    /// `count` frames of an empty grey room on `topic`, `period_s` apart.
+    fn empty_frames(topic: &str, count: usize, period_s: f64) -> Vec<CameraFrame> {
+        let image = Arc::new(RgbImage::from_fn(320, 240, |x, y| {
+            image::Rgb([90 + (x % 7) as u8, 95 + (y % 5) as u8, 100])
+        }));
+        (0..count)
+            .map(|i| CameraFrame {
+                topic: topic.into(),
+                frame_id: "cam_optical".into(),
+                stamp_ns: 1_700_000_000_000_000_000 + (i as f64 * period_s * 1e9) as i64,
+                arrival: Duration::from_secs_f64(i as f64 * period_s),
+                image: image.clone(),
+            })
+            .collect()
+    }
+
+    fn perception(finders: impl FnOnce(Arc<PoseNetworks>) -> Finders) -> Perception {
+        let networks = Arc::new(PoseNetworks::load(LandmarkModel::Lite, None).unwrap());
+        let masks = MaskSettings {
+            threshold: 0.5,
+            feather: 0.1,
+        };
+        Perception::new(networks.clone(), finders(networks), masks, 1, false)
+    }
+
+    #[test]
+    fn a_camera_that_sees_nobody_for_seconds_gets_one_warning_saying_what_to_try() {
+        let mut stage = perception(|_| Finders::one(TrackerConfig::default()));
+        let log = crate::testing::warnings_logged(|| {
+            // 2 Hz for 10 s on one camera, 3 frames on another: only the first is named.
+            for frame in empty_frames("/cam0/image_raw", 20, 0.5)
+                .into_iter()
+                .chain(empty_frames("/cam1/image_raw", 3, 0.5))
+            {
+                stage.submit(frame, None);
+                let done = stage.take_results();
+                assert!(done.iter().all(|d| d.people.is_empty()));
+            }
+        });
+        assert_eq!(log.matches(" WARN ").count(), 1, "{log}");
+        let warnings = stage.nobody_warnings();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        let w = &warnings[0];
+        assert!(log.contains(w.as_str()), "{log}");
+        for needed in [
+            "camera /cam0/image_raw",
+            "11 frames over 5.0 s",
+            "MoveNet MultiPose at a 352×256 input (short side 256)",
+            "perception.people_detector_side",
+            "light",
+        ] {
+            assert!(w.contains(needed), "`{needed}` missing from: {w}");
+        }
+        assert!(!w.contains("perception.person_detector"), "{w}");
+    }
+
+    #[test]
+    fn with_blazepose_the_warning_points_at_movenet() {
+        let config = TrackerConfig {
+            detector: PersonDetector::BlazePose,
+            ..TrackerConfig::default()
+        };
+        let mut stage = perception(|_| Finders::one(config));
+        // Logged under a subscriber too: a callsite first reached without one could be cached
+        // as never interesting for the other test.
+        let log = crate::testing::warnings_logged(|| {
+            for frame in empty_frames("/cam0/image_raw", 12, 0.5) {
+                stage.submit(frame, None);
+                stage.take_results();
+            }
+        });
+        assert_eq!(log.matches(" WARN ").count(), 1, "{log}");
+        let warnings = stage.nobody_warnings();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0].contains("BlazePose's person detector at a 224×224 input"),
+            "{}",
+            warnings[0]
+        );
+        assert!(
+            warnings[0].contains("perception.person_detector: movenet"),
+            "{}",
+            warnings[0]
+        );
+    }
+}
