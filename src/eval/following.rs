@@ -6,9 +6,11 @@
 //! - **visible**: the true persons with at least [`MIN_PERSON_PIXELS`] pixels in the id map;
 //!   the frame's class is the height of the tallest of them (their id-map pixels' box) as a
 //!   share of the frame's height;
-//! - **found**: perception's mask (thresholded as the node does) covers a visible true person
-//!   ([`covered_person`]: the person holding half its pixels); a mask covering nobody is a
-//!   **false** find;
+//! - **found**: the person perception read is a visible true person: the one under most of
+//!   their torso landmarks (shoulders, hips and their midpoints; at least [`MIN_TORSO_VOTES`]),
+//!   else the one holding half of perception's mask ([`covered_person`]); a find on nobody is
+//!   a **false** find, and a mask mostly on another true person than the torso's a **mixed
+//!   mask**;
 //! - **switches**: per camera, a frame whose found person differs from the one found last
 //!   while that one is still visible (following flipped from one person to another);
 //! - **time**: the tracker's time for the frame (networks, mask), split into frames where the
@@ -20,12 +22,15 @@
 
 use super::tracking::{covered_person, CrowdImage};
 use crate::perception::follow::PixelBox;
-use crate::perception::{Perceived, PerceptionError, PersonTracker};
+use crate::perception::{LandmarkId, Perceived, PerceptionError, PersonTracker};
+use glam::Vec2;
 use image::GrayImage;
 use std::collections::BTreeMap;
 
 /// Id-map pixels from which a true person counts as visible in a frame.
 pub const MIN_PERSON_PIXELS: usize = 50;
+/// Torso points (of 6) that must lie on one true person for the torso to name them.
+pub const MIN_TORSO_VOTES: usize = 3;
 /// Box-centre jump, in box heights, from which consecutive finds count as a switch on bags
 /// without truth.
 pub const JUMP_HEIGHTS: f32 = 0.5;
@@ -57,12 +62,54 @@ pub struct FollowedFrame {
     pub image: usize,
     /// The camera.
     pub camera: String,
-    /// The person's mask (mono8, as the node thresholds it) and landmark box, if found.
-    pub found: Option<(GrayImage, PixelBox)>,
+    /// What was found of the person, if anyone.
+    pub found: Option<Found>,
     /// The detector ran in this frame (nobody was followed, or the person was lost).
     pub ran_detector: bool,
     /// The tracker's time for the frame, milliseconds.
     pub ms: f64,
+}
+
+/// What one frame showed of the person followed.
+#[derive(Debug, Clone)]
+pub struct Found {
+    /// Their mask (mono8, as the node thresholds it).
+    pub mask: GrayImage,
+    /// Their landmarks' box.
+    pub bbox: PixelBox,
+    /// Their shoulders, hips and the midpoints of each pair, frame pixels.
+    pub torso: [Vec2; 6],
+}
+
+impl Found {
+    /// The mask `mask` and the landmarks of `p`.
+    pub fn new(p: &Perceived, mask: GrayImage) -> Self {
+        let at = |id: LandmarkId| p.landmarks.image[id.index()].position.truncate();
+        let (ls, rs) = (at(LandmarkId::LeftShoulder), at(LandmarkId::RightShoulder));
+        let (lh, rh) = (at(LandmarkId::LeftHip), at(LandmarkId::RightHip));
+        Self {
+            mask,
+            bbox: PixelBox::around_landmarks(&p.landmarks.image),
+            torso: [ls, rs, lh, rh, (ls + rs) / 2.0, (lh + rh) / 2.0],
+        }
+    }
+
+    /// The true person under most of the torso points (at least [`MIN_TORSO_VOTES`]).
+    pub fn torso_person(&self, ids: &GrayImage) -> Option<usize> {
+        let mut votes = [0usize; 256];
+        for p in self.torso {
+            let (x, y) = (p.x.round(), p.y.round());
+            if x >= 0.0 && y >= 0.0 && (x as u32) < ids.width() && (y as u32) < ids.height() {
+                votes[usize::from(ids.get_pixel(x as u32, y as u32).0[0])] += 1;
+            }
+        }
+        let (k, n) = votes
+            .iter()
+            .enumerate()
+            .skip(1)
+            .max_by_key(|(k, n)| (**n, std::cmp::Reverse(*k)))?;
+        (*n >= MIN_TORSO_VOTES).then(|| k - 1)
+    }
 }
 
 /// Runs `images` (time order) through one fresh tracker per camera made by `tracker`;
@@ -81,9 +128,7 @@ pub fn follow_frames(
             .or_insert_with(&mut tracker);
         let started = std::time::Instant::now();
         let perceived = t.perceive(&image.rgb)?;
-        let found = perceived
-            .as_ref()
-            .map(|p| (mask(p), PixelBox::around_landmarks(&p.landmarks.image)));
+        let found = perceived.as_ref().map(|p| Found::new(p, mask(p)));
         let ms = started.elapsed().as_secs_f64() * 1e3;
         each(index, image, perceived.as_ref());
         out.push(FollowedFrame {
@@ -178,8 +223,10 @@ pub struct FollowingScore {
     pub classes: [ClassCount; HEIGHT_CLASSES.len()],
     /// Frames with nobody visible in which a person was found anyway.
     pub found_in_empty: usize,
-    /// Finds covering no true person (with someone visible or not).
+    /// Finds of no true person (with someone visible or not).
     pub false_finds: usize,
+    /// Finds whose mask is mostly another true person's than the one their torso is on.
+    pub mixed_masks: usize,
     /// Frames whose found person differs from the camera's last found one while that one is
     /// still visible.
     pub switches: usize,
@@ -209,6 +256,7 @@ impl FollowingScore {
         }
         self.found_in_empty += other.found_in_empty;
         self.false_finds += other.false_finds;
+        self.mixed_masks += other.mixed_masks;
         self.switches += other.switches;
         self.times.extend(&other.times);
     }
@@ -225,15 +273,19 @@ pub fn score_following(images: &[CrowdImage], frames: &[FollowedFrame]) -> Follo
         score.times.push(f);
         let image = &images[f.image];
         let visible = visible_heights(&image.ids);
-        let covered = f
-            .found
-            .as_ref()
-            .map(|(mask, _)| covered_person(mask, &image.ids));
+        let person = f.found.as_ref().map(|found| {
+            let masked = covered_person(&found.mask, &image.ids);
+            let torso = found.torso_person(&image.ids);
+            if let (Some(m), Some(t)) = (masked, torso) {
+                score.mixed_masks += usize::from(m != t);
+            }
+            torso.or(masked)
+        });
         let tallest = visible
             .iter()
             .map(|(_, h)| *h)
             .fold(None, |a: Option<f64>, h| Some(a.map_or(h, |a| a.max(h))));
-        let found_visible = match covered {
+        let found_visible = match person {
             Some(Some(k)) => visible.iter().any(|(v, _)| *v == k).then_some(k),
             _ => None,
         };
@@ -244,7 +296,7 @@ pub fn score_following(images: &[CrowdImage], frames: &[FollowedFrame]) -> Follo
         } else if f.found.is_some() {
             score.found_in_empty += 1;
         }
-        if matches!(covered, Some(None)) {
+        if matches!(person, Some(None)) {
             score.false_finds += 1;
         }
         if let Some(k) = found_visible {
@@ -294,14 +346,15 @@ pub fn camera_following(frames: &[FollowedFrame]) -> Vec<CameraFollowing> {
         c.detector_frames += usize::from(f.ran_detector);
         c.times.push(f);
         match &f.found {
-            Some((_, b)) => {
+            Some(found) => {
+                let b = found.bbox;
                 c.found += 1;
                 if let Some(prev) = last {
                     let jump = b.centre().distance(prev.centre()) / prev.height().max(1.0);
                     c.largest_jump = c.largest_jump.max(jump);
                     c.jumps += usize::from(jump > JUMP_HEIGHTS);
                 }
-                *last = Some(*b);
+                *last = Some(b);
             }
             None => *last = None,
         }
@@ -312,7 +365,6 @@ pub fn camera_following(frames: &[FollowedFrame]) -> Vec<CameraFollowing> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::Vec2;
     use image::{Luma, RgbImage};
 
     /// A 100 × 100 frame: person 0 in rows 10..60 at x 10..20, person 1 in rows 20..40 at x
@@ -345,11 +397,21 @@ mod tests {
         })
     }
 
-    fn frame(i: usize, mask: Option<GrayImage>, detector: bool) -> FollowedFrame {
+    /// A find whose mask is `mask`, whose torso points are all at `torso` and whose box spans
+    /// `x` to `x + 10` and 0 to 40.
+    fn found(mask: GrayImage, torso: Vec2, x: f32) -> Found {
+        Found {
+            mask,
+            bbox: PixelBox::new(Vec2::new(x, 0.0), Vec2::new(x + 10.0, 40.0)),
+            torso: [torso; 6],
+        }
+    }
+
+    fn frame(i: usize, found: Option<Found>, detector: bool) -> FollowedFrame {
         FollowedFrame {
             image: i,
             camera: "cam0".into(),
-            found: mask.map(|m| (m, PixelBox::new(Vec2::ZERO, Vec2::ONE))),
+            found,
             ran_detector: detector,
             ms: i as f64,
         }
@@ -369,56 +431,46 @@ mod tests {
 
     #[test]
     fn finds_switches_and_false_finds_are_counted() {
-        let images: Vec<CrowdImage> = (0..4).map(|_| image("cam0")).collect();
+        let images: Vec<CrowdImage> = (0..6).map(|_| image("cam0")).collect();
         let person0 = mask_over(10, 20, 10, 60);
         let person1 = mask_over(60, 70, 20, 40);
         let nobody = mask_over(80, 90, 80, 90);
+        let (on0, on1) = (Vec2::new(15.0, 30.0), Vec2::new(65.0, 30.0));
+        let off = Vec2::splat(85.0);
         let frames = vec![
-            frame(0, Some(person0.clone()), true),
-            frame(1, Some(person0), false),
+            frame(0, Some(found(person0.clone(), on0, 0.0)), true),
+            frame(1, Some(found(person0.clone(), on0, 0.0)), false),
             // following flips to person 1 while person 0 is still in view
-            frame(2, Some(person1), false),
-            frame(3, Some(nobody), true),
+            frame(2, Some(found(person1.clone(), on1, 0.0)), false),
+            frame(3, Some(found(nobody.clone(), off, 0.0)), true),
+            // the torso is back on person 0, the mask on nobody: still a find of person 0
+            frame(4, Some(found(nobody, on0, 0.0)), true),
+            // the torso on person 0, the mask on person 1
+            frame(5, Some(found(person1, on0, 0.0)), false),
         ];
         let s = score_following(&images, &frames);
-        assert_eq!(s.frames, 4);
-        assert_eq!(
-            s.classes[6],
-            ClassCount {
-                frames: 4,
-                found: 3
-            }
-        );
-        assert_eq!(
-            s.at_least(0.125),
-            ClassCount {
-                frames: 4,
-                found: 3
-            }
-        );
-        assert_eq!(s.switches, 1);
+        assert_eq!(s.frames, 6);
+        let all = ClassCount {
+            frames: 6,
+            found: 5,
+        };
+        assert_eq!(s.classes[6], all);
+        assert_eq!(s.at_least(0.125), all);
+        assert_eq!(s.switches, 2, "0 → 1 and 1 → 0, both in view");
         assert_eq!(s.false_finds, 1);
-        assert_eq!(s.times.detector, vec![0.0, 3.0]);
-        assert_eq!(s.times.followed, vec![1.0, 2.0]);
-        assert_eq!(quantile(&s.times.all, 0.5), Some(1.0));
-        assert_eq!(quantile(&s.times.all, 0.95), Some(3.0));
+        assert_eq!(s.mixed_masks, 1);
+        assert_eq!(s.times.detector, vec![0.0, 3.0, 4.0]);
+        assert_eq!(s.times.followed, vec![1.0, 2.0, 5.0]);
+        assert_eq!(quantile(&s.times.all, 0.5), Some(2.0));
+        assert_eq!(quantile(&s.times.all, 0.95), Some(5.0));
     }
 
     #[test]
     fn a_box_that_jumps_counts_on_bags_without_truth() {
-        let at = |x: f32| {
-            Some((
-                GrayImage::new(1, 1),
-                PixelBox::new(Vec2::new(x, 0.0), Vec2::new(x + 10.0, 40.0)),
-            ))
-        };
         let frames: Vec<FollowedFrame> = [0.0, 5.0, 60.0, 62.0]
             .iter()
             .enumerate()
-            .map(|(i, &x)| FollowedFrame {
-                found: at(x),
-                ..frame(i, None, false)
-            })
+            .map(|(i, &x)| frame(i, Some(found(GrayImage::new(1, 1), Vec2::ZERO, x)), false))
             .collect();
         let c = camera_following(&frames);
         assert_eq!(c.len(), 1);
