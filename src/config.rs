@@ -316,6 +316,7 @@ impl PerceptionConfig {
             people: self.people(),
             min_presence: self.min_presence,
             smooth_masks,
+            check_looks: true,
         }
     }
 

@@ -54,6 +54,7 @@ pub fn run(args: &EvalTrackingArgs, networks: Arc<PoseNetworks>) -> Result<()> {
                     detector_side: args.detector_side,
                     ..PeopleConfig::default()
                 },
+                check_looks: !args.no_looks,
                 ..TrackerConfig::default()
             };
             let overlays = (d == 0).then_some(args.frames_dir.as_ref()).flatten();
@@ -134,10 +135,10 @@ fn print_scores(args: &EvalTrackingArgs, runs: &[(String, Vec<CrowdImage>, Vec<R
     let mut totals: Vec<FollowingScore> = vec![FollowingScore::default(); detectors.len()];
     println!(
         "| bag | detector | found / frames with someone visible | of those ≥ 1/8 of the frame high | \
-         switches between people | false finds | masks mostly another's | ms per frame p50 / p95 \
-         | followed | searching (frames) | frames |"
+         switches between people | finds of another | false finds | masks mostly another's | ms \
+         per frame p50 / p95 | followed | searching (frames) | frames |"
     );
-    println!("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+    println!("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     for (name, images, bag_runs) in runs {
         for (d, run) in bag_runs.iter().enumerate() {
             let s = score_following(images, &run.frames);
@@ -187,11 +188,12 @@ fn score_row(name: &str, detector: DetectorArg, s: &FollowingScore) -> String {
     let visible = s.at_least(0.0);
     let eighth = s.at_least(0.125);
     format!(
-        "| {name} | {} | {} | {} | {} | {} | {} | {} |",
+        "| {name} | {} | {} | {} | {} | {} | {} | {} | {} |",
         detector.name(),
         share(visible.found, visible.frames),
         share(eighth.found, eighth.frames),
         s.switches,
+        s.finds_of_another,
         s.false_finds,
         s.mixed_masks,
         times_cells(&s.times)

@@ -74,6 +74,10 @@ pub struct EvalTrackingArgs {
     /// With `--one-person`: CPU threads of the networks (the node's `perception.threads`).
     #[arg(long, default_value_t = 1)]
     pub(super) threads: usize,
+    /// With `--one-person`: follow the crop the landmarks place wherever it goes, without
+    /// checking the person's looks (MediaPipe's tracking; for comparison).
+    #[arg(long)]
+    pub(super) no_looks: bool,
 }
 
 const HEADER: &str = "| bag | people | images | found | id switches / 100 images (all cameras) | within a camera | ids per person | wrong-person views | false detections | ms / image |\n| --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: |";

@@ -11,8 +11,10 @@
 //!   else the one holding half of perception's mask ([`covered_person`]); a find on nobody is
 //!   a **false** find, and a mask mostly on another true person than the torso's a **mixed
 //!   mask**;
-//! - **switches**: per camera, a frame whose found person differs from the one found last
-//!   while that one is still visible (following flipped from one person to another);
+//! - **switches**: per camera, following passing to another person while the one followed is
+//!   still in view, for at least [`LASTING_FINDS`] finds in a row (a lasting flip); shorter
+//!   runs, and each find of another person while the one followed is in view, count as
+//!   **finds of another** (a person hidden behind another reads as the one in front);
 //! - **time**: the tracker's time for the frame (networks, mask), split into frames where the
 //!   person was followed from the previous frame's landmarks and frames that ran the detector.
 //!
@@ -31,6 +33,8 @@ use std::collections::BTreeMap;
 pub const MIN_PERSON_PIXELS: usize = 50;
 /// Torso points (of 6) that must lie on one true person for the torso to name them.
 pub const MIN_TORSO_VOTES: usize = 3;
+/// Finds in a row of another person, the one followed still in view, that make a switch.
+pub const LASTING_FINDS: usize = 3;
 /// Box-centre jump, in box heights, from which consecutive finds count as a switch on bags
 /// without truth.
 pub const JUMP_HEIGHTS: f32 = 0.5;
@@ -126,6 +130,7 @@ pub fn follow_frames(
         let t = trackers
             .entry(image.camera.clone())
             .or_insert_with(&mut tracker);
+        let _frame = tracing::trace_span!("frame", index, camera = %image.camera).entered();
         let started = std::time::Instant::now();
         let perceived = t.perceive(&image.rgb)?;
         let found = perceived.as_ref().map(|p| Found::new(p, mask(p)));
@@ -227,9 +232,10 @@ pub struct FollowingScore {
     pub false_finds: usize,
     /// Finds whose mask is mostly another true person's than the one their torso is on.
     pub mixed_masks: usize,
-    /// Frames whose found person differs from the camera's last found one while that one is
-    /// still visible.
+    /// Lasting switches to another person while the one followed is in view.
     pub switches: usize,
+    /// Finds of another person than the one followed while that one is in view.
+    pub finds_of_another: usize,
     /// Per-frame times.
     pub times: FrameTimes,
 }
@@ -258,6 +264,7 @@ impl FollowingScore {
         self.false_finds += other.false_finds;
         self.mixed_masks += other.mixed_masks;
         self.switches += other.switches;
+        self.finds_of_another += other.finds_of_another;
         self.times.extend(&other.times);
     }
 }
@@ -268,7 +275,8 @@ pub fn score_following(images: &[CrowdImage], frames: &[FollowedFrame]) -> Follo
         frames: frames.len(),
         ..FollowingScore::default()
     };
-    let mut last: BTreeMap<&str, usize> = BTreeMap::new();
+    // Per camera: the person followed, and a run of finds of another one.
+    let mut followed: BTreeMap<&str, (usize, Option<(usize, usize)>)> = BTreeMap::new();
     for f in frames {
         score.times.push(f);
         let image = &images[f.image];
@@ -299,11 +307,25 @@ pub fn score_following(images: &[CrowdImage], frames: &[FollowedFrame]) -> Follo
         if matches!(person, Some(None)) {
             score.false_finds += 1;
         }
-        if let Some(k) = found_visible {
-            if let Some(prev) = last.insert(&f.camera, k) {
-                if prev != k && visible.iter().any(|(v, _)| *v == prev) {
-                    score.switches += 1;
-                }
+        let Some(k) = found_visible else {
+            continue;
+        };
+        let (current, run) = followed.entry(&f.camera).or_insert((k, None));
+        if k == *current {
+            *run = None;
+        } else if !visible.iter().any(|(v, _)| v == current) {
+            // The one followed left the view: taking up another is no switch.
+            (*current, *run) = (k, None);
+        } else {
+            score.finds_of_another += 1;
+            let n = match *run {
+                Some((other, n)) if other == k => n + 1,
+                _ => 1,
+            };
+            *run = Some((k, n));
+            if n >= LASTING_FINDS {
+                score.switches += 1;
+                (*current, *run) = (k, None);
             }
         }
     }
@@ -456,13 +478,33 @@ mod tests {
         };
         assert_eq!(s.classes[6], all);
         assert_eq!(s.at_least(0.125), all);
-        assert_eq!(s.switches, 2, "0 → 1 and 1 → 0, both in view");
+        assert_eq!(s.switches, 0, "one find of person 1: no lasting switch");
+        assert_eq!(s.finds_of_another, 1);
         assert_eq!(s.false_finds, 1);
         assert_eq!(s.mixed_masks, 1);
         assert_eq!(s.times.detector, vec![0.0, 3.0, 4.0]);
         assert_eq!(s.times.followed, vec![1.0, 2.0, 5.0]);
         assert_eq!(quantile(&s.times.all, 0.5), Some(2.0));
         assert_eq!(quantile(&s.times.all, 0.95), Some(5.0));
+    }
+
+    #[test]
+    fn a_lasting_run_of_another_person_in_view_is_a_switch() {
+        let images: Vec<CrowdImage> = (0..7).map(|_| image("cam0")).collect();
+        let (m0, m1) = (mask_over(10, 20, 10, 60), mask_over(60, 70, 20, 40));
+        let (on0, on1) = (Vec2::new(15.0, 30.0), Vec2::new(65.0, 30.0));
+        let on = |i, m: &GrayImage, p| frame(i, Some(found(m.clone(), p, 0.0)), false);
+        let frames = vec![
+            on(0, &m0, on0),
+            on(1, &m1, on1),
+            on(2, &m0, on0),
+            on(3, &m1, on1),
+            on(4, &m1, on1),
+            on(5, &m1, on1),
+            on(6, &m1, on1),
+        ];
+        let s = score_following(&images, &frames);
+        assert_eq!((s.switches, s.finds_of_another), (1, 4));
     }
 
     #[test]

@@ -75,14 +75,9 @@ impl ProbabilityMap {
         self.values[((y - self.y0) * (self.x1 - self.x0) + (x - self.x0)) as usize]
     }
 
-    /// The pixels `(x, y)` whose probability is at least `threshold` (> 0), row by row.
-    pub fn pixels_at_least(&self, threshold: f32) -> impl Iterator<Item = (u32, u32)> + '_ {
-        let row = (self.x1 - self.x0).max(1) as usize;
-        self.values
-            .iter()
-            .enumerate()
-            .filter(move |(_, &p)| p >= threshold)
-            .map(move |(i, _)| (self.x0 + (i % row) as u32, self.y0 + (i / row) as u32))
+    /// The stored region `(x0, y0, x1, y1)`: columns `x0..x1`, rows `y0..y1` (0 outside).
+    pub fn region(&self) -> (u32, u32, u32, u32) {
+        (self.x0, self.y0, self.x1, self.y1)
     }
 
     /// Blends towards `previous` where this map is uncertain (near 0.5): MediaPipe's

@@ -56,13 +56,20 @@ pub const HOLD_FRAMES: u32 = 10;
 const MAX_TRIES: usize = 3;
 /// Likeness to the followed person's looks below which a frame's person is checked against the
 /// others the detector finds.
-pub const CHECK_BELOW: f32 = 0.8;
-/// Likeness a person needs to be taken for the one followed, after a check or a loss.
-pub const SAME_FROM: f32 = 0.6;
+pub const CHECK_BELOW: f32 = 0.85;
+/// Likeness a person needs to be taken for the one followed, after a check or a loss (others
+/// stayed at 0.69 and below on synthetic crowd scenes, [`Looks`]).
+pub const SAME_FROM: f32 = 0.75;
+/// Likeness from which a frame's looks are learned (frames mixing two people are not).
+const LEARN_FROM: f32 = 0.9;
 /// How fast the followed person's looks learn from frames that look like them.
-const LOOKS_RATE: f32 = 0.1;
+const LOOKS_RATE: f32 = 0.05;
 /// Landmark boxes overlapping at least this much (IoU) are one person read twice.
 const SAME_PERSON_IOU: f32 = 0.3;
+/// Frames in a row in which the detector finds only someone unlike the followed person where
+/// they were, after which that someone is followed with their looks taken anew (the person
+/// turned round, or changed clothes); fewer frames are a person hidden behind another.
+const ALONE_FRAMES: u32 = 5;
 
 /// Thresholds of one camera's tracking.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -78,6 +85,9 @@ pub struct TrackerConfig {
     pub min_presence: f32,
     /// Blend the previous frame's mask in where the new one is uncertain (video streams).
     pub smooth_masks: bool,
+    /// Check each frame's person against the followed person's looks ([`Looks`]); off, the
+    /// crop the landmarks place is followed wherever it goes, as MediaPipe does.
+    pub check_looks: bool,
 }
 
 impl Default for TrackerConfig {
@@ -88,6 +98,7 @@ impl Default for TrackerConfig {
             people: PeopleConfig::default(),
             min_presence: MIN_PRESENCE,
             smooth_masks: true,
+            check_looks: true,
         }
     }
 }
@@ -159,6 +170,8 @@ pub struct PersonTracker {
     last_seen: Option<LastSeen>,
     /// What the followed person looks like.
     looks: Option<Looks>,
+    /// Frames in a row in which only someone unlike them was found where they were.
+    alone_unlike: u32,
     /// MoveNet, made at the first frame that needs it.
     people: Option<PeopleFinder>,
     ran_detector: bool,
@@ -175,6 +188,7 @@ impl PersonTracker {
             previous_mask: None,
             last_seen: None,
             looks: None,
+            alone_unlike: 0,
             people: None,
             ran_detector: false,
             input: Vec::new(),
@@ -203,6 +217,7 @@ impl PersonTracker {
         self.lose();
         self.last_seen = None;
         self.looks = None;
+        self.alone_unlike = 0;
     }
 
     /// Stops following from the previous frame's crop (the detector runs next).
@@ -245,7 +260,9 @@ impl PersonTracker {
                 let likeness = self.likeness(&reading);
                 tracing::trace!(?likeness, "followed from the last crop");
                 if likeness.is_none_or(|l| l >= CHECK_BELOW) {
-                    return Ok(Some(self.commit(reading, true)));
+                    let learn = likeness.is_none_or(|l| l >= LEARN_FROM);
+                    self.alone_unlike = 0;
+                    return Ok(Some(self.commit(reading, learn)));
                 }
                 suspect = Some(reading);
             }
@@ -265,6 +282,7 @@ impl PersonTracker {
             // Nobody followed (or gone for long): whoever came first.
             _ => {
                 self.looks = None;
+                self.alone_unlike = 0;
                 readings.into_iter().next().map(|r| (r, true))
             }
         };
@@ -280,11 +298,15 @@ impl PersonTracker {
         }
     }
 
-    /// Among `readings`, the person followed, and whether to learn their looks from it: when
-    /// all of them read one person near where the followed one was last seen (`last`), that
-    /// person, learning (they may have turned round); else the one most like them, if alike
-    /// enough ([`SAME_FROM`]).
-    fn choose_followed(&self, readings: Vec<Reading>, last: &PixelBox) -> Option<(Reading, bool)> {
+    /// Among `readings`, the person followed, and whether to learn their looks from it: the
+    /// one most like them, if alike enough ([`SAME_FROM`]); when all of them read one person
+    /// near where the followed one was last seen (`last`) who is unlike them, nobody, until
+    /// that has gone on for [`ALONE_FRAMES`]: then that person, their looks taken anew.
+    fn choose_followed(
+        &mut self,
+        readings: Vec<Reading>,
+        last: &PixelBox,
+    ) -> Option<(Reading, bool)> {
         let boxes: Vec<PixelBox> = readings
             .iter()
             .map(|r| PixelBox::around_landmarks(&r.landmarks.image))
@@ -297,11 +319,20 @@ impl PersonTracker {
             .map(|r| (self.likeness(&r).unwrap_or(0.0), r))
             .max_by(|a, b| a.0.total_cmp(&b.0))?;
         tracing::trace!(likeness, alone, "checked against the others");
-        if alone {
-            Some((best, true))
-        } else {
-            (likeness >= SAME_FROM).then_some((best, likeness >= CHECK_BELOW))
+        if likeness >= SAME_FROM {
+            self.alone_unlike = 0;
+            return Some((best, alone || likeness >= LEARN_FROM));
         }
+        if !alone {
+            return None;
+        }
+        self.alone_unlike += 1;
+        if self.alone_unlike < ALONE_FRAMES {
+            return None;
+        }
+        self.alone_unlike = 0;
+        self.looks = None;
+        Some((best, true))
     }
 
     /// BlazePose's detector: its best detection, if present.
@@ -370,7 +401,11 @@ impl PersonTracker {
         if landmarks.presence < self.config.min_presence {
             return Ok(None);
         }
-        let looks = Looks::of(image, &mask, &landmarks);
+        let looks = if self.config.check_looks {
+            Looks::of(image, &mask, &landmarks)
+        } else {
+            None
+        };
         Ok(Some(Reading {
             landmarks,
             mask,
