@@ -20,7 +20,7 @@
 //!
 //! On bags without id maps (real video, [`follow_frames`] alone) the found person's box gives
 //! the switches instead: a jump of the box centre by more than [`JUMP_HEIGHTS`] box heights
-//! between consecutive frames.
+//! between consecutive finds (with or without frames between them in which nobody was found).
 
 use super::tracking::{covered_person, CrowdImage};
 use crate::perception::follow::PixelBox;
@@ -132,7 +132,7 @@ pub fn follow_frames(
             .or_insert_with(&mut tracker);
         let _frame = tracing::trace_span!("frame", index, camera = %image.camera).entered();
         let started = std::time::Instant::now();
-        let perceived = t.perceive(&image.rgb)?;
+        let perceived = t.perceive_at(&image.rgb, image.stamp_ns as f64 * 1e-9)?;
         let found = perceived.as_ref().map(|p| Found::new(p, mask(p)));
         let ms = started.elapsed().as_secs_f64() * 1e3;
         each(index, image, perceived.as_ref());
@@ -343,7 +343,8 @@ pub struct CameraFollowing {
     pub found: usize,
     /// Frames that ran the detector.
     pub detector_frames: usize,
-    /// Consecutive finds whose box centres are more than [`JUMP_HEIGHTS`] box heights apart.
+    /// Consecutive finds (frames without one between them or not) whose box centres are more
+    /// than [`JUMP_HEIGHTS`] box heights apart.
     pub jumps: usize,
     /// The largest such jump, in box heights.
     pub largest_jump: f32,
@@ -378,7 +379,8 @@ pub fn camera_following(frames: &[FollowedFrame]) -> Vec<CameraFollowing> {
                 }
                 *last = Some(b);
             }
-            None => *last = None,
+            // A jump across frames in which nobody was found counts too.
+            None => {}
         }
     }
     cameras.into_values().map(|(c, _)| c).collect()

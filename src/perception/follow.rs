@@ -11,6 +11,10 @@ const AS_LARGE: f32 = 0.8;
 /// A box is the followed person found again when its centre lies within this many of the
 /// last box's heights from the last box's centre ...
 const MAX_CENTRE_SHIFT: f32 = 0.5;
+/// ... and this many more for each second since (they walk on while hidden), ...
+const SHIFT_PER_SECOND: f32 = 1.5;
+/// ... up to this many;
+const MAX_SHIFT: f32 = 2.0;
 /// ... and its height is within this factor of the last box's height (either way).
 const MAX_HEIGHT_RATIO: f32 = 2.0;
 /// Landmark visibility from which a landmark bounds the followed person's box.
@@ -106,10 +110,12 @@ pub fn by_prominence(boxes: &[PixelBox], width: u32, height: u32) -> Vec<usize> 
     order
 }
 
-/// The boxes that can be the person last seen in `last`, nearest first: centre within
-/// [`MAX_CENTRE_SHIFT`] of `last`'s height and a height within [`MAX_HEIGHT_RATIO`] of it.
-pub fn near_followed(boxes: &[PixelBox], last: &PixelBox) -> Vec<usize> {
-    let reach = MAX_CENTRE_SHIFT * last.height().max(1.0);
+/// The boxes that can be the person last seen in `last`, `seconds` before, nearest first:
+/// centre within [`MAX_CENTRE_SHIFT`] of `last`'s height (plus [`SHIFT_PER_SECOND`] a second
+/// since, at most [`MAX_SHIFT`]) and a height within [`MAX_HEIGHT_RATIO`] of it.
+pub fn near_followed(boxes: &[PixelBox], last: &PixelBox, seconds: f64) -> Vec<usize> {
+    let shift = (MAX_CENTRE_SHIFT + SHIFT_PER_SECOND * seconds.max(0.0) as f32).min(MAX_SHIFT);
+    let reach = shift * last.height().max(1.0);
     let distance = |b: &PixelBox| b.centre().distance(last.centre());
     let mut near: Vec<usize> = (0..boxes.len())
         .filter(|&i| {
@@ -155,8 +161,12 @@ mod tests {
             at(110.0, 105.0, 32.0, 92.0),   // the followed person, moved a little
             at(100.0, 100.0, 120.0, 360.0), // at the same place but four times as tall
         ];
-        assert_eq!(near_followed(&boxes, &last), vec![1]);
-        assert!(near_followed(&boxes[..1], &last).is_empty());
+        assert_eq!(near_followed(&boxes, &last, 0.0), vec![1]);
+        assert!(near_followed(&boxes[..1], &last, 0.0).is_empty());
+        // 90 px to the right: too far the next frame, near enough a second on.
+        let walked = [at(190.0, 100.0, 30.0, 90.0)];
+        assert!(near_followed(&walked, &last, 1.0 / 30.0).is_empty());
+        assert_eq!(near_followed(&walked, &last, 1.0), vec![0]);
     }
 
     #[test]

@@ -7,7 +7,8 @@
 //! Where two people cross, the crop can slide from the person followed onto the other. The
 //! followed person's colours ([`Looks`]) are kept: a frame whose person looks too unlike them
 //! runs the detector, and the person who looks most like them is followed, if anyone does.
-//! Someone else is taken up only once the person followed has been gone [`HOLD_FRAMES`].
+//! Someone else is taken up only once the person followed has been gone [`HOLD_SECONDS`], or
+//! right away when they were last seen at the frame's edge (they walked out of view).
 
 use super::detection::{PersonDetection, DETECTOR_INPUT, MIN_DETECTION_SCORE};
 use super::follow::{by_prominence, near_followed, PixelBox};
@@ -49,9 +50,11 @@ impl PersonDetector {
     }
 }
 
-/// Frames after losing the followed person during which nobody else is taken up (they may be
-/// hidden behind someone for a moment); the detector looks for them in each.
-pub const HOLD_FRAMES: u32 = 10;
+/// Seconds after losing the followed person during which nobody else is taken up (they may be
+/// hidden behind someone, or blurred, for a moment); the detector looks for them in each frame.
+pub const HOLD_SECONDS: f64 = 1.0;
+/// Frame period [`PersonTracker::perceive`] assumes (frames without a time).
+pub const FRAME_SECONDS: f64 = 1.0 / 30.0;
 /// People of one detector pass the landmark model reads at most.
 const MAX_TRIES: usize = 3;
 /// Likeness to the followed person's looks below which a frame's person is checked against the
@@ -64,12 +67,14 @@ pub const SAME_FROM: f32 = 0.75;
 const LEARN_FROM: f32 = 0.9;
 /// How fast the followed person's looks learn from frames that look like them.
 const LOOKS_RATE: f32 = 0.05;
+/// Share of the frame's width within which a box touches the frame's edge.
+const EDGE_MARGIN: f32 = 0.02;
 /// Landmark boxes overlapping at least this much (IoU) are one person read twice.
 const SAME_PERSON_IOU: f32 = 0.3;
-/// Frames in a row in which the detector finds only someone unlike the followed person where
-/// they were, after which that someone is followed with their looks taken anew (the person
-/// turned round, or changed clothes); fewer frames are a person hidden behind another.
-const ALONE_FRAMES: u32 = 5;
+/// Seconds in which the detector finds only someone unlike the followed person where they
+/// were, after which that someone is followed with their looks taken anew (the person turned
+/// round, or changed clothes); shorter is a person hidden behind another.
+const ALONE_SECONDS: f64 = 0.5;
 
 /// Thresholds of one camera's tracking.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -147,8 +152,11 @@ pub struct Perceived {
 struct LastSeen {
     /// Their landmarks' box.
     bbox: PixelBox,
-    /// Frames since (0: this frame).
-    frames_ago: u32,
+    /// The box touched the frame's edge (within [`EDGE_MARGIN`]): they may have walked out of
+    /// view, and are not waited for.
+    at_edge: bool,
+    /// When, seconds.
+    at: f64,
 }
 
 /// One reading of a crop: what the landmark model saw there and how it looks.
@@ -170,8 +178,10 @@ pub struct PersonTracker {
     last_seen: Option<LastSeen>,
     /// What the followed person looks like.
     looks: Option<Looks>,
-    /// Frames in a row in which only someone unlike them was found where they were.
-    alone_unlike: u32,
+    /// Since when only someone unlike them was found where they were, seconds.
+    alone_unlike: Option<f64>,
+    /// The current frame's time, seconds.
+    clock: f64,
     /// MoveNet, made at the first frame that needs it.
     people: Option<PeopleFinder>,
     ran_detector: bool,
@@ -188,7 +198,8 @@ impl PersonTracker {
             previous_mask: None,
             last_seen: None,
             looks: None,
-            alone_unlike: 0,
+            alone_unlike: None,
+            clock: 0.0,
             people: None,
             ran_detector: false,
             input: Vec::new(),
@@ -217,7 +228,7 @@ impl PersonTracker {
         self.lose();
         self.last_seen = None;
         self.looks = None;
-        self.alone_unlike = 0;
+        self.alone_unlike = None;
     }
 
     /// Stops following from the previous frame's crop (the detector runs next).
@@ -250,10 +261,22 @@ impl PersonTracker {
     /// The person in `image`, or `None` when nobody is found. A person lost while tracked is
     /// looked for again with the detector in the same frame.
     pub fn perceive(&mut self, image: &RgbImage) -> Result<Option<Perceived>, PerceptionError> {
+        self.perceive_at(image, self.clock + FRAME_SECONDS)
+    }
+
+    /// [`PersonTracker::perceive`] for a frame taken at `seconds` (its stamp; a stamp before
+    /// the last frame's counts as [`FRAME_SECONDS`] after it).
+    pub fn perceive_at(
+        &mut self,
+        image: &RgbImage,
+        seconds: f64,
+    ) -> Result<Option<Perceived>, PerceptionError> {
+        self.clock = if seconds > self.clock {
+            seconds
+        } else {
+            self.clock + FRAME_SECONDS
+        };
         self.ran_detector = false;
-        if let Some(last) = &mut self.last_seen {
-            last.frames_ago += 1;
-        }
         let mut suspect = None;
         if let Some(roi) = self.roi {
             if let Some(reading) = self.read(image, roi, None)? {
@@ -261,8 +284,8 @@ impl PersonTracker {
                 tracing::trace!(?likeness, "followed from the last crop");
                 if likeness.is_none_or(|l| l >= CHECK_BELOW) {
                     let learn = likeness.is_none_or(|l| l >= LEARN_FROM);
-                    self.alone_unlike = 0;
-                    return Ok(Some(self.commit(reading, learn)));
+                    self.alone_unlike = None;
+                    return Ok(Some(self.commit(image, reading, learn)));
                 }
                 suspect = Some(reading);
             }
@@ -276,18 +299,18 @@ impl PersonTracker {
         }
         let held = self
             .last_seen
-            .is_some_and(|last| last.frames_ago <= HOLD_FRAMES);
+            .is_some_and(|last| self.clock - last.at <= HOLD_SECONDS && !last.at_edge);
         let chosen = match (&self.looks, held, self.last_seen) {
-            (Some(_), true, Some(last)) => self.choose_followed(readings, &last.bbox),
+            (Some(_), true, Some(last)) => self.choose_followed(readings, last),
             // Nobody followed (or gone for long): whoever came first.
             _ => {
                 self.looks = None;
-                self.alone_unlike = 0;
+                self.alone_unlike = None;
                 readings.into_iter().next().map(|r| (r, true))
             }
         };
         match chosen {
-            Some((reading, learn)) => Ok(Some(self.commit(reading, learn))),
+            Some((reading, learn)) => Ok(Some(self.commit(image, reading, learn))),
             None => {
                 if !held {
                     self.last_seen = None;
@@ -299,40 +322,49 @@ impl PersonTracker {
     }
 
     /// Among `readings`, the person followed, and whether to learn their looks from it: the
-    /// one most like them, if alike enough ([`SAME_FROM`]); when all of them read one person
-    /// near where the followed one was last seen (`last`) who is unlike them, nobody, until
-    /// that has gone on for [`ALONE_FRAMES`]: then that person, their looks taken anew.
+    /// one most like them, if alike enough: [`SAME_FROM`] near where they were last seen
+    /// (`last`), [`LEARN_FROM`] elsewhere; when all of them read one person near there who is
+    /// unlike them, nobody, until that has gone on for [`ALONE_SECONDS`]: then that person,
+    /// their looks taken anew.
     fn choose_followed(
         &mut self,
         readings: Vec<Reading>,
-        last: &PixelBox,
+        last: LastSeen,
     ) -> Option<(Reading, bool)> {
         let boxes: Vec<PixelBox> = readings
             .iter()
             .map(|r| PixelBox::around_landmarks(&r.landmarks.image))
             .collect();
         let first = *boxes.first()?;
-        let alone = boxes.iter().all(|b| b.iou(&first) >= SAME_PERSON_IOU)
-            && !near_followed(&[first], last).is_empty();
-        let (likeness, best) = readings
+        let near = near_followed(&boxes, &last.bbox, self.clock - last.at);
+        let alone = boxes.iter().all(|b| b.iou(&first) >= SAME_PERSON_IOU) && near.contains(&0);
+        let mut scored: Vec<(f32, bool, Reading)> = readings
             .into_iter()
-            .map(|r| (self.likeness(&r).unwrap_or(0.0), r))
-            .max_by(|a, b| a.0.total_cmp(&b.0))?;
-        tracing::trace!(likeness, alone, "checked against the others");
-        if likeness >= SAME_FROM {
-            self.alone_unlike = 0;
-            return Some((best, alone || likeness >= LEARN_FROM));
+            .enumerate()
+            .map(|(i, r)| (self.likeness(&r).unwrap_or(0.0), near.contains(&i), r))
+            .collect();
+        let best = (0..scored.len())
+            .filter(|&i| {
+                let (likeness, near, _) = &scored[i];
+                *likeness >= if *near { SAME_FROM } else { LEARN_FROM }
+            })
+            .max_by(|&a, &b| scored[a].0.total_cmp(&scored[b].0));
+        tracing::trace!(best = ?best.map(|i| scored[i].0), alone, "checked against the others");
+        if let Some(i) = best {
+            self.alone_unlike = None;
+            let (likeness, _, reading) = scored.swap_remove(i);
+            return Some((reading, alone || likeness >= LEARN_FROM));
         }
         if !alone {
             return None;
         }
-        self.alone_unlike += 1;
-        if self.alone_unlike < ALONE_FRAMES {
+        let since = *self.alone_unlike.get_or_insert(self.clock);
+        if self.clock - since < ALONE_SECONDS {
             return None;
         }
-        self.alone_unlike = 0;
+        self.alone_unlike = None;
         self.looks = None;
-        Some((best, true))
+        Some((scored.swap_remove(0).2, true))
     }
 
     /// BlazePose's detector: its best detection, if present.
@@ -368,7 +400,7 @@ impl PersonTracker {
             .map(|p| PixelBox::new(p.min, p.max))
             .collect();
         let mut order = match self.last_seen {
-            Some(last) => near_followed(&boxes, &last.bbox),
+            Some(last) => near_followed(&boxes, &last.bbox, self.clock - last.at),
             None => Vec::new(),
         };
         for i in by_prominence(&boxes, image.width(), image.height()) {
@@ -416,7 +448,7 @@ impl PersonTracker {
 
     /// Follows the person of `reading`: the next frame's crop from their landmarks; their looks
     /// are learned (`learn`), or taken as they are when nobody's are known.
-    fn commit(&mut self, reading: Reading, learn: bool) -> Perceived {
+    fn commit(&mut self, image: &RgbImage, reading: Reading, learn: bool) -> Perceived {
         let Reading {
             landmarks,
             mut mask,
@@ -435,9 +467,16 @@ impl PersonTracker {
             _ => {}
         }
         self.roi = Some(landmarks.next_roi);
+        let bbox = PixelBox::around_landmarks(&landmarks.image);
+        let margin = EDGE_MARGIN * image.width() as f32;
+        let at_edge = bbox.min.x <= margin
+            || bbox.min.y <= margin
+            || bbox.max.x >= image.width() as f32 - margin
+            || bbox.max.y >= image.height() as f32 - margin;
         self.last_seen = Some(LastSeen {
-            bbox: PixelBox::around_landmarks(&landmarks.image),
-            frames_ago: 0,
+            bbox,
+            at_edge,
+            at: self.clock,
         });
         Perceived {
             landmarks,

@@ -208,7 +208,10 @@ impl CameraTrackers {
                 let tracker = trackers
                     .entry(frame.topic.clone())
                     .or_insert_with(|| PersonTracker::new(self.networks.clone(), *config));
-                match self.pool.install(|| tracker.perceive(&frame.image)) {
+                match self
+                    .pool
+                    .install(|| tracker.perceive_at(&frame.image, seconds(&frame)))
+                {
                     Ok(found) => found
                         .map(|p| PersonSeen {
                             mask: Arc::new(
