@@ -1,7 +1,7 @@
 """A folder of one camera's JPEG frames (in name order) as a rosbag2-layout MCAP bag the node
 replays: `/cam0/image_raw/compressed` at `--fps`, stamped from 1.7e9 s. No calibration.
 
-    python video_bag.py JPEG_DIR OUT_BAG_DIR [--fps 30]
+    python video_bag.py JPEG_DIR OUT_BAG_DIR [--fps 30] [--frames N]
 
 Needs numpy and rosbags (target/pyenv has both).
 """
@@ -23,9 +23,12 @@ def main():
     ap.add_argument("jpegs", type=Path)
     ap.add_argument("out", type=Path)
     ap.add_argument("--fps", type=float, default=30.0)
+    ap.add_argument("--frames", type=int, default=0, help="only the first N frames (0: all)")
     a = ap.parse_args()
     period = int(1e9 / a.fps)
     frames = sorted(a.jpegs.glob("*.jpg"))
+    if a.frames > 0:
+        frames = frames[: a.frames]
     with Writer(a.out, version=8, storage_plugin=StoragePlugin.MCAP) as w:
         topic = w.add_connection("/cam0/image_raw/compressed", "sensor_msgs/msg/CompressedImage",
                                  typestore=TS)

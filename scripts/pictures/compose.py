@@ -198,7 +198,8 @@ def real_tracked(out, target):
 def one_person(out, target):
     """One person followed in a wide real view (Sports2D's demo clip, BSD-3) by the node's
     one-person mode: two frames with the followed person's mask and landmarks (MoveNet found
-    them; the landmarks' crop followed them), and the node's avatar from the front and the side."""
+    them; the landmarks' crop followed them), and the avatar the node made of the clip's first
+    140 frames from the front and the side."""
     out = Path(out)
     tiles = []
     for frame in (40, 120):
