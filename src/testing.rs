@@ -47,22 +47,6 @@ pub fn max_abs_diff<A: Values + ?Sized, B: Values + ?Sized>(a: &A, b: &B) -> f32
         .fold(0.0, f32::max)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn slices_vectors_and_tensors_compare_alike() {
-        let a = vec![1.0f32, -2.0, 3.0];
-        let b = [1.5f32, -2.0, 2.0];
-        assert_eq!(max_abs_diff(&a, &b), 1.0);
-        assert_eq!(max_abs_diff(&a[..], &b[..]), 1.0);
-        let ta = Tensor::from_vec(a, (3,), &candle_core::Device::Cpu).unwrap();
-        let tb = Tensor::from_slice(&b, (3,), &candle_core::Device::Cpu).unwrap();
-        assert_eq!(max_abs_diff(&ta, &tb), 1.0);
-    }
-}
-
 /// The log lines written while `f` runs on this thread, at warn level and above.
 pub fn warnings_logged(f: impl FnOnce()) -> String {
     use std::sync::{Arc, Mutex};
@@ -87,4 +71,20 @@ pub fn warnings_logged(f: impl FnOnce()) -> String {
     tracing::subscriber::with_default(subscriber, f);
     let text = buf.0.lock().expect("log buffer").clone();
     String::from_utf8_lossy(&text).into_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slices_vectors_and_tensors_compare_alike() {
+        let a = vec![1.0f32, -2.0, 3.0];
+        let b = [1.5f32, -2.0, 2.0];
+        assert_eq!(max_abs_diff(&a, &b), 1.0);
+        assert_eq!(max_abs_diff(&a[..], &b[..]), 1.0);
+        let ta = Tensor::from_vec(a, (3,), &candle_core::Device::Cpu).unwrap();
+        let tb = Tensor::from_slice(&b, (3,), &candle_core::Device::Cpu).unwrap();
+        assert_eq!(max_abs_diff(&ta, &tb), 1.0);
+    }
 }

@@ -269,14 +269,17 @@ impl FollowingScore {
     }
 }
 
+/// One camera's person followed (`k` of `person_k`), and a run of finds of another one
+/// (`(k, finds in a row)`).
+type Followed = (usize, Option<(usize, usize)>);
+
 /// Scores the tracker's frames against the id maps of `images`.
 pub fn score_following(images: &[CrowdImage], frames: &[FollowedFrame]) -> FollowingScore {
     let mut score = FollowingScore {
         frames: frames.len(),
         ..FollowingScore::default()
     };
-    // Per camera: the person followed, and a run of finds of another one.
-    let mut followed: BTreeMap<&str, (usize, Option<(usize, usize)>)> = BTreeMap::new();
+    let mut followed: BTreeMap<&str, Followed> = BTreeMap::new();
     for f in frames {
         score.times.push(f);
         let image = &images[f.image];
@@ -368,19 +371,16 @@ pub fn camera_following(frames: &[FollowedFrame]) -> Vec<CameraFollowing> {
         c.frames += 1;
         c.detector_frames += usize::from(f.ran_detector);
         c.times.push(f);
-        match &f.found {
-            Some(found) => {
-                let b = found.bbox;
-                c.found += 1;
-                if let Some(prev) = last {
-                    let jump = b.centre().distance(prev.centre()) / prev.height().max(1.0);
-                    c.largest_jump = c.largest_jump.max(jump);
-                    c.jumps += usize::from(jump > JUMP_HEIGHTS);
-                }
-                *last = Some(b);
+        // A jump across frames in which nobody was found counts too.
+        if let Some(found) = &f.found {
+            let b = found.bbox;
+            c.found += 1;
+            if let Some(prev) = last {
+                let jump = b.centre().distance(prev.centre()) / prev.height().max(1.0);
+                c.largest_jump = c.largest_jump.max(jump);
+                c.jumps += usize::from(jump > JUMP_HEIGHTS);
             }
-            // A jump across frames in which nobody was found counts too.
-            None => {}
+            *last = Some(b);
         }
     }
     cameras.into_values().map(|(c, _)| c).collect()
