@@ -340,6 +340,12 @@ pub struct OutputConfig {
     /// cannot be written (or fills up) is logged as an error and costs only the files: the
     /// ROS 2 and shared-memory outputs go on.
     pub dir: String,
+    /// Numbered revision files (`avatar_<person>_rev<N>.ply`) kept per person besides the
+    /// latest (`avatar_<person>.ply`); 0 (the default) keeps the latest only.
+    pub keep_revisions: u32,
+    /// Cap on everything the node writes under `dir` (avatars, frames; those of earlier runs
+    /// included), megabytes (finite, >= 0): the oldest files are removed first; 0: no cap.
+    pub max_disk_mb: f64,
     /// Rendered-frame rate per virtual camera (Hz, finite, >= 0); 0 disables rendering.
     pub render_rate_hz: f64,
     /// Side of the square rendered frames (pixels), in [`OutputConfig::RENDER_SIZE`].
@@ -373,6 +379,10 @@ pub struct OutputConfig {
     pub masks: bool,
     /// Publish the pose read from the cameras on `inputs.pose_topic`.
     pub camera_pose: bool,
+    /// `host:port` of the live page (one HTML page and a WebSocket: each person's avatar
+    /// rendered in the browser, moved by the pose stream); empty disables it. An address other
+    /// than loopback needs `lhmpp run --web-token`.
+    pub web: String,
 }
 
 impl OutputConfig {
@@ -464,6 +474,8 @@ impl Default for OutputConfig {
     fn default() -> Self {
         Self {
             dir: "out".into(),
+            keep_revisions: 0,
+            max_disk_mb: 1024.0,
             render_rate_hz: 10.0,
             render_size: 256,
             virtual_cameras: 1,
@@ -477,6 +489,7 @@ impl Default for OutputConfig {
             shm: false,
             masks: true,
             camera_pose: true,
+            web: String::new(),
         }
     }
 }

@@ -14,6 +14,7 @@
 pub mod avatar;
 pub mod bag;
 pub mod body;
+pub mod compact;
 pub mod config;
 pub mod eval;
 pub mod kernels;
@@ -30,3 +31,4 @@ pub mod synth;
 pub mod testing;
 pub mod tracking;
 pub mod transport;
+pub mod web;

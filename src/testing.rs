@@ -73,6 +73,18 @@ pub fn warnings_logged(f: impl FnOnce()) -> String {
     String::from_utf8_lossy(&text).into_owned()
 }
 
+/// Bytes of every file below `dir` (panics on an unreadable entry).
+pub fn bytes_under(dir: &std::path::Path) -> u64 {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| match p.is_dir() {
+            true => bytes_under(&p),
+            false => std::fs::metadata(&p).unwrap().len(),
+        })
+        .sum()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -128,3 +128,58 @@ fn synchronous_layers_never_import_the_outputs() {
         }
     }
 }
+
+/// The pipeline's modules a file under `src/node/pipeline/person/` refers to: `super::X` from
+/// the person's `mod.rs`, `super::super::X` from its submodules, `crate::node::pipeline::X`
+/// from any of them.
+fn pipeline_modules_used_by_the_person() -> BTreeSet<String> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/node/pipeline/person");
+    let mut files = Vec::new();
+    collect_rust_files(&dir, &mut files);
+    assert!(
+        !files.is_empty(),
+        "no person module under {}",
+        dir.display()
+    );
+    let mut used = BTreeSet::new();
+    for file in files {
+        let up = if file.file_name().is_some_and(|n| n == "mod.rs") {
+            "super::"
+        } else {
+            "super::super::"
+        };
+        for line in fs::read_to_string(&file).unwrap().lines() {
+            let code = line.trim_start();
+            if code.starts_with("//") {
+                continue;
+            }
+            for prefix in [up, "crate::node::pipeline::"] {
+                for (at, _) in code.match_indices(prefix) {
+                    let before = &code[..at];
+                    if prefix == "super::" && before.ends_with("super::") {
+                        continue;
+                    }
+                    let module: String = code[at + prefix.len()..]
+                        .chars()
+                        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                        .collect();
+                    used.insert(module);
+                }
+            }
+        }
+    }
+    used
+}
+
+/// A person's state and steps sit below the pipeline's dispatcher: they use the pipeline's
+/// leaf helpers (rendering, calibration) and nothing of the rooms that route to them (intake,
+/// perception, people, publishing), so a frame's path goes one way.
+#[test]
+fn the_person_does_not_reach_back_into_the_dispatcher() {
+    let used = pipeline_modules_used_by_the_person();
+    assert!(used.contains("render"), "the scan found {used:?}");
+    assert!(
+        used.is_subset(&set(&["render", "calibration"])),
+        "the person module uses the pipeline's {used:?}"
+    );
+}

@@ -195,6 +195,7 @@ fn random_bytes_never_panic_the_decoders() {
             bytes[1] = 1;
         }
         let _ = GaussianAvatar::decode_cdr(&bytes);
+        let _ = CompactAvatar::decode_cdr(&bytes);
         let _ = CameraInfo::decode_cdr(&bytes);
         let _ = TFMessage::decode_cdr(&bytes);
         let _ = BodyPose::decode_cdr(&bytes);

@@ -104,6 +104,7 @@ fn every_rust_message_matches_its_msg_definition_field_by_field() {
         PointField,
         PointCloud2,
         GaussianAvatar,
+        CompactAvatar,
         BodyPose,
         BodyShape,
         ReconstructionStatus,
@@ -183,6 +184,7 @@ fn rust_constants_equal_the_msg_constants() {
 fn our_msg_files_comment_every_field() {
     for ty in [
         "GaussianAvatar",
+        "CompactAvatar",
         "BodyPose",
         "BodyShape",
         "ReconstructionStatus",

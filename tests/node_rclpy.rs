@@ -7,73 +7,20 @@
 //! Gaussians, and frames that change with the pose. Bounded in time.
 
 mod dds_domain;
+mod rclpy_support;
+
+use rclpy_support::{build_msgs, peer_env, ros_python, KillOnDrop};
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-struct KillOnDrop(Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn ros_python() -> PathBuf {
-    PathBuf::from(std::env::var("LHMPP_TEST_ROS_PYTHON").expect(
-        "LHMPP_TEST_ROS_PYTHON is not set: run scripts/test (scripts/setup-test-deps installs \
-         rclpy and the rosidl generators into target/rosenv)",
-    ))
-}
-
-/// Builds lhmpp_msgs with colcon (skipped when msg/ is unchanged); returns the install prefix.
-fn build_msgs(root: &Path) -> PathBuf {
-    let started = Instant::now();
-    let out = Command::new(root.join("scripts/build-msgs"))
-        .output()
-        .expect("scripts/build-msgs runs");
-    eprintln!(
-        "scripts/build-msgs ({:.1} s): {}{}",
-        started.elapsed().as_secs_f64(),
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "colcon build of msg/ failed");
-    let prefix = root.join("target/msgs_ws/install/lhmpp_msgs");
-    for t in [
-        "GaussianAvatar",
-        "BodyPose",
-        "BodyShape",
-        "ReconstructionStatus",
-    ] {
-        let json = prefix.join(format!("share/lhmpp_msgs/msg/{t}.json"));
-        let text =
-            std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{}: {e}", json.display()));
-        assert!(text.contains("RIHS01_"), "{t}: no RIHS01 type hash");
-    }
-    // The fields added to the .msg files after the first hand build are in the package.
-    let idl = |t: &str| {
-        std::fs::read_to_string(prefix.join(format!("share/lhmpp_msgs/msg/{t}.idl"))).unwrap()
-    };
-    let avatar = idl("GaussianAvatar");
-    assert!(avatar.contains("rgb_display_ready") && avatar.contains("neural_renderer"));
-    assert!(idl("ReconstructionStatus").contains("last_render_ms"));
-    prefix
-}
 
 #[test]
 fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
     let python = ros_python();
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let prefix = build_msgs(&root);
-    let venv = python
-        .parent()
-        .and_then(Path::parent)
-        .unwrap()
-        .to_path_buf();
     let domain = dds_domain::test_domain(70);
     let sets = [
         format!("domain_id={domain}"),
@@ -104,7 +51,6 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
             .spawn()
             .expect("lhmpp starts"),
     );
-    let site = prefix.join("lib/python3.11/site-packages");
     let started = Instant::now();
     let peer = Command::new(&python)
         .arg(root.join("tests/python/rclpy_peer.py"))
@@ -121,15 +67,7 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
         .args(["--width", "64", "--height", "96", "--render-side", "64"])
         .args(["--gaussians", "1024", "--person", "person_0"])
         .args(["--min-revisions", "2", "--timeout", "120"])
-        .env("ROS_DOMAIN_ID", domain.to_string())
-        .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-        .env("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-        .env(
-            "AMENT_PREFIX_PATH",
-            format!("{}:{}", prefix.display(), venv.display()),
-        )
-        .env("PYTHONPATH", &site)
-        .env("LD_LIBRARY_PATH", prefix.join("lib"))
+        .envs(peer_env(&python, &prefix, domain))
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()

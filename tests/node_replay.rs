@@ -3,6 +3,7 @@
 
 use lhmpp::config::NodeConfig;
 use lhmpp::splat::read_ply;
+use lhmpp::testing::bytes_under;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -47,6 +48,38 @@ fn demo_bag_replays_into_an_avatar_and_rendered_frames() {
     assert_eq!(summary.animation_frames, 24 * 4);
     let frame = image::open(dir.path().join("frames/person_0_cam0_012.png")).unwrap();
     assert_eq!(frame.width(), config.outputs.render_size);
+}
+
+/// The files stay within `outputs.max_disk_mb`: the 96 end-of-replay frames do not fit beside
+/// the avatar, so the oldest frames go; the avatar (latest only by default: no numbered
+/// revision files) stays whole, and the summary counts what was written and removed.
+#[test]
+fn outputs_stay_within_max_disk_mb_and_keep_the_latest_avatar() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(dir.path(), &["outputs.max_disk_mb=1.2"]);
+    let summary = lhmpp::node::run::run(&config, BTreeMap::new()).unwrap();
+    assert_eq!(summary.animation_frames, 24 * 4);
+    let files = summary.files.expect("files were written");
+    let on_disk = bytes_under(dir.path());
+    assert_eq!(files.held_bytes, on_disk);
+    assert!(on_disk <= 1_200_000, "{files}");
+    assert_eq!(files.written_files, 1 + 24 * 4, "{files}");
+    assert!(files.removed_files > 0, "{files}");
+    assert_eq!(
+        files.held_files + files.removed_files,
+        files.written_files,
+        "{files}"
+    );
+    let avatar = read_ply(&dir.path().join("avatar_person_0.ply")).unwrap();
+    assert_eq!(avatar.gaussians.len(), config.model.num_points);
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.ends_with(".ply"))
+        .collect();
+    assert_eq!(names, ["avatar_person_0.ply"]);
+    // The newest frame is kept.
+    assert!(dir.path().join("frames/person_0_cam3_023.png").is_file());
 }
 
 #[test]

@@ -53,6 +53,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     super::run::run(super::run::RunArgs {
         source,
         remaps: Vec::new(),
+        web_token: None,
     })
 }
 

@@ -12,6 +12,10 @@ pub struct RunArgs {
     /// Remap a topic: `--remap /camera/image_raw:=/cam0/image_raw` (repeatable).
     #[arg(long = "remap", value_name = "FROM:=TO")]
     pub remaps: Vec<String>,
+    /// Token the live page (`outputs.web`) asks for: needed when it listens on an address
+    /// other than loopback; open the page with `?token=TOKEN`.
+    #[arg(long, value_name = "TOKEN")]
+    pub web_token: Option<String>,
 }
 
 /// Loads the config, runs the node until it finishes or is stopped, prints a summary.
@@ -24,7 +28,7 @@ pub fn run(args: RunArgs) -> Result<()> {
             .with_context(|| format!("--remap `{r}`: expected FROM:=TO"))?;
         remap.insert(from.to_owned(), to.to_owned());
     }
-    let summary = lhmpp::node::run::run(&config, remap)?;
+    let summary = lhmpp::node::run::run_with(&config, remap, args.web_token.clone())?;
     let s = &summary.stats;
     let median = |v: &std::collections::VecDeque<f64>| {
         let mut v: Vec<f64> = v.iter().copied().collect();
@@ -105,8 +109,8 @@ pub fn run(args: RunArgs) -> Result<()> {
     if let Some(salvage) = summary.bag.as_ref().filter(|s| !s.is_complete()) {
         println!("bag {}: {salvage}", config.replay.bag);
     }
-    if !config.outputs.dir.is_empty() {
-        println!("outputs in {}/", config.outputs.dir);
+    if let Some(files) = &summary.files {
+        println!("outputs in {}/: {files}", config.outputs.dir);
     }
     Ok(())
 }

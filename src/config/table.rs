@@ -315,6 +315,20 @@ pub fn parameters() -> Vec<Parameter> {
             "PLY avatars and PNG frames; empty disables",
         ),
         p(
+            "outputs.keep_revisions",
+            int(),
+            "numbered revision files `avatar_<person>_rev<N>.ply` kept per person besides \
+             the latest `avatar_<person>.ply` (always whole: written by rename); 0 keeps the \
+             latest only",
+        ),
+        p(
+            "outputs.max_disk_mb",
+            "float ≥ 0".into(),
+            "cap in megabytes on every avatar and frame file under `outputs.dir`, those of \
+             earlier runs included: the oldest frames and numbered revisions go first, then the \
+             oldest latest avatars, never the files just written; 0: no cap",
+        ),
+        p(
             "outputs.render_rate_hz",
             rate(),
             "rendered frames per second per virtual camera",
@@ -387,6 +401,15 @@ pub fn parameters() -> Vec<Parameter> {
             boolean(),
             "publish the pose read from the cameras (lhmpp_msgs/BodyPose) on \
              `inputs.pose_topic`, for other nodes",
+        ),
+        p(
+            "outputs.web",
+            string(),
+            "`host:port` of the live page (e.g. `127.0.0.1:8765`): one HTML page and a \
+             WebSocket showing each person's avatar rendered in the browser (Spark), moved by \
+             the pose stream, with their status; empty disables it. An address other than \
+             loopback needs `lhmpp run --web-token TOKEN` (open the page with `?token=TOKEN`); \
+             cross-origin WebSocket upgrades are refused",
         ),
         p(
             "replay.bag",

@@ -173,6 +173,30 @@ fn frame_qos_is_reliable_by_default_and_a_bad_value_names_the_key() {
 }
 
 #[test]
+fn disk_limits_default_to_the_latest_only_under_a_cap_and_are_validated() {
+    let base = "lhmpp:\n  ros__parameters: {}\n";
+    let c = load(base, &[]).unwrap();
+    assert_eq!(
+        (c.outputs.keep_revisions, c.outputs.max_disk_mb),
+        (0, 1024.0)
+    );
+    let c = load(
+        base,
+        &["outputs.keep_revisions=5", "outputs.max_disk_mb=0.5"],
+    )
+    .unwrap();
+    assert_eq!((c.outputs.keep_revisions, c.outputs.max_disk_mb), (5, 0.5));
+    for set in ["outputs.max_disk_mb=-1", "outputs.max_disk_mb=.inf"] {
+        let e = load(base, &[set]).unwrap_err().to_string();
+        assert!(e.contains("outputs.max_disk_mb"), "{set}: {e}");
+    }
+    let e = load(base, &["outputs.keep_revisions=-1"])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("outputs.keep_revisions"), "{e}");
+}
+
+#[test]
 fn preview_rate_and_frames_are_validated_naming_the_key() {
     let base = "lhmpp:\n  ros__parameters: {}\n";
     let c = load(base, &[]).unwrap();

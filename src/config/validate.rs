@@ -165,6 +165,12 @@ impl NodeConfig {
             ));
         }
         let out = &self.outputs;
+        if !(out.max_disk_mb.is_finite() && out.max_disk_mb >= 0.0) {
+            return Err(bad(
+                "outputs.max_disk_mb",
+                format!("{} must be finite and >= 0 (0: no cap)", out.max_disk_mb),
+            ));
+        }
         check("outputs.render_rate_hz", rate(out.render_rate_hz))?;
         check(
             "outputs.render_size",
@@ -185,6 +191,16 @@ impl NodeConfig {
                 format!(
                     "`{}` is also outputs.world_frame; the preview needs a frame of its own",
                     out.preview_frame
+                ),
+            ));
+        }
+        if !out.web.is_empty() && out.web.parse::<std::net::SocketAddr>().is_err() {
+            return Err(bad(
+                "outputs.web",
+                format!(
+                    "`{}` is not a host:port address (e.g. 127.0.0.1:8765, or empty to disable \
+                     the live page)",
+                    out.web
                 ),
             ));
         }

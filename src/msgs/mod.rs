@@ -8,6 +8,7 @@
 mod body_pose;
 mod body_shape;
 mod builtin;
+mod compact_avatar;
 pub mod definition;
 mod error;
 mod gaussian_avatar;
@@ -23,6 +24,7 @@ mod tf2;
 pub use body_pose::BodyPose;
 pub use body_shape::BodyShape;
 pub use builtin::Time;
+pub use compact_avatar::CompactAvatar;
 pub use error::MsgError;
 pub use gaussian_avatar::GaussianAvatar;
 pub use gaussian_cloud::{GaussianCloud, GaussianColors};

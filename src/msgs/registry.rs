@@ -27,6 +27,7 @@ pub const DEFINITIONS: &[(&str, &str)] = &[
     (PointField::TYPE_NAME, PointField::DEFINITION),
     (PointCloud2::TYPE_NAME, PointCloud2::DEFINITION),
     (GaussianAvatar::TYPE_NAME, GaussianAvatar::DEFINITION),
+    (CompactAvatar::TYPE_NAME, CompactAvatar::DEFINITION),
     (BodyPose::TYPE_NAME, BodyPose::DEFINITION),
     (BodyShape::TYPE_NAME, BodyShape::DEFINITION),
     (

@@ -133,10 +133,142 @@ impl ViewSet {
     }
 }
 
-#[derive(Debug, Default)]
-struct PersonViews {
+/// One person's views, bounded and diverse: the store's entry for a person, also held on its
+/// own by the pipeline's per-person state.
+#[derive(Debug, Clone)]
+pub struct PersonViews {
+    limits: StoreLimits,
     version: u64,
     views: Vec<View>,
+}
+
+impl PersonViews {
+    /// No views yet. `max_views` is raised to at least 1.
+    pub fn new(mut limits: StoreLimits) -> Self {
+        limits.max_views = limits.max_views.max(1);
+        Self {
+            limits,
+            version: 0,
+            views: Vec::new(),
+        }
+    }
+
+    /// Offers `view`; returns what happened to it.
+    pub fn insert(&mut self, view: View) -> InsertOutcome {
+        let cfg = &self.limits;
+        // Near-duplicate of a held view from the same camera?
+        let dup = self
+            .views
+            .iter()
+            .enumerate()
+            .filter(|(_, held)| held.camera == view.camera)
+            .map(|(i, held)| (i, cosine_similarity(&held.embedding, &view.embedding)))
+            .filter(|(_, s)| *s > cfg.duplicate_similarity)
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((i, similarity)) = dup {
+            return match cfg.duplicate_policy {
+                DuplicatePolicy::Drop => InsertOutcome::Dropped {
+                    kept: self.views[i].frame_id,
+                    similarity,
+                },
+                DuplicatePolicy::ReplaceOlder => {
+                    let replaced = self.views.remove(i).frame_id;
+                    self.views.push(view);
+                    self.version += 1;
+                    InsertOutcome::Replaced {
+                        replaced,
+                        similarity,
+                    }
+                }
+            };
+        }
+        if self.views.len() < cfg.max_views {
+            self.views.push(view);
+            self.version += 1;
+            return InsertOutcome::Added;
+        }
+        // Full. A view where others covered the person goes first, the most covered one (the
+        // older of equals): its pixels mix people.
+        self.views.push(view);
+        let new_index = self.views.len() - 1;
+        if let Some((hidden, _)) = self
+            .views
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.hidden > CROWDED_COVER)
+            .max_by(|a, b| {
+                a.1.hidden
+                    .total_cmp(&b.1.hidden)
+                    .then(b.1.frame_id.cmp(&a.1.frame_id))
+            })
+        {
+            if hidden == new_index {
+                self.views.pop();
+                return InsertOutcome::DroppedHidden;
+            }
+            let evicted = self.views.remove(hidden).frame_id;
+            self.version += 1;
+            return InsertOutcome::AddedEvicting { evicted };
+        }
+        // Then, among held views plus the new one, the most similar pair; its older member goes.
+        let (a, b, similarity) = most_similar_pair(&self.views);
+        let (older, newer) = if self.views[a].frame_id <= self.views[b].frame_id {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        if older == new_index {
+            // Only when frame ids are out of order: the new view is the redundant one.
+            let kept = self.views[newer].frame_id;
+            self.views.pop();
+            return InsertOutcome::Dropped { kept, similarity };
+        }
+        let evicted = self.views.remove(older).frame_id;
+        self.version += 1;
+        InsertOutcome::AddedEvicting { evicted }
+    }
+
+    /// A snapshot of the views.
+    pub fn snapshot(&self) -> ViewSet {
+        ViewSet {
+            version: self.version,
+            views: self.views.clone(),
+        }
+    }
+
+    /// The views held, in arrival order.
+    pub fn views(&self) -> &[View] {
+        &self.views
+    }
+
+    /// Current version of the set (0 before the first view).
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// Number of views held.
+    pub fn len(&self) -> usize {
+        self.views.len()
+    }
+
+    /// Whether no view is held.
+    pub fn is_empty(&self) -> bool {
+        self.views.is_empty()
+    }
+
+    /// Bytes held by images, embeddings and evidence frames.
+    pub fn memory_bytes(&self) -> usize {
+        self.views
+            .iter()
+            .map(|v| {
+                v.image.byte_size()
+                    + v.embedding.len() * std::mem::size_of::<f32>()
+                    + v.evidence
+                        .as_ref()
+                        .map_or(0, |e| e.frame.len() + e.mask.len())
+            })
+            .sum()
+    }
 }
 
 /// Views per person, bounded and diverse.
@@ -163,96 +295,25 @@ impl FrameStore {
 
     /// Offers `view` for `person`; returns what happened to it.
     pub fn insert(&mut self, person: &str, view: View) -> InsertOutcome {
-        let cfg = self.cfg.clone();
-        let p = self.persons.entry(person.to_owned()).or_default();
-        // Near-duplicate of a held view from the same camera?
-        let dup = p
-            .views
-            .iter()
-            .enumerate()
-            .filter(|(_, held)| held.camera == view.camera)
-            .map(|(i, held)| (i, cosine_similarity(&held.embedding, &view.embedding)))
-            .filter(|(_, s)| *s > cfg.duplicate_similarity)
-            .max_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((i, similarity)) = dup {
-            return match cfg.duplicate_policy {
-                DuplicatePolicy::Drop => InsertOutcome::Dropped {
-                    kept: p.views[i].frame_id,
-                    similarity,
-                },
-                DuplicatePolicy::ReplaceOlder => {
-                    let replaced = p.views.remove(i).frame_id;
-                    p.views.push(view);
-                    p.version += 1;
-                    InsertOutcome::Replaced {
-                        replaced,
-                        similarity,
-                    }
-                }
-            };
-        }
-        if p.views.len() < cfg.max_views {
-            p.views.push(view);
-            p.version += 1;
-            return InsertOutcome::Added;
-        }
-        // Full. A view where others covered the person goes first, the most covered one (the
-        // older of equals): its pixels mix people.
-        p.views.push(view);
-        let new_index = p.views.len() - 1;
-        if let Some((hidden, _)) = p
-            .views
-            .iter()
-            .enumerate()
-            .filter(|(_, v)| v.hidden > CROWDED_COVER)
-            .max_by(|a, b| {
-                a.1.hidden
-                    .total_cmp(&b.1.hidden)
-                    .then(b.1.frame_id.cmp(&a.1.frame_id))
-            })
-        {
-            if hidden == new_index {
-                p.views.pop();
-                return InsertOutcome::DroppedHidden;
-            }
-            let evicted = p.views.remove(hidden).frame_id;
-            p.version += 1;
-            return InsertOutcome::AddedEvicting { evicted };
-        }
-        // Then, among held views plus the new one, the most similar pair; its older member goes.
-        let (a, b, similarity) = most_similar_pair(&p.views);
-        let (older, newer) = if p.views[a].frame_id <= p.views[b].frame_id {
-            (a, b)
-        } else {
-            (b, a)
-        };
-        if older == new_index {
-            // Only when frame ids are out of order: the new view is the redundant one.
-            let kept = p.views[newer].frame_id;
-            p.views.pop();
-            return InsertOutcome::Dropped { kept, similarity };
-        }
-        let evicted = p.views.remove(older).frame_id;
-        p.version += 1;
-        InsertOutcome::AddedEvicting { evicted }
+        self.persons
+            .entry(person.to_owned())
+            .or_insert_with(|| PersonViews::new(self.cfg.clone()))
+            .insert(view)
     }
 
     /// A snapshot of the person's views, or `None` if none were ever added.
     pub fn snapshot(&self, person: &str) -> Option<ViewSet> {
-        self.persons.get(person).map(|p| ViewSet {
-            version: p.version,
-            views: p.views.clone(),
-        })
+        self.persons.get(person).map(PersonViews::snapshot)
     }
 
     /// Current version of the person's set (0 before the first view).
     pub fn version(&self, person: &str) -> u64 {
-        self.persons.get(person).map_or(0, |p| p.version)
+        self.persons.get(person).map_or(0, PersonViews::version)
     }
 
     /// Number of views held for the person.
     pub fn len(&self, person: &str) -> usize {
-        self.persons.get(person).map_or(0, |p| p.views.len())
+        self.persons.get(person).map_or(0, PersonViews::len)
     }
 
     /// Whether no view is held for the person.
@@ -272,17 +333,7 @@ impl FrameStore {
 
     /// Bytes held by images, embeddings and evidence frames across all persons.
     pub fn memory_bytes(&self) -> usize {
-        self.persons
-            .values()
-            .flat_map(|p| &p.views)
-            .map(|v| {
-                v.image.byte_size()
-                    + v.embedding.len() * std::mem::size_of::<f32>()
-                    + v.evidence
-                        .as_ref()
-                        .map_or(0, |e| e.frame.len() + e.mask.len())
-            })
-            .sum()
+        self.persons.values().map(PersonViews::memory_bytes).sum()
     }
 }
 

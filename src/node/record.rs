@@ -15,8 +15,8 @@
 use crate::bag::{self, BagError, BagWriter};
 use crate::config::ImageQos;
 use crate::msgs::{
-    BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, ReconstructionStatus,
-    RosMessage,
+    BodyPose, BodyShape, CameraInfo, CompactAvatar, CompressedImage, GaussianAvatar, Image,
+    ReconstructionStatus, RosMessage,
 };
 use crate::node::names::split_fully_qualified;
 use crate::node::ros::{
@@ -69,6 +69,8 @@ pub enum RecordType {
     BodyShape,
     /// `lhmpp_msgs/msg/GaussianAvatar`.
     GaussianAvatar,
+    /// `lhmpp_msgs/msg/CompactAvatar`.
+    CompactAvatar,
     /// `lhmpp_msgs/msg/ReconstructionStatus`.
     ReconstructionStatus,
 }
@@ -83,6 +85,7 @@ impl RecordType {
             Self::BodyPose => BodyPose::TYPE_NAME,
             Self::BodyShape => BodyShape::TYPE_NAME,
             Self::GaussianAvatar => GaussianAvatar::TYPE_NAME,
+            Self::CompactAvatar => CompactAvatar::TYPE_NAME,
             Self::ReconstructionStatus => ReconstructionStatus::TYPE_NAME,
         }
     }
@@ -125,7 +128,7 @@ fn bag_qos(qos: &QosProfile) -> bag::QosProfile {
 }
 
 /// Every topic the node uses, with the QoS the node uses on it: inputs first (images, compressed
-/// images, camera infos, masks, pose, shape), then outputs (avatar, status, rendered frames).
+/// images, camera infos, masks, pose, shape), then outputs (avatar, compact avatar, status, rendered frames).
 pub fn plan(topics: &ResolvedTopics, image_qos: ImageQos) -> Vec<RecordTopic> {
     let topic = |name: &str, kind, qos| RecordTopic {
         name: name.to_owned(),
@@ -161,6 +164,11 @@ pub fn plan(topics: &ResolvedTopics, image_qos: ImageQos) -> Vec<RecordTopic> {
     out.push(topic(
         &topics.avatar,
         RecordType::GaussianAvatar,
+        latched_output_qos(),
+    ));
+    out.push(topic(
+        &topics.compact_avatar,
+        RecordType::CompactAvatar,
         latched_output_qos(),
     ));
     out.push(topic(
@@ -326,6 +334,7 @@ pub async fn record(
             RecordType::BodyPose => spawn_reader::<BodyPose>(&mut node, i, t, tx),
             RecordType::BodyShape => spawn_reader::<BodyShape>(&mut node, i, t, tx),
             RecordType::GaussianAvatar => spawn_reader::<GaussianAvatar>(&mut node, i, t, tx),
+            RecordType::CompactAvatar => spawn_reader::<CompactAvatar>(&mut node, i, t, tx),
             RecordType::ReconstructionStatus => {
                 spawn_reader::<ReconstructionStatus>(&mut node, i, t, tx)
             }
@@ -474,6 +483,7 @@ mod tests {
             person_masks: vec![("/cam0/image_raw".into(), "/cam0/person_mask".into())],
             shape: Some("/shape".into()),
             avatar: "/avatar".into(),
+            compact_avatar: "/avatar/compact".into(),
             status: "/status".into(),
             frames: vec!["/render/cam0/image_raw".into()],
             preview: "/avatar/points".into(),
@@ -496,6 +506,7 @@ mod tests {
                 "/pose",
                 "/shape",
                 "/avatar",
+                "/avatar/compact",
                 "/status",
                 "/render/cam0/image_raw"
             ]
@@ -510,7 +521,9 @@ mod tests {
         let avatar = p[7].bag_qos();
         assert_eq!(avatar.durability, bag::Durability::TransientLocal);
         assert_eq!(avatar.depth, 1);
-        assert_eq!(p[9].bag_qos().reliability, bag::Reliability::BestEffort);
+        assert_eq!(p[8].kind, RecordType::CompactAvatar);
+        assert_eq!(p[8].bag_qos().durability, bag::Durability::TransientLocal);
+        assert_eq!(p[10].bag_qos().reliability, bag::Reliability::BestEffort);
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! (`replay.exit_when_done`) or SIGINT/SIGTERM. The tokio runtime hosts only the DDS endpoint
 //! and the signal handlers.
 
-use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs};
+use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs, WebPublisher};
 use super::pipeline::membership::HEARTBEAT_PERIOD;
 use super::pipeline::{Pipeline, PipelineError, PipelineStats};
 use super::replay::{BagReplay, Replayed};
@@ -40,6 +40,9 @@ pub enum RunError {
     /// The async runtime could not start.
     #[error("tokio runtime: {0}")]
     Runtime(#[from] std::io::Error),
+    /// The live page could not start.
+    #[error("live page: {0}")]
+    Web(#[from] crate::web::WebError),
 }
 
 /// What a run did.
@@ -69,6 +72,8 @@ pub struct RunSummary {
     pub encoded_views: usize,
     /// Animation frames written at the end of a replay.
     pub animation_frames: usize,
+    /// What the files under `outputs.dir` took and gave back (`None`: no files written).
+    pub files: Option<crate::node::outputs::DiskUsage>,
     /// Every person followed at the end (one without tracking).
     pub persons: Vec<PersonSummary>,
     /// The person tracker's counters (`tracking.enabled` only).
@@ -92,6 +97,16 @@ pub struct PersonSummary {
 
 /// Runs the node with `config`; `remap` holds command-line topic remappings.
 pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSummary, RunError> {
+    run_with(config, remap, None)
+}
+
+/// [`run`] with the live page's token (`lhmpp run --web-token`), which `outputs.web` needs
+/// on any address other than loopback.
+pub fn run_with(
+    config: &NodeConfig,
+    remap: BTreeMap<String, String>,
+    web_token: Option<String>,
+) -> Result<RunSummary, RunError> {
     let started = Instant::now();
     let clock = move || started.elapsed();
     let options = RosNodeOptions::from_config(
@@ -168,6 +183,17 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         tracing::info!(services = ?shm.services(), "shared-memory outputs up");
         publishers.push(Box::new(shm));
     }
+    let web = match config.outputs.web.parse::<std::net::SocketAddr>() {
+        Ok(addr) => {
+            let state = Arc::new(crate::web::LiveState::default());
+            let server =
+                crate::web::WebServer::start(addr, web_token, state.clone(), runtime.handle())?;
+            publishers.push(Box::new(WebPublisher(state)));
+            Some(server)
+        }
+        // Empty: off (anything else was refused when the config was validated).
+        Err(_) => None,
+    };
     pipeline.set_publisher(
         (!publishers.is_empty()).then(|| Box::new(Fanout(publishers)) as Box<dyn Publisher>),
     );
@@ -203,6 +229,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         revision: pipeline.revision(),
         encoded_views: pipeline.encoded_views(),
         animation_frames,
+        files: pipeline.disk_usage(),
         persons: pipeline
             .persons()
             .into_iter()
@@ -217,6 +244,7 @@ pub fn run(config: &NodeConfig, remap: BTreeMap<String, String>) -> Result<RunSu
         wall: started.elapsed(),
     };
     drop(pipeline);
+    drop(web);
     if let Some(node) = ros {
         match Arc::try_unwrap(node) {
             Ok(node) => node.shutdown(),

@@ -82,8 +82,11 @@ pub enum SchedulerError {
     },
 }
 
-#[derive(Debug, Default)]
-struct PersonState {
+/// One person's schedule: the [`Scheduler`]'s state for a person, also held on its own by the
+/// pipeline's per-person state.
+#[derive(Debug, Clone, Default)]
+pub struct Schedule {
+    cfg: SchedulerConfig,
     /// Newest unhandled change: (set version, newest arrival in it).
     pending: Option<(u64, Duration)>,
     first_change: Duration,
@@ -93,11 +96,122 @@ struct PersonState {
     started_version: u64,
 }
 
+impl Schedule {
+    /// Nothing to do yet.
+    pub fn new(cfg: SchedulerConfig) -> Self {
+        Self {
+            cfg,
+            ..Self::default()
+        }
+    }
+
+    /// Forgets everything but the parameters (revisions start again from 1).
+    pub fn reset(&mut self) {
+        *self = Self::new(self.cfg.clone());
+    }
+
+    /// The view set changed to `set_version`, whose newest frame arrived at `last_arrival`;
+    /// `now` is the current clock. Older versions than one already seen are ignored.
+    pub fn view_set_changed(&mut self, set_version: u64, last_arrival: Duration, now: Duration) {
+        if set_version <= self.started_version {
+            return;
+        }
+        match self.pending {
+            Some((v, _)) if v >= set_version => return,
+            Some(_) => {}
+            None => self.first_change = now,
+        }
+        self.pending = Some((set_version, last_arrival));
+        self.last_change = now;
+    }
+
+    /// The job for `person` to start at `now`, if one is due (none while one is in flight),
+    /// with when its first unhandled change came (the longest waiting goes first).
+    pub fn poll(&mut self, person: &str, now: Duration) -> Option<(Duration, Job)> {
+        if self.in_flight.is_some() {
+            return None;
+        }
+        let (set_version, last_arrival) = self.pending?;
+        if now < self.due() {
+            return None;
+        }
+        self.pending = None;
+        self.last_revision += 1;
+        self.started_version = set_version;
+        let job = Job {
+            person: person.to_owned(),
+            revision: self.last_revision,
+            set_version,
+            last_arrival,
+            started: now,
+        };
+        self.in_flight = Some(job.clone());
+        Some((self.first_change, job))
+    }
+
+    /// Whether a job is in flight.
+    pub fn busy(&self) -> bool {
+        self.in_flight.is_some()
+    }
+
+    /// Earliest clock value at which [`poll`](Self::poll) may start a job, if one is pending.
+    pub fn next_deadline(&self) -> Option<Duration> {
+        (self.in_flight.is_none() && self.pending.is_some()).then(|| self.due())
+    }
+
+    /// `person`'s job finished and its result was published at `now`.
+    pub fn finished(
+        &mut self,
+        person: &str,
+        revision: u64,
+        now: Duration,
+    ) -> Result<Completion, SchedulerError> {
+        let job = self.take_in_flight(person, revision)?;
+        Ok(Completion {
+            person: job.person,
+            revision,
+            latency: now.saturating_sub(job.last_arrival),
+            run_time: now.saturating_sub(job.started),
+        })
+    }
+
+    /// `person`'s job failed; its revision is spent. A change that came in meanwhile still
+    /// runs next; the failed set itself is not retried.
+    pub fn failed(&mut self, person: &str, revision: u64) -> Result<(), SchedulerError> {
+        self.take_in_flight(person, revision).map(|_| ())
+    }
+
+    /// The job in flight, if any.
+    pub fn in_flight(&self) -> Option<&Job> {
+        self.in_flight.as_ref()
+    }
+
+    /// Last revision handed out (0 before the first).
+    pub fn last_revision(&self) -> u64 {
+        self.last_revision
+    }
+
+    fn take_in_flight(&mut self, person: &str, revision: u64) -> Result<Job, SchedulerError> {
+        match &self.in_flight {
+            Some(job) if job.revision == revision => Ok(self.in_flight.take().expect("checked")),
+            _ => Err(SchedulerError::NotInFlight {
+                person: person.into(),
+                revision,
+            }),
+        }
+    }
+
+    /// When a pending change becomes due.
+    fn due(&self) -> Duration {
+        (self.last_change + self.cfg.debounce).min(self.first_change + self.cfg.max_delay)
+    }
+}
+
 /// Decides when each person is reconstructed.
 #[derive(Debug, Default)]
 pub struct Scheduler {
     cfg: SchedulerConfig,
-    persons: BTreeMap<String, PersonState>,
+    persons: BTreeMap<String, Schedule>,
 }
 
 impl Scheduler {
@@ -118,49 +232,21 @@ impl Scheduler {
         last_arrival: Duration,
         now: Duration,
     ) {
-        let p = self.persons.entry(person.to_owned()).or_default();
-        if set_version <= p.started_version {
-            return;
-        }
-        match p.pending {
-            Some((v, _)) if v >= set_version => return,
-            Some(_) => {}
-            None => p.first_change = now,
-        }
-        p.pending = Some((set_version, last_arrival));
-        p.last_change = now;
+        self.persons
+            .entry(person.to_owned())
+            .or_insert_with(|| Schedule::new(self.cfg.clone()))
+            .view_set_changed(set_version, last_arrival, now);
     }
 
     /// Jobs to start at `now` (each person at most one, none while one is in flight), the
     /// person whose view set changed longest ago first.
     pub fn poll(&mut self, now: Duration) -> Vec<Job> {
-        let cfg = self.cfg.clone();
-        let mut jobs = Vec::new();
-        for (person, p) in &mut self.persons {
-            if p.in_flight.is_some() {
-                continue;
-            }
-            let Some((set_version, last_arrival)) = p.pending else {
-                continue;
-            };
-            if now < due(&cfg, p) {
-                continue;
-            }
-            p.pending = None;
-            p.last_revision += 1;
-            p.started_version = set_version;
-            let job = Job {
-                person: person.clone(),
-                revision: p.last_revision,
-                set_version,
-                last_arrival,
-                started: now,
-            };
-            p.in_flight = Some(job.clone());
-            jobs.push((p.first_change, job));
-        }
-        jobs.sort_by_key(|(first_change, _)| *first_change);
-        jobs.into_iter().map(|(_, job)| job).collect()
+        first_waiting_first(
+            self.persons
+                .iter_mut()
+                .filter_map(|(person, p)| p.poll(person, now))
+                .collect(),
+        )
     }
 
     /// Forgets `person` (no longer tracked): a pending change is dropped; returns whether the
@@ -171,15 +257,14 @@ impl Scheduler {
 
     /// Whether a job is in flight for anyone.
     pub fn busy(&self) -> bool {
-        self.persons.values().any(|p| p.in_flight.is_some())
+        self.persons.values().any(Schedule::busy)
     }
 
     /// Earliest clock value at which [`poll`](Self::poll) may start a job, if any is pending.
     pub fn next_deadline(&self) -> Option<Duration> {
         self.persons
             .values()
-            .filter(|p| p.in_flight.is_none() && p.pending.is_some())
-            .map(|p| due(&self.cfg, p))
+            .filter_map(Schedule::next_deadline)
             .min()
     }
 
@@ -190,47 +275,41 @@ impl Scheduler {
         revision: u64,
         now: Duration,
     ) -> Result<Completion, SchedulerError> {
-        let job = self.take_in_flight(person, revision)?;
-        Ok(Completion {
-            person: job.person,
-            revision,
-            latency: now.saturating_sub(job.last_arrival),
-            run_time: now.saturating_sub(job.started),
-        })
+        self.schedule(person, revision)?
+            .finished(person, revision, now)
     }
 
     /// The job failed; its revision is spent. A change that came in meanwhile still runs next;
     /// the failed set itself is not retried.
     pub fn failed(&mut self, person: &str, revision: u64) -> Result<(), SchedulerError> {
-        self.take_in_flight(person, revision).map(|_| ())
+        self.schedule(person, revision)?.failed(person, revision)
     }
 
     /// The job in flight for `person`, if any.
     pub fn in_flight(&self, person: &str) -> Option<&Job> {
-        self.persons.get(person).and_then(|p| p.in_flight.as_ref())
+        self.persons.get(person).and_then(Schedule::in_flight)
     }
 
     /// Last revision handed out for `person` (0 before the first).
     pub fn last_revision(&self, person: &str) -> u64 {
-        self.persons.get(person).map_or(0, |p| p.last_revision)
+        self.persons.get(person).map_or(0, Schedule::last_revision)
     }
 
-    fn take_in_flight(&mut self, person: &str, revision: u64) -> Result<Job, SchedulerError> {
-        let not_in_flight = || SchedulerError::NotInFlight {
-            person: person.into(),
-            revision,
-        };
-        let p = self.persons.get_mut(person).ok_or_else(not_in_flight)?;
-        match &p.in_flight {
-            Some(job) if job.revision == revision => Ok(p.in_flight.take().expect("checked")),
-            _ => Err(not_in_flight()),
-        }
+    fn schedule(&mut self, person: &str, revision: u64) -> Result<&mut Schedule, SchedulerError> {
+        self.persons
+            .get_mut(person)
+            .ok_or_else(|| SchedulerError::NotInFlight {
+                person: person.into(),
+                revision,
+            })
     }
 }
 
-/// When a pending change becomes due.
-fn due(cfg: &SchedulerConfig, p: &PersonState) -> Duration {
-    (p.last_change + cfg.debounce).min(p.first_change + cfg.max_delay)
+/// Due jobs with when each one's first unhandled change came, ordered the longest waiting
+/// first (ties keep their order).
+pub fn first_waiting_first(mut jobs: Vec<(Duration, Job)>) -> Vec<Job> {
+    jobs.sort_by_key(|(first_change, _)| *first_change);
+    jobs.into_iter().map(|(_, job)| job).collect()
 }
 
 #[cfg(test)]

@@ -1,5 +1,5 @@
 //! Gaussian avatars' rendering side: the Gaussian set, the camera, the CPU splatting
-//! rasteriser, its CUDA twin ([`cuda`]) and 3DGS-layout PLY import/export. Synchronous.
+//! rasteriser, its CUDA twin ([`cuda`]), 3DGS-layout PLY import/export and SPZ ([`write_spz`]). Synchronous.
 
 mod camera;
 pub mod cuda;
@@ -8,6 +8,7 @@ mod nearest;
 mod ply;
 pub mod render;
 mod sh;
+mod spz;
 pub mod synthetic;
 mod voxel_skinning;
 
@@ -22,4 +23,8 @@ pub use render::{
     RenderOutput, TILE,
 };
 pub use sh::eval_sh;
+pub use spz::{
+    pack_rotation, read_spz, unpack_rotation, write_spz, SpzError, SpzQuantised,
+    DEFAULT_FRACTIONAL_BITS, MAX_SPZ_GAUSSIANS,
+};
 pub use voxel_skinning::{VoxelSkinning, VoxelSkinningError};

@@ -2,6 +2,7 @@
 
 use clap::{Args, Subcommand};
 
+mod compact;
 mod cpu_peer;
 mod model;
 mod perception;
@@ -34,6 +35,9 @@ enum BenchCommand {
     /// at 1 and 2 threads, with an optional per-step profile; `scripts/perception/bench` runs
     /// it next to LiteRT/XNNPACK.
     Perception(perception::PerceptionBenchArgs),
+    /// The compact avatar (SPZ + skin) against GaussianAvatar for avatar PLYs the node wrote:
+    /// message sizes and ratio, encode/decode times, round-trip render PSNR.
+    Compact(compact::CompactBenchArgs),
 }
 
 /// Runs `lhmpp bench`.
@@ -45,5 +49,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Transport(a) => transport::run(a),
         BenchCommand::CpuPeer(a) => cpu_peer::run(a),
         BenchCommand::Perception(a) => perception::run(a),
+        BenchCommand::Compact(a) => compact::run(a),
     }
 }

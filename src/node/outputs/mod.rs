@@ -1,28 +1,34 @@
 //! The one place results leave the node: every avatar revision, status, rendered frame,
 //! preview and end-of-replay animation frame goes through a [`Publisher`], and a [`Fanout`]
 //! hands them to all of the node's outputs at once: ROS 2 messages ([`ros`]), iceoryx2 shared
-//! memory ([`shm`]) and files on disk ([`files`]); the person masks and the pose perception
-//! reads from the cameras go out the same way.
+//! memory ([`shm`]), the live page ([`web`]) and files on disk ([`files`]); the person masks
+//! and the pose perception reads from the cameras go out the same way.
 //!
-//! Outputs differ in what they take: the live ones ([`Publisher::live`]: ROS 2, shared memory)
-//! take statuses, rendered frames and previews; the files take the avatars and the animation
+//! Outputs differ in what they take: the live ones ([`Publisher::live`]: ROS 2, shared memory,
+//! the live page) take statuses, rendered frames and previews; the files take the avatars and the animation
 //! frames ([`Publisher::animation`]). The pipeline renders and poses only for outputs that take
 //! the result. Failures are each output's to log: an output never stops the pipeline.
 
+pub mod disk;
 pub mod files;
 pub mod ros;
 pub mod shm;
+pub mod web;
 
-pub use files::FileOutputs;
-pub use ros::{avatar_message, frame_message, status_message, RosPublisher};
+pub use disk::DiskUsage;
+pub use files::{FileOutputs, Retention};
+pub use ros::{avatar_message, compact_message, frame_message, status_message, RosPublisher};
 pub use shm::ShmOutputs;
+pub use web::WebPublisher;
 
 use crate::avatar::Avatar;
+use crate::compact::CompactAvatar;
 use crate::msgs::{BodyPose, ReconstructionStatus};
 use crate::node::pipeline::RenderedFrame;
 use crate::splat::{Gaussians, PlyError};
 use image::GrayImage;
 use std::path::PathBuf;
+use std::sync::OnceLock;
 
 /// An output failed; names the file or the message.
 #[derive(Debug, thiserror::Error)]
@@ -41,6 +47,9 @@ pub enum OutputError {
     /// A message could not be built.
     #[error("message: {0}")]
     Message(#[from] crate::msgs::MsgError),
+    /// The compact avatar could not be encoded.
+    #[error("compact avatar: {0}")]
+    Compact(String),
 }
 
 /// A new avatar revision as handed to the outputs.
@@ -63,6 +72,24 @@ pub struct AvatarUpdate<'a> {
     pub rgb_display_ready: bool,
     /// The neural renderer that decodes a latent RGB avatar (empty when display-ready).
     pub neural_renderer: &'a str,
+    /// The compact form, encoded by the first output that asks ([`AvatarUpdate::compact`]).
+    pub compact: CompactOnce,
+}
+
+/// A compact avatar encoded at most once per update, for every output that sends it.
+#[derive(Default)]
+pub struct CompactOnce(OnceLock<Result<CompactAvatar, String>>);
+
+impl AvatarUpdate<'_> {
+    /// The compact form of the avatar (SPZ + skin), encoded on first use; the error text
+    /// when it cannot be encoded.
+    pub fn compact(&self) -> Result<&CompactAvatar, &str> {
+        self.compact
+            .0
+            .get_or_init(|| CompactAvatar::encode(self.avatar).map_err(|e| e.to_string()))
+            .as_ref()
+            .map_err(|e| e.as_str())
+    }
 }
 
 /// One output of the node (ROS 2, shared memory, files).
@@ -81,6 +108,10 @@ pub trait Publisher {
     fn mask(&self, _camera: &str, _mask: &GrayImage, _stamp_ns: i64, _frame_id: &str) {}
     /// Publishes the pose read from the cameras.
     fn pose(&self, _pose: &BodyPose) {}
+    /// A pose accepted from the pose topic for `person` (it animates their avatar; the
+    /// message's own `person_id` may be empty): outputs that show the avatar take it; the ROS 2
+    /// output does not send it back.
+    fn topic_pose(&self, _person: &str, _pose: &BodyPose) {}
     /// Whether this output takes the live stream: statuses, rendered frames and previews
     /// (true by default). The pipeline renders frames, poses previews and sends statuses only
     /// when some output does.
@@ -90,6 +121,10 @@ pub trait Publisher {
     /// Starts storing an end-of-replay animation; `None` (the default) when this output
     /// stores none. The pipeline renders the animation only when some output stores it.
     fn animation(&self) -> Option<Box<dyn Animation + '_>> {
+        None
+    }
+    /// What this output wrote to and removed from disk so far (`None`: it writes no files).
+    fn disk_usage(&self) -> Option<DiskUsage> {
         None
     }
 }
@@ -138,8 +173,14 @@ impl Publisher for Fanout {
     fn pose(&self, pose: &BodyPose) {
         self.0.iter().for_each(|p| p.pose(pose));
     }
+    fn topic_pose(&self, person: &str, pose: &BodyPose) {
+        self.0.iter().for_each(|p| p.topic_pose(person, pose));
+    }
     fn live(&self) -> bool {
         self.0.iter().any(|p| p.live())
+    }
+    fn disk_usage(&self) -> Option<DiskUsage> {
+        self.0.iter().find_map(|p| p.disk_usage())
     }
     fn animation(&self) -> Option<Box<dyn Animation + '_>> {
         let stores: Vec<_> = self.0.iter().filter_map(|p| p.animation()).collect();
@@ -178,7 +219,7 @@ mod tests {
     #[test]
     fn replacing_the_live_publishers_keeps_the_files() {
         let tmp = tempfile::tempdir().unwrap();
-        let files = FileOutputs::new(tmp.path()).unwrap();
+        let files = FileOutputs::new(tmp.path(), Retention::EVERYTHING).unwrap();
         let mut outputs = Fanout(vec![Box::new(files)]);
         assert!(!outputs.live(), "files take no live stream");
         assert!(outputs.animation().is_some(), "files store the animation");

@@ -1,10 +1,11 @@
-//! The ROS 2 output: [`RosPublisher`] hands avatars (GaussianAvatar), statuses
+//! The ROS 2 output: [`RosPublisher`] hands avatars (GaussianAvatar and its compact form,
+//! CompactAvatar), statuses
 //! (ReconstructionStatus), rendered frames (sensor_msgs/Image rgb8) and the preview to the
 //! node's ROS 2 endpoint, with the message builders it uses.
 
 use super::{AvatarUpdate, OutputError, Publisher};
 use crate::msgs::{
-    BodyPose, GaussianAvatar, GaussianCloud, GaussianColors, Header, Image, Point,
+    BodyPose, CompactAvatar, GaussianAvatar, GaussianCloud, GaussianColors, Header, Image, Point,
     ReconstructionStatus, Time,
 };
 use crate::node::pipeline::RenderedFrame;
@@ -25,6 +26,14 @@ impl Publisher for RosPublisher {
                 }
             }
             Err(e) => tracing::error!("avatar message: {e}"),
+        }
+        match compact_message(u) {
+            Ok(msg) => {
+                if let Err(e) = self.0.publish_compact_avatar(msg) {
+                    tracing::warn!("{e}");
+                }
+            }
+            Err(e) => tracing::error!("compact avatar message: {e}"),
         }
     }
     fn status(&self, msg: ReconstructionStatus) {
@@ -88,6 +97,7 @@ pub fn avatar_message(update: &AvatarUpdate<'_>) -> Result<GaussianAvatar, Outpu
         shape_params,
         rgb_display_ready,
         neural_renderer,
+        compact: _,
     } = *update;
     let g = &avatar.canonical;
     let colors = (0..g.len())
@@ -115,13 +125,42 @@ pub fn avatar_message(update: &AvatarUpdate<'_>) -> Result<GaussianAvatar, Outpu
         rgb_display_ready,
         neural_renderer: neural_renderer.to_owned(),
         bone_names: skeleton.bone_names.clone(),
-        bone_parents: skeleton
-            .parents
-            .iter()
-            .map(|p| p.map_or(-1, |i| i as i32))
-            .collect(),
+        bone_parents: bone_parents(skeleton),
         bone_rest_positions: skeleton.joints.iter().map(|j| Point::from(*j)).collect(),
     })
+}
+
+/// The CompactAvatar message of an avatar revision: the same header, person, revision and
+/// skeleton as [`avatar_message`], the Gaussians and the skin as compact blobs.
+pub fn compact_message(update: &AvatarUpdate<'_>) -> Result<CompactAvatar, OutputError> {
+    let blobs = update
+        .compact()
+        .map_err(|e| OutputError::Compact(e.to_owned()))?;
+    let skeleton = &update.template.skeleton;
+    Ok(CompactAvatar {
+        header: Header::new(Time::from_nanos(update.stamp_ns), "lhmpp_canonical"),
+        person_id: update.person.to_owned(),
+        revision: update.revision as u32,
+        views_used: update.views_used as u32,
+        body_model: update.avatar.body_model.clone(),
+        shape_params: update.shape_params.to_vec(),
+        rgb_display_ready: update.rgb_display_ready,
+        neural_renderer: update.neural_renderer.to_owned(),
+        bone_names: skeleton.bone_names.clone(),
+        bone_parents: bone_parents(skeleton),
+        bone_rest_positions: skeleton.joints.iter().flat_map(|j| j.to_array()).collect(),
+        gaussians: blobs.gaussians.clone(),
+        skin: blobs.skin.clone(),
+    })
+}
+
+/// Parent index of each bone, -1 for a root.
+fn bone_parents(skeleton: &crate::body::Skeleton) -> Vec<i32> {
+    skeleton
+        .parents
+        .iter()
+        .map(|p| p.map_or(-1, |i| i as i32))
+        .collect()
 }
 
 /// A ReconstructionStatus message; `render_ms` is the per-frame render time of the last

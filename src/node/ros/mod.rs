@@ -32,8 +32,8 @@ pub use sink::InputStats;
 
 use crate::config::{FrameQos, ImageQos, NodeConfig, PoseSource};
 use crate::msgs::{
-    BodyPose, BodyShape, CameraInfo, CompressedImage, GaussianAvatar, Image, PointCloud2,
-    ReconstructionStatus, RosMessage, StdString, TFMessage,
+    BodyPose, BodyShape, CameraInfo, CompactAvatar, CompressedImage, GaussianAvatar, Image,
+    PointCloud2, ReconstructionStatus, RosMessage, StdString, TFMessage,
 };
 use crate::node::input_queue::{bounded, OverflowPolicy};
 use crate::node::inputs::{EncodedImage, ImageMessage, Incoming, InputEvent};
@@ -222,6 +222,8 @@ pub struct ResolvedTopics {
     pub tf_inputs: Vec<String>,
     /// GaussianAvatar topic.
     pub avatar: String,
+    /// CompactAvatar topic.
+    pub compact_avatar: String,
     /// ReconstructionStatus topic.
     pub status: String,
     /// Rendered-frame topics, one per virtual camera.
@@ -285,6 +287,7 @@ impl ResolvedTopics {
                     .collect::<Vec<_>>(),
             ),
             avatar: names.resolve(&opts.outputs.avatar)?,
+            compact_avatar: names.resolve(&opts.outputs.compact_avatar)?,
             status: names.resolve(&opts.outputs.status)?,
             frames: all(&opts.outputs.frames)?,
             preview: names.resolve(&opts.outputs.preview)?,
@@ -301,6 +304,7 @@ pub struct RosNode {
     topics: ResolvedTopics,
     sink: InputSink<Incoming>,
     avatar: LatchedPort<GaussianAvatar>,
+    compact_avatar: LatchedPort<CompactAvatar>,
     status: LatchedPort<ReconstructionStatus>,
     frames: Vec<OutputPort<Image>>,
     person_frames: Option<PersonFramePorts>,
@@ -489,6 +493,7 @@ impl RosNode {
         }
 
         let avatar = advertise(&mut node, &topics.avatar, latched_output_qos())?;
+        let compact_avatar = advertise(&mut node, &topics.compact_avatar, latched_output_qos())?;
         let status = advertise(&mut node, &topics.status, latched_output_qos())?;
         let frames = topics
             .frames
@@ -539,6 +544,7 @@ impl RosNode {
         });
         let runtime = tokio::runtime::Handle::current();
         let avatar = LatchedPort::new(avatar, Arc::clone(&node), runtime.clone());
+        let compact_avatar = LatchedPort::new(compact_avatar, Arc::clone(&node), runtime.clone());
         let status = LatchedPort::new(status, Arc::clone(&node), runtime.clone());
         let preview = preview.map(|(cloud, tf, frame, world)| Preview {
             cloud: LatchedPort::new(cloud, Arc::clone(&node), runtime),
@@ -559,6 +565,7 @@ impl RosNode {
                 topics,
                 sink,
                 avatar,
+                compact_avatar,
                 status,
                 frames,
                 person_frames,
@@ -598,6 +605,11 @@ impl RosNode {
     /// Publishes a GaussianAvatar (reliable, transient-local).
     pub fn publish_avatar(&self, msg: GaussianAvatar) -> Result<PublishOutcome, RosError> {
         self.avatar.publish(msg)
+    }
+
+    /// Publishes a CompactAvatar (reliable, transient-local).
+    pub fn publish_compact_avatar(&self, msg: CompactAvatar) -> Result<PublishOutcome, RosError> {
+        self.compact_avatar.publish(msg)
     }
 
     /// Publishes a ReconstructionStatus (reliable, transient-local).
@@ -690,6 +702,7 @@ impl RosNode {
     /// Publishes refused by a full send window so far (all outputs).
     pub fn back_pressure_count(&self) -> u64 {
         self.avatar.port().back_pressure()
+            + self.compact_avatar.port().back_pressure()
             + self.status.port().back_pressure()
             + self.frames.iter().map(|p| p.back_pressure()).sum::<u64>()
     }
@@ -712,6 +725,7 @@ impl RosNode {
             node,
             sink,
             avatar,
+            compact_avatar,
             status,
             frames,
             preview,
@@ -731,13 +745,22 @@ impl RosNode {
             task.abort();
         }
         tasks.iter().for_each(wait);
-        let waiters = [avatar.stop(), status.stop()]
+        let waiters = [avatar.stop(), compact_avatar.stop(), status.stop()]
             .into_iter()
             .chain(preview.as_ref().map(|p| p.cloud.stop()))
             .flatten()
             .collect::<Vec<_>>();
         waiters.iter().for_each(wait);
-        drop((sink, avatar, status, frames, preview, masks, pose));
+        drop((
+            sink,
+            avatar,
+            compact_avatar,
+            status,
+            frames,
+            preview,
+            masks,
+            pose,
+        ));
         drop(node);
         wait(&spinner);
         if !spinner.is_finished() {
@@ -878,6 +901,7 @@ mod tests {
         assert_eq!(t.pose.as_deref(), Some("/lhmpp/body_pose"));
         assert_eq!(t.shape, None, "the shape topic is off by default");
         assert_eq!(t.avatar, "/avatars/person_0");
+        assert_eq!(t.compact_avatar, "/robot/avatar/compact");
         assert_eq!(t.status, "/robot/status");
         assert_eq!(
             t.frames,

@@ -18,6 +18,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub struct OutputTopics {
     /// lhmpp_msgs/GaussianAvatar.
     pub avatar: String,
+    /// lhmpp_msgs/CompactAvatar: the same avatar as SPZ plus its skin.
+    pub compact_avatar: String,
     /// lhmpp_msgs/ReconstructionStatus.
     pub status: String,
     /// sensor_msgs/Image rgb8, one per virtual camera.
@@ -29,11 +31,12 @@ pub struct OutputTopics {
 }
 
 impl OutputTopics {
-    /// `avatar`, `status`, `render/cam<i>/image_raw` for each virtual camera, `avatar/points`
-    /// and `/tf`.
+    /// `avatar`, `avatar/compact`, `status`, `render/cam<i>/image_raw` for each virtual camera,
+    /// `avatar/points` and `/tf`.
     pub fn for_virtual_cameras(count: u32) -> Self {
         Self {
             avatar: "avatar".into(),
+            compact_avatar: "avatar/compact".into(),
             status: "status".into(),
             frames: (0..count)
                 .map(|i| format!("render/cam{i}/image_raw"))

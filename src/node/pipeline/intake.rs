@@ -1,0 +1,96 @@
+//! The first room a camera frame enters: it is counted, then goes to camera-only perception,
+//! waits for its mask topic, or goes on whole to the configured person.
+
+use super::masks::Paired;
+use super::people::StoreInput;
+use super::Pipeline;
+use crate::config::{PersonMask, PoseSource};
+use crate::node::inputs::CameraFrame;
+use std::time::Duration;
+
+/// Where a camera's frames get their person mask.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum MaskRoute {
+    /// A mask topic (paired by stamp; frames of cameras with their own topic wait for it).
+    Topic,
+    /// Camera-only perception.
+    Perception,
+    /// None: whole frames.
+    Whole,
+}
+
+impl Pipeline {
+    /// Where frames of camera `topic` get their mask.
+    pub(super) fn route(&self, topic: &str) -> MaskRoute {
+        if self.tracking {
+            return MaskRoute::Perception;
+        }
+        match self.person_mask {
+            PersonMask::Off => MaskRoute::Whole,
+            PersonMask::Topic => MaskRoute::Topic,
+            PersonMask::Perception => MaskRoute::Perception,
+            PersonMask::Auto if self.shared_mask_topic || self.masks.is_masked(topic) => {
+                MaskRoute::Topic
+            }
+            PersonMask::Auto => MaskRoute::Perception,
+        }
+    }
+
+    /// A camera frame: counted, then to perception, to the mask pairing, or on as a whole
+    /// frame; with `inputs.pose_source: camera` every frame also goes to perception for the
+    /// pose.
+    pub(super) fn on_camera_frame(&mut self, frame: CameraFrame, now: Duration) {
+        self.stats.frames += 1;
+        self.stats
+            .queue_waits
+            .record(now.saturating_sub(frame.arrival));
+        if let Some(age) = live_age(frame.stamp_ns) {
+            self.stats.frame_ages.record(age);
+        }
+        let route = self.route(&frame.topic);
+        let camera = self
+            .tracking
+            .then(|| self.calibration.floor_camera(&frame))
+            .flatten();
+        match (route, self.perception.as_mut()) {
+            (MaskRoute::Perception, Some(perception)) => perception.submit(frame, camera),
+            (MaskRoute::Perception, None) => {
+                let person = self.default_person.clone();
+                self.on_frame(frame, StoreInput::whole_frame(), &person, now)
+            }
+            (MaskRoute::Topic | MaskRoute::Whole, perception) => {
+                if let (PoseSource::Camera, Some(p)) = (self.setup.source, perception) {
+                    p.submit(frame.clone(), camera);
+                }
+                if route == MaskRoute::Topic {
+                    let ready = self.masks.frame(frame, now);
+                    self.admit(ready, now);
+                } else {
+                    let person = self.default_person.clone();
+                    self.on_frame(frame, StoreInput::whole_frame(), &person, now);
+                }
+            }
+        }
+    }
+
+    /// Frames whose mask pairing is settled go on to the configured person.
+    pub(super) fn admit(&mut self, ready: Vec<Paired>, now: Duration) {
+        let person = self.default_person.clone();
+        for (frame, mask) in ready {
+            self.stats.masked += u64::from(mask.is_some());
+            let seen = StoreInput {
+                mask,
+                evidence: None,
+                hidden: 0.0,
+            };
+            self.on_frame(frame, seen, &person, now);
+        }
+    }
+}
+
+/// How old a frame stamped `stamp_ns` (ns since the epoch) is by this machine's clock, if
+/// that is between 0 and 10 minutes (a live stream; replayed bags carry older stamps).
+pub(super) fn live_age(stamp_ns: i64) -> Option<Duration> {
+    let age = u64::try_from(super::unix_now_ns().checked_sub(stamp_ns)?).ok()?;
+    Some(Duration::from_nanos(age)).filter(|age| *age < Duration::from_secs(600))
+}
