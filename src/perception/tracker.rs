@@ -145,6 +145,12 @@ pub struct Perceived {
     /// The detection that started tracking in this frame (`None`: tracked from the previous
     /// frame's landmarks).
     pub detection: Option<Detected>,
+    /// This frame took up someone after the person followed before was forgotten (gone for
+    /// [`HOLD_SECONDS`], or out at the frame's edge), and they look unlike that person (below
+    /// [`SAME_FROM`]): what was gathered of the one before is not theirs. Never set when looks
+    /// are not checked, or for someone alone where the followed person was (they may have
+    /// turned round).
+    pub someone_else: bool,
 }
 
 /// Where the followed person was last seen.
@@ -178,6 +184,9 @@ pub struct PersonTracker {
     last_seen: Option<LastSeen>,
     /// What the followed person looks like.
     looks: Option<Looks>,
+    /// What the person followed before looked like, once forgotten: whom someone taken up
+    /// anew is compared with ([`Perceived::someone_else`]).
+    before: Option<Looks>,
     /// Since when only someone unlike them was found where they were, seconds.
     alone_unlike: Option<f64>,
     /// The current frame's time, seconds.
@@ -198,6 +207,7 @@ impl PersonTracker {
             previous_mask: None,
             last_seen: None,
             looks: None,
+            before: None,
             alone_unlike: None,
             clock: 0.0,
             people: None,
@@ -227,8 +237,15 @@ impl PersonTracker {
     pub fn reset(&mut self) {
         self.lose();
         self.last_seen = None;
-        self.looks = None;
+        self.forget_looks();
         self.alone_unlike = None;
+    }
+
+    /// Forgets the followed person's looks, kept as those of the person followed before.
+    fn forget_looks(&mut self) {
+        if let Some(looks) = self.looks.take() {
+            self.before = Some(looks);
+        }
     }
 
     /// Stops following from the previous frame's crop (the detector runs next).
@@ -304,7 +321,7 @@ impl PersonTracker {
             (Some(_), true, Some(last)) => self.choose_followed(readings, last),
             // Nobody followed (or gone for long): whoever came first.
             _ => {
-                self.looks = None;
+                self.forget_looks();
                 self.alone_unlike = None;
                 readings.into_iter().next().map(|r| (r, true))
             }
@@ -314,7 +331,7 @@ impl PersonTracker {
             None => {
                 if !held {
                     self.last_seen = None;
-                    self.looks = None;
+                    self.forget_looks();
                 }
                 Ok(None)
             }
@@ -362,8 +379,10 @@ impl PersonTracker {
         if self.clock - since < ALONE_SECONDS {
             return None;
         }
+        // Taken as the person followed, turned round: not compared with anyone before.
         self.alone_unlike = None;
         self.looks = None;
+        self.before = None;
         Some((scored.swap_remove(0).2, true))
     }
 
@@ -461,9 +480,18 @@ impl PersonTracker {
             }
             self.previous_mask = Some(mask.clone());
         }
+        let mut someone_else = false;
         match (&mut self.looks, looks) {
             (Some(known), Some(new)) if learn => known.learn(&new, LOOKS_RATE),
-            (known @ None, new) => *known = new,
+            (known @ None, new) => {
+                if let (Some(before), Some(new)) = (&self.before, &new) {
+                    let likeness = before.likeness(new);
+                    tracing::debug!(likeness, "someone taken up anew");
+                    someone_else = likeness < SAME_FROM;
+                    self.before = None;
+                }
+                *known = new;
+            }
             _ => {}
         }
         self.roi = Some(landmarks.next_roi);
@@ -482,6 +510,7 @@ impl PersonTracker {
             landmarks,
             mask,
             detection,
+            someone_else,
         }
     }
 }

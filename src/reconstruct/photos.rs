@@ -176,6 +176,7 @@ pub fn perceive_person(
         landmarks,
         mask,
         detection: detection.map(Detected::BlazePose),
+        someone_else: false,
     }))
 }
 
