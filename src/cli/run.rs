@@ -82,6 +82,12 @@ pub fn run(args: RunArgs) -> Result<()> {
             s.pose_ages
         );
     }
+    if s.views_of_another > 0 {
+        println!(
+            "one person: {} views dropped when a camera took up someone else",
+            s.views_of_another
+        );
+    }
     if config.tracking.enabled {
         let t = summary.tracking.unwrap_or_default();
         println!(

@@ -51,6 +51,9 @@ pub struct PersonSeen {
     /// The largest share of the person's box another person's box covers in this frame (0
     /// when one person is followed): such views mix people's pixels.
     pub hidden: f32,
+    /// One person: the camera's tracker took up someone unlike the person it followed before
+    /// ([`crate::perception::Perceived::someone_else`]); always `false` with several people.
+    pub someone_else: bool,
 }
 
 /// What perception made of one frame.
@@ -221,6 +224,7 @@ impl CameraTrackers {
                             image: p.landmarks.image,
                             id: None,
                             hidden: 0.0,
+                            someone_else: p.someone_else,
                         })
                         .into_iter()
                         .collect(),
@@ -251,6 +255,7 @@ impl CameraTrackers {
                                 image: p.landmarks.image,
                                 hidden: a.hidden,
                                 id: Some(a.person_id),
+                                someone_else: false,
                             })
                             .collect()
                     }
