@@ -486,7 +486,7 @@ impl PersonTracker {
             (known @ None, new) => {
                 if let (Some(before), Some(new)) = (&self.before, &new) {
                     let likeness = before.likeness(new);
-                    tracing::debug!(likeness, "someone taken up anew");
+                    tracing::debug!(likeness, at = self.clock, "someone taken up anew");
                     someone_else = likeness < SAME_FROM;
                     self.before = None;
                 }
