@@ -11,8 +11,8 @@ mod table;
 mod validate;
 
 pub use choices::{
-    Choice, ComputeDevice, Delight, Dtype, FrameQos, ImageQos, LandmarkModelChoice, PersonMask,
-    PoseSource, RenderDevice, RendererChoice, UnknownDevice,
+    Choice, ComputeDevice, Delight, Dtype, FrameQos, ImageQos, LandmarkModelChoice,
+    PersonDetectorChoice, PersonMask, PoseSource, RenderDevice, RendererChoice, UnknownDevice,
 };
 pub use people::{owner, ClusterConfig, TrackingSettings};
 pub use refine::RefineSettings;
@@ -260,7 +260,11 @@ pub struct PerceptionConfig {
     /// The converted heavy landmark model (`assets/perception/README.md` says how to make
     /// it); only read with `landmark_model: heavy`.
     pub heavy_weights: String,
-    /// Detector score that starts tracking a person, in [`PerceptionConfig::UNIT`].
+    /// Which detector finds the person a camera starts following (one person): MoveNet
+    /// MultiPose at `people_detector_side`, or BlazePose's own.
+    pub person_detector: PersonDetectorChoice,
+    /// BlazePose detector score that starts tracking a person (`person_detector: blazepose`),
+    /// in [`PerceptionConfig::UNIT`].
     pub min_detection_score: f32,
     /// Pose presence that keeps tracking a person, in [`PerceptionConfig::UNIT`].
     pub min_presence: f32,
@@ -273,9 +277,10 @@ pub struct PerceptionConfig {
     pub min_visibility: f32,
     /// CPU threads of the perception networks, in [`PerceptionConfig::THREADS`].
     pub threads: usize,
-    /// Short side of the several-people detector's input (MoveNet MultiPose, with
-    /// `tracking.enabled`): a multiple of 32 in [`PerceptionConfig::DETECTOR_SIDE`]; larger
-    /// finds people who fill less of the frame, at a higher cost per frame.
+    /// Short side of MoveNet MultiPose's input (every frame with `tracking.enabled`; with one
+    /// person, the frames in which nobody is followed): a multiple of 32 in
+    /// [`PerceptionConfig::DETECTOR_SIDE`]; larger finds people who fill less of the frame, at
+    /// a higher cost per frame.
     pub people_detector_side: usize,
     /// Read the body height from calibrated views (CameraInfo and the cameras' TF frames in
     /// `outputs.world_frame`, two or more cameras) when no shape topic gives the shape.
@@ -304,6 +309,19 @@ impl PerceptionConfig {
     ) -> Result<crate::perception::PoseNetworks, crate::perception::PerceptionError> {
         let heavy = (!self.heavy_weights.is_empty()).then(|| Path::new(&self.heavy_weights));
         crate::perception::PoseNetworks::load(self.landmark_model.model(), heavy)
+    }
+
+    /// One camera's one-person tracker settings this configuration gives (`smooth_masks`:
+    /// blend the previous frame's mask in, for live video).
+    pub fn tracker(&self, smooth_masks: bool) -> crate::perception::TrackerConfig {
+        crate::perception::TrackerConfig {
+            detector: self.person_detector.detector(),
+            min_detection_score: self.min_detection_score,
+            people: self.people(),
+            min_presence: self.min_presence,
+            smooth_masks,
+            check_looks: true,
+        }
     }
 
     /// The several-people finder's settings this configuration gives.
@@ -486,6 +504,7 @@ impl Default for PerceptionConfig {
         Self {
             landmark_model: LandmarkModelChoice::Full,
             heavy_weights: String::new(),
+            person_detector: PersonDetectorChoice::Movenet,
             min_detection_score: 0.5,
             min_presence: 0.5,
             mask_threshold: 0.5,

@@ -47,6 +47,32 @@ pub fn max_abs_diff<A: Values + ?Sized, B: Values + ?Sized>(a: &A, b: &B) -> f32
         .fold(0.0, f32::max)
 }
 
+/// The log lines written while `f` runs on this thread, at warn level and above.
+pub fn warnings_logged(f: impl FnOnce()) -> String {
+    use std::sync::{Arc, Mutex};
+    #[derive(Clone, Default)]
+    struct Buf(Arc<Mutex<Vec<u8>>>);
+    impl std::io::Write for Buf {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().expect("log buffer").extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let buf = Buf::default();
+    let writer = buf.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_max_level(tracing::Level::WARN)
+        .with_ansi(false)
+        .with_writer(move || writer.clone())
+        .finish();
+    tracing::subscriber::with_default(subscriber, f);
+    let text = buf.0.lock().expect("log buffer").clone();
+    String::from_utf8_lossy(&text).into_owned()
+}
+
 /// Bytes of every file below `dir` (panics on an unreadable entry).
 pub fn bytes_under(dir: &std::path::Path) -> u64 {
     std::fs::read_dir(dir)

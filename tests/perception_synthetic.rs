@@ -26,7 +26,8 @@ use lhmpp::eval::perception::{
 };
 use lhmpp::perception::pose::SolverConfig;
 use lhmpp::perception::{
-    Landmark, LandmarkModel, PersonTracker, PoseNetworks, TrackerConfig, BODY_LANDMARKS,
+    Landmark, LandmarkModel, PersonDetector, PersonTracker, PoseNetworks, TrackerConfig,
+    BODY_LANDMARKS,
 };
 use lhmpp::synth::{write_synthetic_bag, CameraMode, SynthOptions, SynthPose};
 use perception_pose_support::swap_left_right;
@@ -123,7 +124,10 @@ fn results(model: LandmarkModel) -> &'static [Vec<ViewResult>] {
         let nets = networks(model);
         scenes()
             .iter()
-            .map(|s| evaluate_scene(s, &nets, SolverConfig::default()).unwrap())
+            .map(|s| {
+                evaluate_scene(s, &nets, SolverConfig::default(), PersonDetector::default())
+                    .unwrap()
+            })
             .collect()
     })
 }

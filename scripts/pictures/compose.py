@@ -195,6 +195,24 @@ def real_tracked(out, target):
            ).save(target)
 
 
+def one_person(out, target):
+    """One person followed in a wide real view (Sports2D's demo clip, BSD-3) by the node's
+    one-person mode: two frames with the followed person's mask and landmarks (MoveNet found
+    them; the landmarks' crop followed them), and the avatar the node made of the clip's first
+    140 frames from the front and the side."""
+    out = Path(out)
+    tiles = []
+    for frame in (40, 120):
+        (path,) = sorted((out / "frames").glob(f"*_{frame:04d}_cam0.png"))
+        tiles.append(tile(Image.open(path), f"frame {frame} of 230, 640x360", height=360))
+    renders = out / "node" / "render"
+    for view, side in [("f0000_v00.png", "front"), ("f0000_v01.png", "side")]:
+        tiles.append(tile(crop_to_content(Image.open(renders / view)), f"avatar, {side}", height=360))
+    column([row(tiles)],
+           title="one person followed in a wide outdoor view (real video): mask and landmarks of the "
+                 "person followed, and the avatar the node made of them").save(target)
+
+
 if __name__ == "__main__":
     kind, out, target = sys.argv[1:4]
     {
@@ -204,4 +222,5 @@ if __name__ == "__main__":
         "people": people,
         "tracked": tracked,
         "real-tracked": real_tracked,
+        "one-person": one_person,
     }[kind](out, target)

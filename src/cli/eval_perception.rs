@@ -42,6 +42,10 @@ pub struct EvalPerceptionArgs {
     /// Views on the contact sheet.
     #[arg(long, default_value_t = 6)]
     picture_views: usize,
+    /// Which detector finds the person in each view: `movenet` (MoveNet MultiPose, the most
+    /// prominent person) or `blazepose` (BlazePose's own).
+    #[arg(long, value_enum, default_value_t = super::perceive::DetectorArg::Movenet)]
+    person_detector: super::perceive::DetectorArg,
 }
 
 const HEADER: &str = "| view | facing (°) | found | mask IoU | 2D limb err (px) | 2D err / box h | PCK@0.1 | 3D cam (mm) | 3D aligned (mm) | ms |\n| --- | ---: | :---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |";
@@ -104,7 +108,7 @@ pub fn run(args: EvalPerceptionArgs) -> Result<()> {
     let mut shapes = Vec::new();
     for bag in &args.bags {
         let scene = read_scene(bag).with_context(|| format!("reading {}", bag.display()))?;
-        let results = evaluate_scene(&scene, &networks, solver)
+        let results = evaluate_scene(&scene, &networks, solver, args.person_detector.into())
             .with_context(|| format!("evaluating {}", bag.display()))?;
         println!("\n### {}\n", bag.display());
         match scene.shape {

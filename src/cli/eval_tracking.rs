@@ -3,6 +3,7 @@
 //! in another person's store, ids per person). The measures are defined in
 //! `lhmpp::eval::tracking`. With `--no-truth`, bags without id maps (real video): each id's
 //! sightings per camera and how the cameras agree on where it stands (`lhmpp::eval::id_tracks`).
+//! With `--one-person`, the one-person mode instead (`super::eval_following`).
 
 use super::perceive_people::{number, COLOURS};
 use anyhow::{Context, Result};
@@ -26,7 +27,7 @@ use std::sync::Arc;
 pub struct EvalTrackingArgs {
     /// Bags made by `lhmpp synth --people N`.
     #[arg(required = true)]
-    bags: Vec<PathBuf>,
+    pub(super) bags: Vec<PathBuf>,
     /// Landmark model run on each person: `lite`, `full` or `heavy`.
     #[arg(long, default_value = "full")]
     model: String,
@@ -42,11 +43,11 @@ pub struct EvalTrackingArgs {
     max_floor_gap: f32,
     /// Short side of MoveNet's input (a multiple of 32; larger finds smaller people).
     #[arg(long, default_value_t = lhmpp::perception::multipose::NATIVE_SIDE)]
-    detector_side: usize,
+    pub(super) detector_side: usize,
     /// Write every image's overlay into this folder: each person's mask tinted by the id the
     /// tracker gave it, with the id, beside the true id map.
     #[arg(long)]
-    frames_dir: Option<PathBuf>,
+    pub(super) frames_dir: Option<PathBuf>,
     /// Print the table as JSON too.
     #[arg(long)]
     json: bool,
@@ -55,7 +56,28 @@ pub struct EvalTrackingArgs {
     /// sightings and the largest box jump between them, and per id how far apart the cameras
     /// put it on the floor at the same moment.
     #[arg(long)]
-    no_truth: bool,
+    pub(super) no_truth: bool,
+    /// The one-person mode instead of ids: each camera's frames through a one-person tracker
+    /// per `--person-detector`, found against visible by the height of the tallest person in
+    /// view, switches between people, time per frame (with `--no-truth`: finds and box jumps
+    /// per camera). `--frames-dir` gets the first detector's mask and landmarks per frame.
+    #[arg(long)]
+    pub(super) one_person: bool,
+    /// With `--one-person`: the detectors that find the person to follow, each run in turn.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "movenet,blazepose"
+    )]
+    pub(super) person_detector: Vec<super::perceive::DetectorArg>,
+    /// With `--one-person`: CPU threads of the networks (the node's `perception.threads`).
+    #[arg(long, default_value_t = 1)]
+    pub(super) threads: usize,
+    /// With `--one-person`: follow the crop the landmarks place wherever it goes, without
+    /// checking the person's looks (MediaPipe's tracking; for comparison).
+    #[arg(long)]
+    pub(super) no_looks: bool,
 }
 
 const HEADER: &str = "| bag | people | images | found | id switches / 100 images (all cameras) | within a camera | ids per person | wrong-person views | false detections | ms / image |\n| --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: |";
@@ -170,6 +192,9 @@ pub fn run(args: EvalTrackingArgs) -> Result<()> {
         max_floor_gap: args.max_floor_gap,
         ..TrackingConfig::default()
     };
+    if args.one_person {
+        return super::eval_following::run(&args, networks);
+    }
     if args.no_truth {
         return run_without_truth(&args, networks, &config);
     }

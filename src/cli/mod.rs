@@ -10,6 +10,7 @@ mod config_cmd;
 mod config_source;
 mod eval;
 mod eval_crowd;
+mod eval_following;
 mod eval_perception;
 mod eval_photos;
 mod eval_tracking;

@@ -10,7 +10,8 @@ use lhmpp::body::{BodyTemplate, Pose};
 use lhmpp::perception::overlay::draw_overlay;
 use lhmpp::perception::pose::{PoseEstimator, PoseEstimatorConfig};
 use lhmpp::perception::{
-    Landmark, LandmarkId, LandmarkModel, Perceived, PersonTracker, PoseNetworks, TrackerConfig,
+    Detected, Landmark, LandmarkId, LandmarkModel, PeopleConfig, Perceived, PersonDetector,
+    PersonTracker, PoseNetworks, TrackerConfig,
 };
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -44,13 +45,43 @@ pub struct PerceiveArgs {
     /// photos given in order are frames of one camera, so persons keep their ids across them.
     #[arg(long)]
     people: bool,
-    /// MoveNet person score a person needs (with `--people`).
+    /// MoveNet person score a person needs.
     #[arg(long, default_value_t = 0.2)]
     pub(super) min_score: f32,
-    /// Short side of MoveNet's input (with `--people`; a multiple of 32): larger finds people
-    /// who fill less of the photo, at a higher cost.
+    /// Short side of MoveNet's input (a multiple of 32): larger finds people who fill less of
+    /// the photo, at a higher cost.
     #[arg(long, default_value_t = lhmpp::perception::multipose::NATIVE_SIDE)]
     pub(super) detector_side: usize,
+    /// Without `--people`, which detector finds the person: `movenet` (MoveNet MultiPose, the
+    /// most prominent person) or `blazepose` (BlazePose's own, for a person filling much of
+    /// the photo).
+    #[arg(long, value_enum, default_value_t = DetectorArg::Movenet)]
+    pub(super) person_detector: DetectorArg,
+}
+
+/// `--person-detector` values (`lhmpp perceive`, `lhmpp eval-tracking --one-person`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DetectorArg {
+    /// MoveNet MultiPose, then the most prominent person.
+    Movenet,
+    /// BlazePose's own detector.
+    Blazepose,
+}
+
+impl DetectorArg {
+    /// The value as written.
+    pub fn name(self) -> &'static str {
+        PersonDetector::from(self).name()
+    }
+}
+
+impl From<DetectorArg> for PersonDetector {
+    fn from(d: DetectorArg) -> Self {
+        match d {
+            DetectorArg::Movenet => PersonDetector::MultiPose,
+            DetectorArg::Blazepose => PersonDetector::BlazePose,
+        }
+    }
 }
 
 /// Perceives every image; an image that cannot be read or shows nobody is reported and the
@@ -95,6 +126,12 @@ fn perceive_one(
         .to_rgb8();
     let config = TrackerConfig {
         smooth_masks: false,
+        detector: args.person_detector.into(),
+        people: PeopleConfig {
+            min_score: args.min_score,
+            detector_side: args.detector_side,
+            ..PeopleConfig::default()
+        },
         ..TrackerConfig::default()
     };
     let mut tracker = PersonTracker::new(networks.clone(), config);
@@ -170,11 +207,18 @@ fn perception_json(
         "height": image.height(),
         "person_found": true,
         "ms": ms,
-        "detection": p.detection.map(|d| json!({
-            "score": d.score,
-            "box_min": d.min.to_array(),
-            "box_max": d.max.to_array(),
-            "keypoints": d.keypoints.map(|k| k.to_array()),
+        "detection": p.detection.as_ref().map(|d| json!({
+            "detector": match d {
+                Detected::BlazePose(_) => "blazepose",
+                Detected::MultiPose(_) => "movenet",
+            },
+            "score": d.score(),
+            "box_min": d.bounds().min.to_array(),
+            "box_max": d.bounds().max.to_array(),
+            "keypoints": match d {
+                Detected::BlazePose(b) => b.keypoints.iter().map(|k| k.to_array()).collect::<Vec<_>>(),
+                Detected::MultiPose(m) => m.keypoints.iter().map(|k| k.position.to_array()).collect(),
+            },
         })),
         "presence": p.landmarks.presence,
         "roi": {

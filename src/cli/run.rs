@@ -78,13 +78,20 @@ pub fn run(args: RunArgs) -> Result<()> {
     if s.perceived > 0 || summary.perception_dropped > 0 {
         println!(
             "perception: frames {} (cropped by its mask {}, nobody found {}, dropped for newer \
-             {}), time per frame {}, camera poses {}",
+             {}), time per frame {}, camera poses {} (frame stamp → pose published {})",
             s.perceived,
             s.perception_masked,
             s.no_person,
             summary.perception_dropped,
             s.perception_times,
-            s.camera_poses
+            s.camera_poses,
+            s.pose_ages
+        );
+    }
+    if s.views_of_another > 0 {
+        println!(
+            "one person: {} views dropped when a camera took up someone else",
+            s.views_of_another
         );
     }
     if config.tracking.enabled {

@@ -273,6 +273,40 @@ impl LandmarkModelChoice {
     }
 }
 
+/// `perception.person_detector`: which detector finds the person a camera starts following
+/// (one person, `tracking.enabled` off).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PersonDetectorChoice {
+    /// MoveNet MultiPose (the several-people finder), then the person last followed or the
+    /// most prominent one.
+    #[default]
+    Movenet,
+    /// BlazePose's own detector (people filling much of the frame).
+    Blazepose,
+}
+
+impl Choice for PersonDetectorChoice {
+    const ALL: &'static [Self] = &[Self::Movenet, Self::Blazepose];
+    fn as_str(self) -> &'static str {
+        match self {
+            Self::Movenet => "movenet",
+            Self::Blazepose => "blazepose",
+        }
+    }
+}
+
+impl PersonDetectorChoice {
+    /// The detector this choice names.
+    pub fn detector(self) -> crate::perception::PersonDetector {
+        use crate::perception::PersonDetector;
+        match self {
+            Self::Movenet => PersonDetector::MultiPose,
+            Self::Blazepose => PersonDetector::BlazePose,
+        }
+    }
+}
+
 /// `model.device`: `cpu`, `cuda` (GPU 0) or `cuda:N`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(try_from = "String", into = "String")]

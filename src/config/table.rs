@@ -5,7 +5,8 @@
 use super::{
     Choice, ClusterConfig, ComputeDevice, Delight, Dtype, FrameQos, FrameStoreConfig, ImageQos,
     InputConfig, LandmarkModelChoice, ModelConfig, NodeConfig, OutputConfig, PerceptionConfig,
-    PersonMask, PoseSource, RefineSettings, RenderDevice, RendererChoice, TrackingSettings,
+    PersonDetectorChoice, PersonMask, PoseSource, RefineSettings, RenderDevice, RendererChoice,
+    TrackingSettings,
     RATE_RANGE,
 };
 use crate::model::LhmppConfig;
@@ -231,9 +232,20 @@ pub fn parameters() -> Vec<Parameter> {
             "the converted heavy landmark model (`assets/perception/README.md`)",
         ),
         p(
+            "perception.person_detector",
+            choice::<PersonDetectorChoice>(),
+            "which detector finds the person a camera starts following (one person; it runs \
+             only while nobody is followed, then the landmarks' crop follows them): `movenet` \
+             = MoveNet MultiPose at `perception.people_detector_side`, the person last \
+             followed where they were, else the most prominent (largest box, then nearest \
+             the centre); `blazepose` = BlazePose's own detector, for a person filling much \
+             of the frame",
+        ),
+        p(
             "perception.min_detection_score",
             float_in(&PerceptionConfig::UNIT),
-            "person-detector score that starts tracking a person",
+            "BlazePose detector score that starts tracking a person (`person_detector: \
+             blazepose`)",
         ),
         p(
             "perception.min_presence",
@@ -269,10 +281,11 @@ pub fn parameters() -> Vec<Parameter> {
                 PerceptionConfig::DETECTOR_SIDE.start(),
                 PerceptionConfig::DETECTOR_SIDE.end()
             ),
-            "short side of the several-people detector's input (MoveNet MultiPose, with \
-             `tracking.enabled`; the long side follows the frame's aspect): 256 finds people \
-             down to about a sixth of the frame's height, larger sides smaller people at a \
-             higher cost per frame (`assets/perception/README.md`)",
+            "short side of MoveNet MultiPose's input (every frame with `tracking.enabled`; \
+             one person: the frames in which nobody is followed; the long side follows the \
+             frame's aspect): 256 finds people down to about a sixth of the frame's height, \
+             larger sides smaller people at a higher cost per frame \
+             (`assets/perception/README.md`)",
         ),
         p(
             "perception.estimate_shape",

@@ -34,8 +34,8 @@ use crate::perception::pose::{
     SolverConfig,
 };
 use crate::perception::{
-    Landmark, LandmarkId, PerceptionError, PersonTracker, PoseNetworks, TrackerConfig,
-    BODY_LANDMARKS,
+    Landmark, LandmarkId, PerceptionError, PersonDetector, PersonTracker, PoseNetworks,
+    TrackerConfig, BODY_LANDMARKS,
 };
 use crate::reconstruct::image_decode::{decode_raw, RawImage};
 use crate::splat::Camera;
@@ -657,16 +657,18 @@ pub fn best_rotation(from: &[Vec3], to: &[Vec3]) -> Quat {
     Quat::from_xyzw(e.y as f32, e.z as f32, e.w as f32, e.x as f32).normalize()
 }
 
-/// Runs perception on every view of `scene` (a fresh tracker per image, mask smoothing off)
-/// and scores it; 3D joints are solved with `solver`.
+/// Runs perception on every view of `scene` (a fresh tracker per image, mask smoothing off,
+/// `detector` finding the person) and scores it; 3D joints are solved with `solver`.
 pub fn evaluate_scene(
     scene: &SyntheticScene,
     networks: &Arc<PoseNetworks>,
     solver: SolverConfig,
+    detector: PersonDetector,
 ) -> Result<Vec<ViewResult>, PerceptionEvalError> {
     let mut scorer = JointScorer::new(scene, solver)?;
     let tracker_config = TrackerConfig {
         smooth_masks: false,
+        detector,
         ..TrackerConfig::default()
     };
     let mut results = Vec::with_capacity(scene.views.len());

@@ -228,6 +228,18 @@ impl PersonViews {
         InsertOutcome::AddedEvicting { evicted }
     }
 
+    /// Removes the views that came from `camera`; the frame ids removed.
+    pub fn remove_camera(&mut self, camera: &str) -> Vec<u64> {
+        let (gone, kept): (Vec<View>, Vec<View>) = std::mem::take(&mut self.views)
+            .into_iter()
+            .partition(|v| v.camera == camera);
+        self.views = kept;
+        if !gone.is_empty() {
+            self.version += 1;
+        }
+        gone.into_iter().map(|v| v.frame_id).collect()
+    }
+
     /// A snapshot of the views.
     pub fn snapshot(&self) -> ViewSet {
         ViewSet {

@@ -15,10 +15,12 @@ use std::sync::Arc;
 
 use super::detection::ROI_SCALE;
 use super::landmarks::{PoseLandmarks, MIN_PRESENCE};
-use super::multipose::{Keypoint, MultiPoseDetector, KEYPOINTS, NATIVE_SIDE, SIDE_MULTIPLE};
+use super::multipose::{
+    Keypoint, MultiPoseDetector, PersonInstance, KEYPOINTS, NATIVE_SIDE, SIDE_MULTIPLE,
+};
+use super::pose_networks::PoseNetworks;
 use super::roi::RotatedRect;
 use super::segmentation::ProbabilityMap;
-use super::tracker::PoseNetworks;
 use super::PerceptionError;
 
 /// MoveNet keypoint indices the crop is placed from (COCO order).
@@ -168,23 +170,42 @@ impl PeopleFinder {
 
     /// MoveNet at the input size for a `width × height` frame (reloaded when it changes).
     fn detector(&mut self, width: u32, height: u32) -> Result<&MultiPoseDetector, PerceptionError> {
-        let size = self
-            .config
-            .input_size
-            .unwrap_or_else(|| input_size_for(width, height, self.config.detector_side));
+        let size = self.input_size(width, height);
         if self.detector.as_ref().map(|d| d.input_size()) != Some(size) {
             self.detector = Some(MultiPoseDetector::embedded_sized(size.0, size.1)?);
         }
         Ok(self.detector.as_ref().expect("set above"))
     }
 
+    /// MoveNet's input `(height, width)` for a `width × height` frame.
+    pub fn input_size(&self, width: u32, height: u32) -> (usize, usize) {
+        self.config
+            .input_size
+            .unwrap_or_else(|| input_size_for(width, height, self.config.detector_side))
+    }
+
+    /// What looks for people in a `width × height` frame, in words (for messages): MoveNet
+    /// and its input size.
+    pub fn searched_with(&self, width: u32, height: u32) -> String {
+        let (h, w) = self.input_size(width, height);
+        format!(
+            "MoveNet MultiPose at a {w}×{h} input (short side {})",
+            self.config.detector_side
+        )
+    }
+
+    /// MoveNet's people in `image` (score at least `min_score`), best first, before the
+    /// landmark model reads any of them.
+    pub fn instances(&mut self, image: &RgbImage) -> Result<Vec<PersonInstance>, PerceptionError> {
+        let min_score = self.config.min_score;
+        self.detector(image.width(), image.height())?
+            .detect(image, min_score)
+    }
+
     /// Every person in `image` (MoveNet score at least `min_score` and landmark presence at
     /// least `min_presence`), best MoveNet score first.
     pub fn find(&mut self, image: &RgbImage) -> Result<Vec<FoundPerson>, PerceptionError> {
-        let min_score = self.config.min_score;
-        let instances = self
-            .detector(image.width(), image.height())?
-            .detect(image, min_score)?;
+        let instances = self.instances(image)?;
         let mut found = Vec::new();
         for person in instances {
             let roi = person_roi(

@@ -75,6 +75,11 @@ impl ProbabilityMap {
         self.values[((y - self.y0) * (self.x1 - self.x0) + (x - self.x0)) as usize]
     }
 
+    /// The stored region `(x0, y0, x1, y1)`: columns `x0..x1`, rows `y0..y1` (0 outside).
+    pub fn region(&self) -> (u32, u32, u32, u32) {
+        (self.x0, self.y0, self.x1, self.y1)
+    }
+
     /// Blends towards `previous` where this map is uncertain (near 0.5): MediaPipe's
     /// polynomial for the binary entropy, weighted by `ratio` (0.7 in its pose graph). Outside
     /// this map's region it is a certain 0 and stays so. Maps of another size are ignored.

@@ -17,7 +17,9 @@ use crate::body::{BodyError, BodyTemplate, Pose};
 use crate::perception::detection::PersonDetection;
 use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig, PoseSolveError};
 use crate::perception::roi::RotatedRect;
-use crate::perception::{Perceived, PerceptionError, PersonTracker, PoseNetworks, TrackerConfig};
+use crate::perception::{
+    Detected, Perceived, PerceptionError, PersonTracker, PoseNetworks, TrackerConfig,
+};
 use crate::splat::{render, Camera, Gaussians, Intrinsics, RenderOptions, RenderOutput};
 use glam::{Vec2, Vec3};
 use image::{GrayImage, RgbImage};
@@ -173,7 +175,8 @@ pub fn perceive_person(
     Ok(Some(Perceived {
         landmarks,
         mask,
-        detection,
+        detection: detection.map(Detected::BlazePose),
+        someone_else: false,
     }))
 }
 

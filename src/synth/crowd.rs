@@ -66,6 +66,11 @@ pub struct CrowdOptions {
     /// Render only this person (`person_k`): the same scene (paths, cameras, lighting) with
     /// the others left out, the single-person reference of `lhmpp eval-crowd`.
     pub only: Option<usize>,
+    /// The cameras' distance from the middle of the room, metres (`None`: as near as keeps a
+    /// person at the near end of a path in view, about 3.8 m). Farther cameras see smaller
+    /// people: a 1.7 m person in the middle of the room is about a tenth of the frame high at
+    /// 17.6 m.
+    pub camera_distance: Option<f32>,
 }
 
 impl Default for CrowdOptions {
@@ -80,6 +85,7 @@ impl Default for CrowdOptions {
             height: 480,
             points: 30_000,
             only: None,
+            camera_distance: None,
         }
     }
 }
@@ -178,9 +184,9 @@ impl Crowd {
         let cameras = room_cameras(
             &mut rng,
             options.cameras,
-            options.width,
-            options.height,
+            (options.width, options.height),
             tallest,
+            options.camera_distance,
         );
         Ok(Self {
             people,
@@ -335,18 +341,18 @@ fn append(all: &mut Gaussians, more: Gaussians) {
 }
 
 /// `count` cameras on a circle around the room, at head height with seeded jitter, looking
-/// at the middle of the room, every path in view.
+/// at the middle of the room, every path in view: `distance` from the middle (`None`: far
+/// enough that a person at the near end of a path still fits vertically in view).
 fn room_cameras(
     rng: &mut ChaCha8Rng,
     count: usize,
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     body_height: f32,
+    distance: Option<f32>,
 ) -> Vec<RigCamera> {
     let intrinsics = Intrinsics::from_fov_y(width, height, FOV_Y);
     let target = Vec3::new(0.0, 0.5 * body_height, 0.0);
-    // Far enough that a person at the near end of a path still fits (vertically) in view.
-    let distance = PATH_HALF + 0.62 * body_height / (0.5 * FOV_Y).tan();
+    let distance = distance.unwrap_or_else(|| PATH_HALF + 0.62 * body_height / (0.5 * FOV_Y).tan());
     let start = rng.gen_range(0.0..std::f32::consts::TAU);
     (0..count)
         .map(|i| {

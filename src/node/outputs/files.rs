@@ -347,7 +347,6 @@ mod tests {
     use crate::splat::Gaussians;
     use crate::testing::bytes_under;
     use glam::{Quat, Vec3};
-    use std::sync::{Arc, Mutex};
 
     fn avatar() -> Avatar {
         let g = Gaussians::from_rgb(
@@ -365,38 +364,13 @@ mod tests {
         Avatar::new(g, skin, "test-body").unwrap()
     }
 
-    /// The log lines written while `f` runs, at warn level and above.
-    fn warnings(f: impl FnOnce()) -> String {
-        #[derive(Clone, Default)]
-        struct Buf(Arc<Mutex<Vec<u8>>>);
-        impl std::io::Write for Buf {
-            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-                self.0.lock().unwrap().extend_from_slice(b);
-                Ok(b.len())
-            }
-            fn flush(&mut self) -> std::io::Result<()> {
-                Ok(())
-            }
-        }
-        let buf = Buf::default();
-        let writer = buf.clone();
-        let subscriber = tracing_subscriber::fmt()
-            .with_max_level(tracing::Level::WARN)
-            .with_ansi(false)
-            .with_writer(move || writer.clone())
-            .finish();
-        tracing::subscriber::with_default(subscriber, f);
-        let text = buf.0.lock().unwrap().clone();
-        String::from_utf8(text).unwrap()
-    }
-
     #[test]
     fn latent_rgb_ply_export_warns_once_naming_the_checkpoint_kind() {
         let tmp = tempfile::tempdir().unwrap();
         let files = FileOutputs::new(tmp.path(), Retention::EVERYTHING)
             .unwrap()
             .with_latent_rgb("LHMPP-700M");
-        let log = warnings(|| {
+        let log = crate::testing::warnings_logged(|| {
             for revision in 1..=3 {
                 files.write_avatar("p", revision, &avatar()).unwrap();
             }
@@ -410,7 +384,7 @@ mod tests {
     fn display_ready_ply_export_is_silent() {
         let tmp = tempfile::tempdir().unwrap();
         let files = FileOutputs::new(tmp.path(), Retention::EVERYTHING).unwrap();
-        let log = warnings(|| {
+        let log = crate::testing::warnings_logged(|| {
             files.write_avatar("p", 1, &avatar()).unwrap();
         });
         assert_eq!(log, "");
@@ -606,7 +580,7 @@ mod tests {
     fn animation_frames_are_written_as_png_files_silently() {
         let tmp = tempfile::tempdir().unwrap();
         let files = FileOutputs::new(tmp.path(), Retention::EVERYTHING).unwrap();
-        let log = warnings(|| {
+        let log = crate::testing::warnings_logged(|| {
             let mut animation = files.animation().unwrap();
             assert!(animation.frame("p_cam0_000", &frame()));
             animation.finish();
@@ -623,7 +597,7 @@ mod tests {
         // `frames` becomes a regular file: no frame can be written under it.
         std::fs::remove_dir(tmp.path().join("frames")).unwrap();
         std::fs::write(tmp.path().join("frames"), b"x").unwrap();
-        let log = warnings(|| {
+        let log = crate::testing::warnings_logged(|| {
             let mut animation = files.animation().unwrap();
             for f in 0..3 {
                 assert!(!animation.frame(&format!("p_cam0_{f:03}"), &frame()));

@@ -70,6 +70,9 @@ impl Pipeline {
             let header = Header::new(Time::from_nanos(frame.stamp_ns), world_frame.as_str());
             self.outputs
                 .pose(&BodyPose::from_pose(header, person.to_owned(), &pose));
+            if let Some(age) = super::intake::live_age(frame.stamp_ns) {
+                self.stats.pose_ages.record(age);
+            }
         }
     }
 

@@ -90,7 +90,7 @@ impl Pipeline {
 
 /// How old a frame stamped `stamp_ns` (ns since the epoch) is by this machine's clock, if
 /// that is between 0 and 10 minutes (a live stream; replayed bags carry older stamps).
-fn live_age(stamp_ns: i64) -> Option<Duration> {
+pub(super) fn live_age(stamp_ns: i64) -> Option<Duration> {
     let age = u64::try_from(super::render::unix_now_ns().checked_sub(stamp_ns)?).ok()?;
     Some(Duration::from_nanos(age)).filter(|age| *age < Duration::from_secs(600))
 }

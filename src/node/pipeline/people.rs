@@ -85,6 +85,9 @@ impl Pipeline {
                 continue;
             }
             self.person_mut(&person);
+            if seen.someone_else {
+                self.someone_else_in(&frame.topic, &person, now);
+            }
             self.on_camera_landmarks(&person, &frame, &seen.world, now);
             self.on_calibrated_landmarks(&person, &frame, &seen.image, now);
             if to_store {
@@ -159,6 +162,23 @@ impl Pipeline {
             InsertOutcome::Replaced { replaced, .. } => self.network.forget(replaced),
             InsertOutcome::Added => {}
         }
+    }
+
+    /// `camera`'s tracker took up someone other than the person it followed (one person
+    /// followed): the views it gave `person` show the one before, and are dropped, so that the
+    /// next avatar is made of the new person's views.
+    fn someone_else_in(&mut self, camera: &str, person: &str, now: Duration) {
+        let dropped = self.person_mut(person).drop_camera(camera, now);
+        for frame_id in &dropped {
+            self.network.forget(*frame_id);
+        }
+        self.stats.views_of_another += dropped.len() as u64;
+        tracing::info!(
+            camera,
+            person,
+            views = dropped.len(),
+            "the camera follows someone else now: its views of the one before dropped"
+        );
     }
 
     /// `person`, made when first seen: with tracking, this node reconstructs them when

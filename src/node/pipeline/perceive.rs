@@ -3,14 +3,20 @@
 //! the newest wins, so perception never stalls the pipeline and its memory stays bounded).
 //!
 //! One person ([`Finders::One`]): each camera's frames go through its own [`PersonTracker`]
-//! (person mask, landmarks). Several people ([`Finders::Many`], `tracking.enabled`): every
-//! frame is split into persons by a [`PeopleFinder`] and one [`PersonTracks`] over all cameras
-//! gives each a stable id (using where they stand when the camera is calibrated).
+//! (person mask, landmarks; MoveNet MultiPose finds the person to follow unless
+//! `perception.person_detector` says BlazePose). Several people ([`Finders::Many`],
+//! `tracking.enabled`): every frame is split into persons by a [`PeopleFinder`] and one
+//! [`PersonTracks`] over all cameras gives each a stable id (using where they stand when the
+//! camera is calibrated).
+//!
+//! A camera in which nobody is found for `perception::nobody::NOBODY_SECONDS` of frames is
+//! named in one warning that says what looked for people and what to try.
 
 use crate::node::inputs::CameraFrame;
+use crate::perception::nobody::{NobodyStretch, NobodyWatch};
 use crate::perception::{
-    Landmark, PeopleConfig, PeopleFinder, PersonTracker, PoseNetworks, TrackerConfig,
-    BODY_LANDMARKS,
+    Landmark, PeopleConfig, PeopleFinder, PersonDetector, PersonTracker, PoseNetworks,
+    TrackerConfig, BODY_LANDMARKS,
 };
 use crate::tracking::{BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats};
 use image::GrayImage;
@@ -45,6 +51,9 @@ pub struct PersonSeen {
     /// The largest share of the person's box another person's box covers in this frame (0
     /// when one person is followed): such views mix people's pixels.
     pub hidden: f32,
+    /// One person: the camera's tracker took up someone unlike the person it followed before
+    /// ([`crate::perception::Perceived::someone_else`]); always `false` with several people.
+    pub someone_else: bool,
 }
 
 /// What perception made of one frame.
@@ -114,6 +123,47 @@ impl Finders {
             Self::Many { tracks, .. } => Some(tracks.stats()),
         }
     }
+
+    /// What looks for people in `topic`'s `width × height` frames, in words.
+    fn searched_with(&self, topic: &str, width: u32, height: u32) -> String {
+        match self {
+            Self::One { trackers, .. } => trackers
+                .get(topic)
+                .map(|t| t.searched_with(width, height))
+                .unwrap_or_default(),
+            Self::Many { finder, .. } => finder.searched_with(width, height),
+        }
+    }
+}
+
+/// The warning for `topic`, in which nobody was found over `stretch`; `searched` says what
+/// looked for people, `detector` which one-person detector ran (`None`: several people).
+pub fn nobody_found_warning(
+    topic: &str,
+    stretch: NobodyStretch,
+    searched: &str,
+    detector: Option<PersonDetector>,
+) -> String {
+    let mut tips = vec![
+        "people who stand far from the camera (under about a sixth of the frame's height) \
+         need a larger perception.people_detector_side (384 or 512: more time per search)"
+            .to_owned(),
+    ];
+    if detector == Some(PersonDetector::BlazePose) {
+        tips.insert(
+            0,
+            "perception.person_detector: movenet finds people who fill little of the frame"
+                .to_owned(),
+        );
+    }
+    tips.push("more light on the people, or a camera nearer to where they stand".to_owned());
+    format!(
+        "camera {topic}: nobody found in {} frames over {:.1} s. Looked with {searched}, then \
+         BlazePose's landmark model on the person's crop. Try: {}",
+        stretch.frames,
+        stretch.seconds,
+        tips.join("; ")
+    )
 }
 
 /// The finders and what they run on.
@@ -122,10 +172,38 @@ struct CameraTrackers {
     finders: Finders,
     masks: MaskSettings,
     pool: rayon::ThreadPool,
+    /// Cameras watched for frames in which nobody is found, by topic.
+    nobody: HashMap<String, NobodyWatch>,
+    /// The warnings given (one per camera at most).
+    warnings: Vec<String>,
 }
 
 impl CameraTrackers {
     fn perceive(&mut self, job: Submitted) -> PerceivedFrame {
+        let done = self.find(job);
+        self.watch(&done);
+        done
+    }
+
+    /// Logs the one warning for a camera in which nobody has been found for long enough.
+    fn watch(&mut self, done: &PerceivedFrame) {
+        let frame = &done.frame;
+        let watch = self.nobody.entry(frame.topic.clone()).or_default();
+        let Some(stretch) = watch.observe(!done.people.is_empty(), seconds(frame)) else {
+            return;
+        };
+        let (w, h) = frame.image.dimensions();
+        let detector = match &self.finders {
+            Finders::One { config, .. } => Some(config.detector),
+            Finders::Many { .. } => None,
+        };
+        let searched = self.finders.searched_with(&frame.topic, w, h);
+        let warning = nobody_found_warning(&frame.topic, stretch, &searched, detector);
+        tracing::warn!("{warning}");
+        self.warnings.push(warning);
+    }
+
+    fn find(&mut self, job: Submitted) -> PerceivedFrame {
         let started = Instant::now();
         let Submitted { frame, camera } = job;
         let people = match &mut self.finders {
@@ -133,7 +211,10 @@ impl CameraTrackers {
                 let tracker = trackers
                     .entry(frame.topic.clone())
                     .or_insert_with(|| PersonTracker::new(self.networks.clone(), *config));
-                match self.pool.install(|| tracker.perceive(&frame.image)) {
+                match self
+                    .pool
+                    .install(|| tracker.perceive_at(&frame.image, seconds(&frame)))
+                {
                     Ok(found) => found
                         .map(|p| PersonSeen {
                             mask: Arc::new(
@@ -143,6 +224,7 @@ impl CameraTrackers {
                             image: p.landmarks.image,
                             id: None,
                             hidden: 0.0,
+                            someone_else: p.someone_else,
                         })
                         .into_iter()
                         .collect(),
@@ -163,12 +245,7 @@ impl CameraTrackers {
                                 Detection::seen(&frame.image, &p.mask, bbox, camera.as_ref())
                             })
                             .collect();
-                        let stamp = if frame.stamp_ns > 0 {
-                            frame.stamp_ns as f64 * 1e-9
-                        } else {
-                            frame.arrival.as_secs_f64()
-                        };
-                        let ids = tracks.update(&frame.topic, stamp, &detections);
+                        let ids = tracks.update(&frame.topic, seconds(&frame), &detections);
                         found
                             .into_iter()
                             .zip(ids)
@@ -178,6 +255,7 @@ impl CameraTrackers {
                                 image: p.landmarks.image,
                                 hidden: a.hidden,
                                 id: Some(a.person_id),
+                                someone_else: false,
                             })
                             .collect()
                     }
@@ -203,6 +281,15 @@ impl CameraTrackers {
     }
 }
 
+/// A frame's time in seconds: its stamp, else its arrival.
+fn seconds(frame: &CameraFrame) -> f64 {
+    if frame.stamp_ns > 0 {
+        frame.stamp_ns as f64 * 1e-9
+    } else {
+        frame.arrival.as_secs_f64()
+    }
+}
+
 /// Frames waiting for the worker and results waiting for the pipeline.
 #[derive(Default)]
 struct Exchange {
@@ -210,6 +297,8 @@ struct Exchange {
     pending: BTreeMap<String, Submitted>,
     /// The tracker's counters after the last frame (several people only).
     tracking: Option<TrackingStats>,
+    /// The nobody-found warnings given so far.
+    warnings: Vec<String>,
     results: VecDeque<PerceivedFrame>,
     /// Pending frames replaced by a newer one of their camera.
     replaced: u64,
@@ -258,6 +347,9 @@ impl Worker {
                     let mut x = lock.lock().expect("perception exchange poisoned");
                     x.working = false;
                     x.tracking = trackers.finders.tracking_stats();
+                    if x.warnings.len() != trackers.warnings.len() {
+                        x.warnings.clone_from(&trackers.warnings);
+                    }
                     x.results.push_back(done);
                     while x.results.len() > RESULTS_KEPT {
                         x.results.pop_front();
@@ -324,6 +416,8 @@ impl Perception {
             finders,
             masks,
             pool,
+            nobody: HashMap::new(),
+            warnings: Vec::new(),
         };
         let runner = if live {
             Runner::Worker(Worker::start(trackers))
@@ -383,6 +477,15 @@ impl Perception {
         }
     }
 
+    /// The warnings given for cameras in which nobody was found for
+    /// `perception::nobody::NOBODY_SECONDS` of frames (one per camera at most).
+    pub fn nobody_warnings(&self) -> Vec<String> {
+        match &self.runner {
+            Runner::Inline { trackers, .. } => trackers.warnings.clone(),
+            Runner::Worker(worker) => worker.exchange().warnings.clone(),
+        }
+    }
+
     /// Frames dropped unperceived: replaced by a newer frame of their camera, or results the
     /// pipeline did not take in time.
     pub fn dropped(&self) -> u64 {
@@ -393,5 +496,98 @@ impl Perception {
                 x.replaced + x.overflowed
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::perception::LandmarkModel;
+    use image::RgbImage;
+
+    /// `count` frames of an empty grey room on `topic`, `period_s` apart.
+    fn empty_frames(topic: &str, count: usize, period_s: f64) -> Vec<CameraFrame> {
+        let image = Arc::new(RgbImage::from_fn(320, 240, |x, y| {
+            image::Rgb([90 + (x % 7) as u8, 95 + (y % 5) as u8, 100])
+        }));
+        (0..count)
+            .map(|i| CameraFrame {
+                topic: topic.into(),
+                frame_id: "cam_optical".into(),
+                stamp_ns: 1_700_000_000_000_000_000 + (i as f64 * period_s * 1e9) as i64,
+                arrival: Duration::from_secs_f64(i as f64 * period_s),
+                image: image.clone(),
+            })
+            .collect()
+    }
+
+    fn perception(finders: impl FnOnce(Arc<PoseNetworks>) -> Finders) -> Perception {
+        let networks = Arc::new(PoseNetworks::load(LandmarkModel::Lite, None).unwrap());
+        let masks = MaskSettings {
+            threshold: 0.5,
+            feather: 0.1,
+        };
+        Perception::new(networks.clone(), finders(networks), masks, 1, false)
+    }
+
+    #[test]
+    fn a_camera_that_sees_nobody_for_seconds_gets_one_warning_saying_what_to_try() {
+        let mut stage = perception(|_| Finders::one(TrackerConfig::default()));
+        let log = crate::testing::warnings_logged(|| {
+            // 2 Hz for 10 s on one camera, 3 frames on another: only the first is named.
+            for frame in empty_frames("/cam0/image_raw", 20, 0.5)
+                .into_iter()
+                .chain(empty_frames("/cam1/image_raw", 3, 0.5))
+            {
+                stage.submit(frame, None);
+                let done = stage.take_results();
+                assert!(done.iter().all(|d| d.people.is_empty()));
+            }
+        });
+        assert_eq!(log.matches(" WARN ").count(), 1, "{log}");
+        let warnings = stage.nobody_warnings();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        let w = &warnings[0];
+        assert!(log.contains(w.as_str()), "{log}");
+        for needed in [
+            "camera /cam0/image_raw",
+            "11 frames over 5.0 s",
+            "MoveNet MultiPose at a 352×256 input (short side 256)",
+            "perception.people_detector_side",
+            "light",
+        ] {
+            assert!(w.contains(needed), "`{needed}` missing from: {w}");
+        }
+        assert!(!w.contains("perception.person_detector"), "{w}");
+    }
+
+    #[test]
+    fn with_blazepose_the_warning_points_at_movenet() {
+        let config = TrackerConfig {
+            detector: PersonDetector::BlazePose,
+            ..TrackerConfig::default()
+        };
+        let mut stage = perception(|_| Finders::one(config));
+        // Logged under a subscriber too: a callsite first reached without one could be cached
+        // as never interesting for the other test.
+        let log = crate::testing::warnings_logged(|| {
+            for frame in empty_frames("/cam0/image_raw", 12, 0.5) {
+                stage.submit(frame, None);
+                stage.take_results();
+            }
+        });
+        assert_eq!(log.matches(" WARN ").count(), 1, "{log}");
+        let warnings = stage.nobody_warnings();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0].contains("BlazePose's person detector at a 224×224 input"),
+            "{}",
+            warnings[0]
+        );
+        assert!(
+            warnings[0].contains("perception.person_detector: movenet"),
+            "{}",
+            warnings[0]
+        );
     }
 }

@@ -18,7 +18,7 @@ use crate::node::rejections::Rejections;
 use crate::node::scheduler::SchedulerConfig;
 use crate::perception::pose::{PoseEstimator, PoseEstimatorConfig};
 use crate::perception::shape::ShapeReader;
-use crate::perception::{PerceptionError, TrackerConfig};
+use crate::perception::PerceptionError;
 use crate::reconstruct::preprocess::PreprocessConfig;
 use crate::reconstruct::{ReconstructError, Reconstructor};
 use std::collections::BTreeMap;
@@ -251,11 +251,7 @@ fn perception_stage(config: &NodeConfig) -> Result<Option<Perception>, Perceptio
         );
         Finders::many(networks.clone(), p.people(), config.tracking.tracker())
     } else {
-        Finders::one(TrackerConfig {
-            min_detection_score: p.min_detection_score,
-            min_presence: p.min_presence,
-            smooth_masks: live,
-        })
+        Finders::one(p.tracker(live))
     };
     Ok(Some(Perception::new(
         networks,

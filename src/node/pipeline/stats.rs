@@ -60,6 +60,11 @@ pub struct PipelineStats {
     pub perception_times: Timings,
     /// Poses read from the cameras.
     pub camera_poses: u64,
+    /// A camera frame's stamp → the pose read from it published, for stamps of the last 10
+    /// minutes by this machine's clock (live streams).
+    pub pose_ages: Timings,
+    /// Views dropped because their camera took up someone else (one person followed).
+    pub views_of_another: u64,
     /// Persons the pipeline started following (1 without tracking once a frame arrived).
     pub persons_started: u64,
     /// Tracked persons let go (the tracker forgot or dropped them), with their views.

@@ -8,6 +8,8 @@ mod jobs;
 mod pose;
 mod refinement;
 mod shape;
+#[cfg(test)]
+mod tests;
 
 pub use jobs::{PersonJob, Reconstruction};
 pub use pose::PosePath;
@@ -147,6 +149,20 @@ impl Person {
                 .view_set_changed(self.input_version(), arrival, now);
         }
         outcome
+    }
+
+    /// Drops the views `camera` gave: it follows someone else now. Their reconstruction reruns
+    /// on the views left, if any (when this node reconstructs them); the avatar made so far
+    /// stays until then. The frame ids dropped.
+    pub fn drop_camera(&mut self, camera: &str, now: Duration) -> Vec<u64> {
+        let dropped = self.views.remove_camera(camera);
+        if !dropped.is_empty() && self.owned {
+            if let Some(arrival) = self.views.snapshot().last_arrival() {
+                self.schedule
+                    .view_set_changed(self.input_version(), arrival, now);
+            }
+        }
+        dropped
     }
 
     /// Uses `shape` from their next reconstruction on; a change reruns it (when views are held
