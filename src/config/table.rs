@@ -468,9 +468,10 @@ pub fn parameters() -> Vec<Parameter> {
         p(
             "refine.enabled",
             boolean(),
-            "fit each avatar to the views it holds after each network reconstruction (in the \
-             background, one person at a time; a new view restarts the fit from the new \
-             network output); each improvement is published as a new revision",
+            "fit each avatar to the calibrated views perception saw it in (camera info, tf \
+             and a pose) after each network reconstruction, on the jobs lane, stopped by any \
+             new view or job; a replay refines once at its end; an avatar that beats the \
+             network's on a held-out view is published as a new revision",
         ),
         p(
             "refine.budget_ms",
