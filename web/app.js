@@ -15,6 +15,7 @@ const params = new URLSearchParams(location.search);
 const SH_C0 = 0.28209479177387814;
 const COLOR_SCALE = 0.15;
 
+let socket = null; // the WebSocket to the node
 const persons = new Map(); // id -> { mesh, skinning, skeleton, header, status, pose, poseAt, el }
 window.lhmppState = { frames: 0, persons: {} };
 const latency = params.get("latency") === "1";
@@ -73,6 +74,8 @@ renderer.setAnimationLoop(() => {
   controls.update();
   renderer.render(scene, camera);
   if (latency) noteDraws();
+  // Asks the node for the poses that came since (it sends only each person's newest).
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send("drawn");
   const state = window.lhmppState;
   state.frames += 1;
   for (const [id, p] of persons) {
@@ -314,6 +317,7 @@ function connect() {
   const token = params.get("token");
   const url = `${scheme}://${location.host}/ws${token ? `?token=${encodeURIComponent(token)}` : ""}`;
   const ws = new WebSocket(url);
+  socket = ws;
   ws.binaryType = "arraybuffer";
   ws.onopen = () => { link.textContent = `live: ${location.host}`; };
   ws.onclose = () => { link.textContent = "disconnected; retrying…"; setTimeout(connect, 1000); };

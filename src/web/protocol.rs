@@ -9,6 +9,9 @@
 //!   joint, as `lhmpp_msgs/BodyPose`).
 //! - A status is a JSON text frame: `{"type":"status","person","revision","views_held",
 //!   "state","message","latency_ms"}`.
+//!
+//! The page sends `drawn` (a text frame) after each frame it draws; poses are sent to it only
+//! after that, each person's newest (avatars and statuses go as they come).
 
 use crate::msgs::{BodyPose, ReconstructionStatus};
 use serde::Serialize;

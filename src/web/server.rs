@@ -192,6 +192,9 @@ async fn websocket(
     upgrade.on_upgrade(move |socket| serve_page(socket, state))
 }
 
+/// What the page sends after each frame it draws: it may be sent newer poses.
+const DRAWN: &str = "drawn";
+
 async fn send(socket: &mut WebSocket, payload: Payload) -> Result<(), axum::Error> {
     let message = match payload {
         Payload::Text(t) => Message::Text(t.as_ref().into()),
@@ -200,17 +203,37 @@ async fn send(socket: &mut WebSocket, payload: Payload) -> Result<(), axum::Erro
     socket.send(message).await
 }
 
-/// Sends the latest state, then every update, until the page goes away; a page that falls
-/// behind is sent the latest state again.
+/// Sends the latest state, then every avatar and status, until the page goes away; a page that
+/// falls behind is sent the latest state again. Poses go as the page asks for them: after it
+/// draws a frame it sends `drawn`, and is then sent each person's newest pose that it has not
+/// had (so a page that draws slower than poses arrive shows the newest, never a backlog).
 async fn serve_page(mut socket: WebSocket, state: Arc<LiveState>) {
     let mut updates = state.subscribe();
+    let mut poses = state.watch_poses();
+    let mut poses_sent = *poses.borrow_and_update();
     for p in state.snapshot() {
         if send(&mut socket, p).await.is_err() {
             return;
         }
     }
+    // The page may be sent poses (it drew a frame since the last ones).
+    let mut asked = true;
     loop {
         tokio::select! {
+            changed = poses.changed(), if asked => {
+                if changed.is_err() {
+                    return;
+                }
+                poses.borrow_and_update();
+                let (newest, at) = state.poses_after(poses_sent);
+                poses_sent = at;
+                asked = false;
+                for p in newest {
+                    if send(&mut socket, p).await.is_err() {
+                        return;
+                    }
+                }
+            }
             update = updates.recv() => match update {
                 Ok(p) => {
                     if send(&mut socket, p).await.is_err() {
@@ -228,6 +251,7 @@ async fn serve_page(mut socket: WebSocket, state: Arc<LiveState>) {
             },
             incoming = socket.recv() => match incoming {
                 None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return,
+                Some(Ok(Message::Text(t))) if t.as_str() == DRAWN => asked = true,
                 Some(Ok(_)) => {}
             },
         }

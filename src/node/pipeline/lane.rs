@@ -6,9 +6,9 @@
 //! - **inline** (bag replay, tests): a task runs at once on the caller's thread, so a replay
 //!   gives the same avatars as ever, whatever the machine's speed;
 //! - **on a thread of its own** (live): the caller never waits for a task. The lane's thread and
-//!   the CPU threads its tasks use ([`Background`]: one rayon pool, as many threads as cores,
-//!   shared by every lane) run at a lower priority than the pipeline's thread and perception,
-//!   so on a busy machine the pose path goes first.
+//!   the CPU threads its tasks use (a [`Background`] rayon pool of its own) run at a lower
+//!   priority than the pipeline's thread and perception, so on a busy machine the pose path
+//!   goes first.
 //!
 //! Bounded: at most `capacity` tasks wait (a task offered beyond is handed back to the caller),
 //! and every task sends back one result.
@@ -18,33 +18,44 @@ use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-/// How much lower the background threads' priority is than the thread that starts them (Linux
-/// niceness, capped at 19, the lowest).
-const BACKGROUND_NICENESS: i32 = 10;
+/// How much lower the reconstructions' threads' priority is than the thread that starts them
+/// (Linux niceness, capped at 19, the lowest).
+pub const JOBS_NICENESS: i32 = 10;
+/// The same for drawing frames: short work that users see, between the pose path and the
+/// reconstructions.
+pub const DRAWING_NICENESS: i32 = 5;
 
 /// A task of a lane.
 type Task<R> = Box<dyn FnOnce() -> R + Send>;
 
-/// The CPU threads background work computes on: a rayon pool of its own, one thread per core,
-/// at background priority. The network and the rasteriser use rayon, so a task run inside
-/// [`Background::install`] computes on these threads, not on the global pool.
+/// The CPU threads background work computes on: a rayon pool of its own at a lower priority.
+/// The network and the rasteriser use rayon, so a task run inside [`Background::install`]
+/// computes on these threads, not on the global pool (nor on another lane's: frames are not
+/// drawn behind a reconstruction's work).
 #[derive(Clone)]
 pub struct Background {
     pool: Arc<rayon::ThreadPool>,
+    niceness: i32,
 }
 
 impl Background {
-    /// A pool of one thread per core (`lhmpp-background-<i>`), each at background priority.
-    pub fn new() -> Self {
-        let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    /// A pool of `threads` threads (`lhmpp-<name>-<i>`; 0: one per core), each `niceness`
+    /// lower in priority than the caller.
+    pub fn new(name: &str, threads: usize, niceness: i32) -> Self {
+        let threads = match threads {
+            0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+            n => n,
+        };
+        let name = name.to_owned();
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
-            .thread_name(|i| format!("lhmpp-background-{i}"))
-            .start_handler(|_| lower_this_threads_priority())
+            .thread_name(move |i| format!("lhmpp-{name}-{i}"))
+            .start_handler(move |_| lower_this_threads_priority(niceness))
             .build()
-            .expect("building the background thread pool");
+            .expect("building a background thread pool");
         Self {
             pool: Arc::new(pool),
+            niceness,
         }
     }
 
@@ -54,9 +65,9 @@ impl Background {
     }
 }
 
-/// Lowers the calling thread's CPU priority by [`BACKGROUND_NICENESS`] (Linux: niceness is per
-/// thread, and a new thread starts with its creator's; elsewhere nothing changes).
-pub fn lower_this_threads_priority() {
+/// Lowers the calling thread's CPU priority by `niceness` (Linux: niceness is per thread, and a
+/// new thread starts with its creator's; elsewhere nothing changes).
+pub fn lower_this_threads_priority(niceness: i32) {
     #[cfg(target_os = "linux")]
     {
         // SAFETY: gettid, getpriority and setpriority only read their arguments; raising
@@ -64,7 +75,7 @@ pub fn lower_this_threads_priority() {
         let done = unsafe {
             let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
             let now = libc::getpriority(libc::PRIO_PROCESS, tid);
-            libc::setpriority(libc::PRIO_PROCESS, tid, (now + BACKGROUND_NICENESS).min(19))
+            libc::setpriority(libc::PRIO_PROCESS, tid, (now + niceness).min(19))
         };
         if done != 0 {
             tracing::debug!(
@@ -108,7 +119,7 @@ impl<R: Send + 'static> Lane<R> {
         }
     }
 
-    /// A lane with a thread of its own, `name`, at background priority, computing on
+    /// A lane with a thread of its own, `name`, at `background`'s priority, computing on
     /// `background`; at most `capacity` tasks wait.
     pub fn thread(name: &str, capacity: usize, background: Background) -> Self {
         let (tasks, queue) = mpsc::sync_channel::<Task<R>>(capacity.max(1));
@@ -116,7 +127,7 @@ impl<R: Send + 'static> Lane<R> {
         let thread = std::thread::Builder::new()
             .name(name.to_owned())
             .spawn(move || {
-                lower_this_threads_priority();
+                lower_this_threads_priority(background.niceness);
                 // Ends when the lane is dropped (its sender with it).
                 while let Ok(task) = queue.recv() {
                     if done.send(background.install(task)).is_err() {
@@ -216,7 +227,7 @@ mod tests {
     #[test]
     fn a_threaded_lane_runs_beside_the_caller_in_order_and_stays_bounded() {
         let release = Arc::new(AtomicBool::new(false));
-        let mut lane = Lane::thread("test-lane", 1, Background::new());
+        let mut lane = Lane::thread("test-lane", 1, Background::new("test", 0, JOBS_NICENESS));
         assert!(lane.threaded());
         let r = release.clone();
         let submitted = Instant::now();
@@ -263,7 +274,7 @@ mod tests {
             )
         };
         let mine = niceness();
-        let mut lane = Lane::thread("test-nice", 1, Background::new());
+        let mut lane = Lane::thread("test-nice", 1, Background::new("test", 0, JOBS_NICENESS));
         lane.submit(niceness).ok().unwrap();
         let deadline = Instant::now() + Duration::from_secs(10);
         let pool_thread = loop {
@@ -275,7 +286,7 @@ mod tests {
         };
         assert_eq!(
             pool_thread,
-            (mine + BACKGROUND_NICENESS).min(19),
+            (mine + JOBS_NICENESS).min(19),
             "the background pool's niceness (the caller's: {mine})"
         );
     }

@@ -170,17 +170,29 @@ impl Pipeline {
     }
 
     /// Runs reconstructions and the rendering of frames on threads of their own from now on,
-    /// at a lower priority than the pose path, computing on a pool of their own (one thread
-    /// per core): the live node calls this once, before any input. Without it (bag replay,
+    /// at a lower priority than the pose path (reconstructions niceness +10 on a pool of one
+    /// thread per core, frames +5 on one thread, or one per core for the neural renderer): the live node calls this once, before any
+    /// input. Without it (bag replay,
     /// tests) they run inline, on the caller's thread.
     pub fn work_beside(&mut self) {
         if self.jobs.threaded() {
             return;
         }
-        let background = Background::new();
         // Nothing is in flight before the first input: the inline lanes are empty.
-        self.jobs = Lane::thread("lhmpp-jobs", jobs::JOBS_WAITING, background.clone());
-        self.drawing = Lane::thread("lhmpp-drawing", DRAWINGS_WAITING, background);
+        self.jobs = Lane::thread(
+            "lhmpp-jobs",
+            jobs::JOBS_WAITING,
+            Background::new("jobs", 0, lane::JOBS_NICENESS),
+        );
+        // Frames are drawn on a pool of their own, never behind a reconstruction's work, above
+        // it in priority and below the pose path: one thread splats them (milliseconds each),
+        // one per core runs the neural renderer.
+        let drawing_threads = if self.neural_frames { 0 } else { 1 };
+        self.drawing = Lane::thread(
+            "lhmpp-drawing",
+            DRAWINGS_WAITING,
+            Background::new("drawing", drawing_threads, lane::DRAWING_NICENESS),
+        );
     }
 
     /// Sets the camera topics (resolved) that have their own mask topic: their frames wait up
