@@ -6,8 +6,7 @@ use super::{
     Choice, ClusterConfig, ComputeDevice, Delight, Dtype, FrameQos, FrameStoreConfig, ImageQos,
     InputConfig, LandmarkModelChoice, ModelConfig, NodeConfig, OutputConfig, PerceptionConfig,
     PersonDetectorChoice, PersonMask, PoseSource, RefineSettings, RenderDevice, RendererChoice,
-    TrackingSettings,
-    RATE_RANGE,
+    TrackingSettings, RATE_RANGE,
 };
 use crate::model::LhmppConfig;
 use std::fmt::Display;

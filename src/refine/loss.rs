@@ -154,21 +154,22 @@ mod tests {
         let (mut gr, mut ga) = (Vec::new(), Vec::new());
         view_loss(&v, &out, 0.7, Some((&mut gr, &mut ga)));
         let h = 1e-3;
-        for k in 0..6 {
+        assert_eq!((gr.len(), ga.len()), (6, 2));
+        for (k, g) in gr.iter().enumerate() {
             let (mut a, mut b) = (out.clone(), out.clone());
             a.rgb[k] += h;
             b.rgb[k] -= h;
             let n = (view_loss(&v, &a, 0.7, None).total() - view_loss(&v, &b, 0.7, None).total())
                 / (2.0 * h);
-            assert!((n - gr[k]).abs() < 1e-3, "rgb {k}: {n} vs {}", gr[k]);
+            assert!((n - g).abs() < 1e-3, "rgb {k}: {n} vs {g}");
         }
-        for k in 0..2 {
+        for (k, g) in ga.iter().enumerate() {
             let (mut a, mut b) = (out.clone(), out.clone());
             a.alpha[k] += h;
             b.alpha[k] -= h;
             let n = (view_loss(&v, &a, 0.7, None).total() - view_loss(&v, &b, 0.7, None).total())
                 / (2.0 * h);
-            assert!((n - ga[k]).abs() < 1e-3, "alpha {k}: {n} vs {}", ga[k]);
+            assert!((n - g).abs() < 1e-3, "alpha {k}: {n} vs {g}");
         }
     }
 }

@@ -57,8 +57,7 @@ pub(crate) fn accumulate(
     posed: &GaussianGrads,
     grads: &mut ParamGrads,
 ) {
-    for i in 0..params.len() {
-        let (a, r) = &transforms[i];
+    for (i, (a, r)) in transforms.iter().enumerate().take(params.len()) {
         let d_x = posed.positions[i];
         let d_q = posed.rotations[i];
         if d_x == Vec3::ZERO && d_q == Vec4::ZERO && posed.opacities[i] == 0.0 {

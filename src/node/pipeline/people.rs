@@ -153,7 +153,8 @@ impl Pipeline {
         let outcome = self.person_mut(person).add_view(view, now);
         if outcome.changed() {
             // A fit in flight stops: a new network avatar is due.
-            self.refine_news.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.refine_news
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         }
         match outcome {
             InsertOutcome::Dropped { .. } => self.stats.duplicates += 1,

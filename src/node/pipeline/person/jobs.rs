@@ -27,8 +27,11 @@ pub trait PersonJob: Send + 'static {
     fn job(&self) -> &Job;
     /// Makes the avatar on `recon` (the shared network, held by this job while it runs); with
     /// `colours`, recolours it from the views (`perception.colours_from_views`).
-    fn run(&self, recon: &mut Reconstructor, colours: Option<Delight>)
-        -> Result<Made, ReconstructError>;
+    fn run(
+        &self,
+        recon: &mut Reconstructor,
+        colours: Option<Delight>,
+    ) -> Result<Made, ReconstructError>;
     /// The views it reads.
     fn views(&self) -> &ViewSet;
     /// The revision its refinement publishes under, when the avatar is to be refined against

@@ -52,7 +52,7 @@ fn a_camera_that_takes_up_someone_else_loses_its_views_and_the_rest_are_rebuilt(
     let (_, job) = p
         .poll("p", Duration::from_secs(2))
         .expect("a job after the debounce");
-    let first = p.start(job.clone()).expect("views held");
+    let first = p.start(job.clone(), false).expect("views held");
     assert_eq!(first.views.views.len(), 4);
     p.failed(&job);
 
@@ -64,7 +64,7 @@ fn a_camera_that_takes_up_someone_else_loses_its_views_and_the_rest_are_rebuilt(
     let (_, job) = p
         .poll("p", Duration::from_secs(5))
         .expect("the view set changed: a job");
-    let next = p.start(job).expect("views held");
+    let next = p.start(job, false).expect("views held");
     let cameras: Vec<&str> = next.views.views.iter().map(|v| v.camera.as_str()).collect();
     assert_eq!(cameras, ["/cam1", "/cam1"]);
 }
@@ -82,13 +82,13 @@ fn when_only_that_camera_gave_views_the_store_is_empty_until_the_new_persons_com
     assert_eq!(p.views_held(), 0);
     // A job due for the views before finds none: it fails, nothing is made of them.
     if let Some((_, job)) = p.poll("p", Duration::from_secs(2)) {
-        assert!(p.start(job).is_none());
+        assert!(p.start(job, false).is_none());
     }
     p.add_view(view(4, "/cam0"), Duration::from_secs(3));
     let (_, job) = p
         .poll("p", Duration::from_secs(5))
         .expect("a job for the new views");
-    let next = p.start(job).expect("views held");
+    let next = p.start(job, false).expect("views held");
     assert_eq!(next.views.views.len(), 1);
     assert_eq!(next.views.views[0].frame_id, 4);
 }
