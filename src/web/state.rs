@@ -196,7 +196,8 @@ mod tests {
             snapshot,
             vec![
                 Payload::Binary(vec![1, 2, 3].into()),
-                Payload::Text("pose 2".into())
+                Payload::Text("pose 2".into()),
+                Payload::Text("pose b".into())
             ]
         );
         for i in 0..MAX_PERSONS + 5 {
