@@ -438,8 +438,6 @@ fn a_bun_above_the_skull_colours_the_crown() {
     // Hair and caps stand off the template's skull: a green bun painted on the photo above
     // the person's head (and added to the mask) must reach the avatar's crown, whose
     // Gaussians would otherwise sample the top of the skull where it projects.
-    use lhmpp::reconstruct::photo_colours::PhotoColourConfig;
-    use lhmpp::reconstruct::photos::{colour_from_views, photo_view};
     let p = front();
     let (mut image, mut mask) = (p.image.clone(), p.mask.clone());
     let top = (0..SIZE)
@@ -464,31 +462,7 @@ fn a_bun_above_the_skull_colours_the_crown() {
             }
         }
     }
-    let dir = tempfile::tempdir().unwrap();
-    let (photo_path, mask_path) = (dir.path().join("bun.png"), dir.path().join("bun_mask.png"));
-    image.save(&photo_path).unwrap();
-    mask.save(&mask_path).unwrap();
-    let mut recon = Reconstructor::new(&ModelConfig::default(), 2).unwrap();
-    let prep = preprocess_config(&recon);
-    let template = recon.template().clone();
-    let view = photo_view(
-        &photo_path,
-        Some(&mask_path),
-        None,
-        &networks(),
-        &template,
-        &prep,
-    )
-    .unwrap()
-    .expect("perception reads the person");
-    let views = [view];
-    let mut avatar = reconstruct_photos(&mut recon, &views).unwrap();
-    colour_from_views(
-        &mut avatar,
-        &template,
-        &views,
-        &PhotoColourConfig::default(),
-    );
+    let (_, avatar) = avatar_from_photo_file(&image, &mask);
     // The crown: the Gaussians within 2 cm of the avatar's top.
     let g = &avatar.canonical;
     let k = g.sh_per_gaussian();
@@ -515,8 +489,7 @@ fn a_bun_above_the_skull_colours_the_crown() {
 fn a_monochrome_photo_gives_a_grey_avatar_all_round() {
     // A greyscale camera's photo of the front: the back the camera never saw must not come
     // out in the network's colours (a blue shirt on a grey person), nor the front tinted.
-    use lhmpp::reconstruct::photo_colours::{is_monochrome, PhotoColourConfig};
-    use lhmpp::reconstruct::photos::{colour_from_views, photo_view};
+    use lhmpp::reconstruct::photo_colours::is_monochrome;
     let p = front();
     let grey = image::DynamicImage::ImageRgb8(p.image.clone()).to_luma8();
     let grey = image::DynamicImage::ImageLuma8(grey).to_rgb8();
@@ -525,13 +498,44 @@ fn a_monochrome_photo_gives_a_grey_avatar_all_round() {
         !is_monochrome(&p.image, &p.mask),
         "the colour photo is not grey"
     );
-    let dir = tempfile::tempdir().unwrap();
-    let (photo_path, mask_path) = (
-        dir.path().join("grey.png"),
-        dir.path().join("grey_mask.png"),
+    let (network, avatar) = avatar_from_photo_file(&grey, &p.mask);
+    let before = {
+        let g = &network.canonical;
+        let k = g.sh_per_gaussian();
+        (0..g.len())
+            .map(|i| lhmpp::splat::sh_dc_to_rgb(g.sh[i * k]))
+            .map(|c| c.max_element() - c.min_element())
+            .fold(0.0f32, f32::max)
+    };
+    assert!(
+        before > 0.05,
+        "the network's avatar has colour to lose ({before})"
     );
-    grey.save(&photo_path).unwrap();
-    p.mask.save(&mask_path).unwrap();
+    let g = &avatar.canonical;
+    let k = g.sh_per_gaussian();
+    for i in 0..g.len() {
+        for c in &g.sh[i * k..(i + 1) * k] {
+            assert!(
+                (c[0] - c[1]).abs() < 1e-5 && (c[1] - c[2]).abs() < 1e-5,
+                "Gaussian {i} at {:?} is tinted: {c:?}",
+                g.positions[i]
+            );
+        }
+    }
+}
+
+/// `lhmpp avatar`'s path for one photo and its mask (written to files and read back): the
+/// network's avatar, and the same avatar recoloured from the photo.
+fn avatar_from_photo_file(
+    image: &image::RgbImage,
+    mask: &image::GrayImage,
+) -> (lhmpp::avatar::Avatar, lhmpp::avatar::Avatar) {
+    use lhmpp::reconstruct::photo_colours::PhotoColourConfig;
+    use lhmpp::reconstruct::photos::{colour_from_views, photo_view};
+    let dir = tempfile::tempdir().unwrap();
+    let (photo_path, mask_path) = (dir.path().join("photo.png"), dir.path().join("mask.png"));
+    image.save(&photo_path).unwrap();
+    mask.save(&mask_path).unwrap();
     let mut recon = Reconstructor::new(&ModelConfig::default(), 2).unwrap();
     let prep = preprocess_config(&recon);
     let template = recon.template().clone();
@@ -546,34 +550,13 @@ fn a_monochrome_photo_gives_a_grey_avatar_all_round() {
     .unwrap()
     .expect("perception reads the person");
     let views = [view];
-    let mut avatar = reconstruct_photos(&mut recon, &views).unwrap();
-    let before = {
-        let g = &avatar.canonical;
-        let k = g.sh_per_gaussian();
-        (0..g.len())
-            .map(|i| lhmpp::splat::sh_dc_to_rgb(g.sh[i * k]))
-            .map(|c| c.max_element() - c.min_element())
-            .fold(0.0f32, f32::max)
-    };
-    assert!(
-        before > 0.05,
-        "the network's avatar has colour to lose ({before})"
-    );
+    let network = reconstruct_photos(&mut recon, &views).unwrap();
+    let mut avatar = network.clone();
     colour_from_views(
         &mut avatar,
         &template,
         &views,
         &PhotoColourConfig::default(),
     );
-    let g = &avatar.canonical;
-    let k = g.sh_per_gaussian();
-    for i in 0..g.len() {
-        for c in &g.sh[i * k..(i + 1) * k] {
-            assert!(
-                (c[0] - c[1]).abs() < 1e-5 && (c[1] - c[2]).abs() < 1e-5,
-                "Gaussian {i} at {:?} is tinted: {c:?}",
-                g.positions[i]
-            );
-        }
-    }
+    (network, avatar)
 }

@@ -234,20 +234,16 @@ impl Light {
     }
 
     fn flat(&self) -> Vec<f32> {
-        let mut x = Vec::with_capacity(15 + 3 * self.log_gain.len());
-        for v in [
-            self.log_ambient,
-            self.log_key,
-            self.key_dir,
-            self.log_fill,
-            self.fill_dir,
-        ] {
-            x.extend(v.to_array());
-        }
-        for g in &self.log_gain {
-            x.extend(g.to_array());
-        }
-        x
+        flatten(
+            [
+                self.log_ambient,
+                self.log_key,
+                self.key_dir,
+                self.log_fill,
+                self.fill_dir,
+            ],
+            &self.log_gain,
+        )
     }
 
     fn unflat(&mut self, x: &[f32]) {
@@ -279,21 +275,27 @@ impl LightGrads {
     }
 
     fn flat(&self) -> Vec<f32> {
-        let mut x = Vec::with_capacity(15 + 3 * self.log_gain.len());
-        for v in [
-            self.log_ambient,
-            self.log_key,
-            self.key_dir,
-            self.log_fill,
-            self.fill_dir,
-        ] {
-            x.extend(v.to_array());
-        }
-        for g in &self.log_gain {
-            x.extend(g.to_array());
-        }
-        x
+        flatten(
+            [
+                self.log_ambient,
+                self.log_key,
+                self.key_dir,
+                self.log_fill,
+                self.fill_dir,
+            ],
+            &self.log_gain,
+        )
     }
+}
+
+/// The light's five vectors then each view's gain, as one vector for the optimiser (the
+/// layout `Light::unflat` reads).
+fn flatten(lights: [Vec3; 5], gains: &[Vec3]) -> Vec<f32> {
+    lights
+        .iter()
+        .chain(gains)
+        .flat_map(|v| v.to_array())
+        .collect()
 }
 
 impl LightAdam {
