@@ -40,6 +40,8 @@ pub(super) struct RefinePlan {
     /// at its next check when it moved (keeping its best so far), so that new views and other
     /// persons' reconstructions never wait behind it.
     pub news: Arc<AtomicU64>,
+    /// `news` when the job was started: anything after it stops the job's fit.
+    pub since: u64,
 }
 
 /// The network all persons' jobs share, and what the pipeline's thread knows of it without
@@ -152,8 +154,9 @@ impl SharedNetwork {
                 ) else {
                     return built;
                 };
-                let start = plan.news.load(Ordering::Relaxed);
-                match fit.run(&built.avatar, || plan.news.load(Ordering::Relaxed) != start) {
+                match fit.run(&built.avatar, || {
+                    plan.news.load(Ordering::Relaxed) != plan.since
+                }) {
                     Ok(refined) => {
                         if refined.report.improved {
                             publish(&refined.avatar, revision);
@@ -221,10 +224,12 @@ impl Pipeline {
         let Some(work) = person.start(job, plan.is_some()) else {
             return;
         };
-        if let Some(plan) = &plan {
-            // A fit in flight (another person's) gives the network to this job.
-            plan.news.fetch_add(1, Ordering::Relaxed);
-        }
+        let plan = plan.map(|mut plan| {
+            // A fit in flight (another person's) gives the network to this job; a view that
+            // comes while this job runs stops its own fit.
+            plan.since = plan.news.fetch_add(1, Ordering::Relaxed) + 1;
+            plan
+        });
         let (id, revision) = (work.job().person.clone(), work.job().revision);
         self.publish_status(
             &id,

@@ -198,6 +198,7 @@ pub(super) fn pipeline(
         refine: config.refine.enabled.then(|| jobs::RefinePlan {
             config: config.refine.fit_config(),
             news: refine_news.clone(),
+            since: 0,
         }),
         refine_news,
         refine_inline: false,
