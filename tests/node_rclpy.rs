@@ -9,7 +9,7 @@
 mod dds_domain;
 mod rclpy_support;
 
-use rclpy_support::{build_msgs, peer_env, ros_python, KillOnDrop};
+use rclpy_support::{build_msgs, peer_env, peer_result, ros_python, KillOnDrop};
 
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
@@ -52,8 +52,8 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
             .expect("lhmpp starts"),
     );
     let started = Instant::now();
-    let peer = Command::new(&python)
-        .arg(root.join("tests/python/rclpy_peer.py"))
+    let mut peer = Command::new(&python);
+    peer.arg(root.join("tests/python/rclpy_peer.py"))
         .args(["--image-topic", "/rclpy_test/cam0/image_raw"])
         .args([
             "--compressed-topic",
@@ -67,21 +67,8 @@ fn node_serves_an_rclpy_fast_dds_peer_with_typed_lhmpp_msgs() {
         .args(["--width", "64", "--height", "96", "--render-side", "64"])
         .args(["--gaussians", "1024", "--person", "person_0"])
         .args(["--min-revisions", "2", "--timeout", "120"])
-        .envs(peer_env(&python, &prefix, domain))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {}: {e}", python.display()));
-    let mut peer = KillOnDrop(peer);
-    let result = BufReader::new(peer.0.stdout.take().unwrap())
-        .lines()
-        .map_while(Result::ok)
-        .find(|l| l.starts_with("RESULT"))
-        .unwrap_or_else(|| "RESULT fail peer exited without a result".into());
-    eprintln!(
-        "rclpy peer ({:.1} s): {result}",
-        started.elapsed().as_secs_f64()
-    );
+        .envs(peer_env(&python, &prefix, domain));
+    let result = peer_result(peer, "rclpy peer", started);
     assert!(result.starts_with("RESULT ok"), "{result}");
     assert!(started.elapsed() < Duration::from_secs(130));
 

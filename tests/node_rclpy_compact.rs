@@ -7,8 +7,7 @@
 mod dds_domain;
 mod rclpy_support;
 
-use rclpy_support::{build_msgs, peer_env, ros_python, KillOnDrop};
-use std::io::{BufRead, BufReader};
+use rclpy_support::{build_msgs, peer_env, peer_result, ros_python, KillOnDrop};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -49,26 +48,13 @@ fn a_160k_gaussian_compact_avatar_reaches_an_rclpy_subscriber_with_the_default_r
             .expect("lhmpp starts"),
     );
     let started = Instant::now();
-    let peer = Command::new(&python)
-        .arg(root.join("tests/python/compact_peer.py"))
+    let mut peer = Command::new(&python);
+    peer.arg(root.join("tests/python/compact_peer.py"))
         .args(["--compact-topic", "/compact_test/avatar/compact"])
         .args(["--full-topic", "/compact_test/avatar"])
         .args(["--gaussians", "160000", "--timeout", "150"])
-        .envs(peer_env(&python, &prefix, domain))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {}: {e}", python.display()));
-    let mut peer = KillOnDrop(peer);
-    let result = BufReader::new(peer.0.stdout.take().unwrap())
-        .lines()
-        .map_while(Result::ok)
-        .find(|l| l.starts_with("RESULT"))
-        .unwrap_or_else(|| "RESULT fail peer exited without a result".into());
-    eprintln!(
-        "rclpy compact peer ({:.1} s): {result}",
-        started.elapsed().as_secs_f64()
-    );
+        .envs(peer_env(&python, &prefix, domain));
+    let result = peer_result(peer, "rclpy compact peer", started);
     assert!(result.starts_with("RESULT ok"), "{result}");
     assert!(started.elapsed() < Duration::from_secs(160));
 }

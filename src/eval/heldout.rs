@@ -37,6 +37,9 @@ pub enum EvalError {
     /// The reconstruction failed.
     #[error(transparent)]
     Reconstruct(#[from] ReconstructError),
+    /// The refinement could not run.
+    #[error(transparent)]
+    Refine(#[from] crate::refine::RefineError),
 }
 
 /// Scores of one held-out view.
@@ -548,10 +551,6 @@ pub fn evaluate_bag(
                 let out = crate::refine::refine(&avatar, views, start, cfg, |p| {
                     tracing::debug!(?p, "refine");
                     true
-                })
-                .map_err(|e| EvalError::MissingGroundTruth {
-                    path: path.display().to_string(),
-                    message: e.to_string(),
                 })?;
                 avatar = out.avatar;
                 Some(out.report)

@@ -4,8 +4,9 @@
 
 #![allow(dead_code)]
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command};
+use std::process::{Child, Command, Stdio};
 use std::time::Instant;
 
 /// A child process killed (and reaped) when dropped.
@@ -90,4 +91,26 @@ pub fn peer_env(python: &Path, prefix: &Path, domain: u16) -> Vec<(String, Strin
             prefix.join("lib").display().to_string(),
         ),
     ]
+}
+
+/// Starts the peer `command` (its stderr shown, its stdout read) and returns its `RESULT ...`
+/// line (`RESULT fail ...` when it exits without one), logged as `label` with the time since
+/// `started`; the peer is killed on return.
+pub fn peer_result(mut command: Command, label: &str, started: Instant) -> String {
+    let peer = command
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start {label}: {e}"));
+    let mut peer = KillOnDrop(peer);
+    let result = BufReader::new(peer.0.stdout.take().unwrap())
+        .lines()
+        .map_while(Result::ok)
+        .find(|l| l.starts_with("RESULT"))
+        .unwrap_or_else(|| "RESULT fail peer exited without a result".into());
+    eprintln!(
+        "{label} ({:.1} s): {result}",
+        started.elapsed().as_secs_f64()
+    );
+    result
 }

@@ -141,6 +141,7 @@ impl SharedNetwork {
                     skeleton,
                     revision: (!remake).then_some(work.job().revision),
                     refined: None,
+                    made: Instant::now(),
                 };
                 let (Some(plan), Some(revision)) = (&refine, work.refined_revision()) else {
                     return built;
@@ -173,7 +174,6 @@ impl SharedNetwork {
                 views: work.view_count(),
                 job: work.job().clone(),
                 outcome,
-                ended: Instant::now(),
             }
         }
     }
@@ -198,6 +198,9 @@ struct Built {
     revision: Option<u64>,
     /// What the refinement did, when it ran.
     refined: Option<RefineReport>,
+    /// When the network's avatar was made (and published): the job's latency ends there,
+    /// the refinement after it is reported on its own.
+    made: Instant,
 }
 
 /// What a person's job sends back when it ends.
@@ -205,8 +208,6 @@ pub(super) struct JobDone {
     job: Job,
     views: usize,
     outcome: Result<Built, ReconstructError>,
-    /// When it ended (its avatar was published just before).
-    ended: Instant,
 }
 
 impl Pipeline {
@@ -254,7 +255,6 @@ impl Pipeline {
                 job,
                 views,
                 outcome,
-                ended,
             } = done;
             let built = match outcome {
                 Ok(built) => built,
@@ -268,7 +268,7 @@ impl Pipeline {
                 // Released while the job ran: its avatar was published, nobody keeps it.
                 continue;
             };
-            let published = clock().saturating_sub(ended.elapsed());
+            let published = clock().saturating_sub(built.made.elapsed());
             let refined = match &built.refined {
                 Some(r) => {
                     let message = refinement_summary(r);
@@ -279,14 +279,9 @@ impl Pipeline {
                 None => "avatar published".to_owned(),
             };
             let Some(revision) = built.revision else {
-                let _ = person.finished_unchanged(&job, clock());
-                self.publish_status(
-                    &id,
-                    person_revision(&self.persons, &id),
-                    0.0,
-                    ReconstructionStatus::STATE_IDLE,
-                    refined,
-                );
+                let _ = person.finished_unchanged(&job, published);
+                let latest = person.revision();
+                self.publish_status(&id, latest, 0.0, ReconstructionStatus::STATE_IDLE, refined);
                 continue;
             };
             let current = Current {
@@ -366,11 +361,4 @@ fn refinement_summary(r: &RefineReport) -> String {
         r.gaussians.0,
         r.gaussians.1,
     )
-}
-
-fn person_revision(
-    persons: &std::collections::BTreeMap<String, super::person::Person>,
-    id: &str,
-) -> u64 {
-    persons.get(id).map_or(0, super::person::Person::revision)
 }
