@@ -119,10 +119,19 @@ impl NodeConfig {
         }
     }
 
-    /// Whether camera-only perception runs: for masks, or for the pose
+    /// Whether some camera's frames come with a mask from a topic, inside which perception
+    /// reads the person (`inputs.person_mask`: `auto` or `topic`, with a mask topic).
+    pub fn given_masks(&self) -> bool {
+        let inputs = &self.inputs;
+        matches!(inputs.person_mask, PersonMask::Auto | PersonMask::Topic)
+            && (!inputs.mask_topic.trim().is_empty() || !inputs.mask_topics.is_empty())
+    }
+
+    /// Whether camera-only perception runs: for masks, inside given masks, or for the pose
     /// (`inputs.pose_source: camera`).
     pub fn runs_perception(&self) -> bool {
         self.perception_masks()
+            || self.given_masks()
             || self.inputs.pose_source == PoseSource::Camera
             || self.tracking.enabled
     }

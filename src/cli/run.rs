@@ -77,10 +77,12 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     if s.perceived > 0 || summary.perception_dropped > 0 {
         println!(
-            "perception: frames {} (cropped by its mask {}, nobody found {}, dropped for newer \
-             {}), time per frame {}, camera poses {} (frame stamp → pose published {})",
+            "perception: frames {} (cropped by its mask {}, read inside a topic's mask {}, \
+             nobody found {}, dropped for newer {}), time per frame {}, camera poses {} (frame \
+             stamp → pose published {})",
             s.perceived,
             s.perception_masked,
+            s.read_in_given_masks,
             s.no_person,
             summary.perception_dropped,
             s.perception_times,

@@ -338,6 +338,51 @@ impl PersonTracker {
         }
     }
 
+    /// The person inside `within` (the box of a person mask given with the frame, frame pixels)
+    /// in a frame taken at `seconds`, or `None` when the landmark model finds nobody there.
+    /// No detector runs: the person followed is read from the previous frame's crop while
+    /// they stay in the given box, otherwise from an upright crop around the box itself,
+    /// read again where its landmarks place the crop.
+    pub fn perceive_within(
+        &mut self,
+        image: &RgbImage,
+        seconds: f64,
+        within: PixelBox,
+    ) -> Result<Option<Perceived>, PerceptionError> {
+        self.clock = if seconds > self.clock {
+            seconds
+        } else {
+            self.clock + FRAME_SECONDS
+        };
+        self.ran_detector = false;
+        if let Some(roi) = self.roi {
+            if let Some(reading) = self.read(image, roi, None)? {
+                if reads_inside(&reading, &within) {
+                    return Ok(Some(self.commit(image, reading, true)));
+                }
+            }
+            self.lose();
+        }
+        let side = (within.max - within.min).max_element().max(1.0);
+        let around = RotatedRect {
+            center: within.centre(),
+            size: glam::Vec2::splat(side),
+            rotation: 0.0,
+        }
+        .square_long_scaled(GIVEN_BOX_SCALE);
+        let Some(first) = self.read(image, around, None)? else {
+            return Ok(None);
+        };
+        let again = self
+            .read(image, first.landmarks.next_roi, None)?
+            .filter(|r| reads_inside(r, &within));
+        match again {
+            Some(reading) => Ok(Some(self.commit(image, reading, true))),
+            None if reads_inside(&first, &within) => Ok(Some(self.commit(image, first, true))),
+            None => Ok(None),
+        }
+    }
+
     /// Among `readings`, the person followed, and whether to learn their looks from it: the
     /// one most like them, if alike enough: [`SAME_FROM`] near where they were last seen
     /// (`last`), [`LEARN_FROM`] elsewhere; when all of them read one person near there who is
@@ -513,4 +558,19 @@ impl PersonTracker {
             someone_else,
         }
     }
+}
+
+/// How much larger than the given mask's box the first crop inside it is (the detector's
+/// crops are this much larger than the person).
+const GIVEN_BOX_SCALE: f32 = 1.25;
+/// The share of the given mask's box a reading's landmark box must overlap (intersection
+/// over union) to be the person of that mask.
+const GIVEN_BOX_IOU: f32 = 0.3;
+
+/// Whether `reading` reads the person of the mask whose box is `within`: the box around its
+/// landmarks is centred inside that box and overlaps it.
+fn reads_inside(reading: &Reading, within: &PixelBox) -> bool {
+    let read = PixelBox::around_landmarks(&reading.landmarks.image);
+    let c = read.centre();
+    c.cmpge(within.min).all() && c.cmple(within.max).all() && read.iou(within) >= GIVEN_BOX_IOU
 }

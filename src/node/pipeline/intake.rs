@@ -1,8 +1,10 @@
 //! The first room a camera frame enters: it is counted, then goes to camera-only perception,
-//! waits for its mask topic, or goes on whole to the configured person.
+//! waits for its mask topic (and then to perception, which reads the person inside the mask),
+//! or goes on whole to the configured person.
 
 use super::masks::Paired;
 use super::people::StoreInput;
+use super::perceive::Task;
 use super::Pipeline;
 use crate::config::{PersonMask, PoseSource};
 use crate::node::inputs::CameraFrame;
@@ -53,37 +55,52 @@ impl Pipeline {
             .then(|| self.calibration.floor_camera(&frame))
             .flatten();
         match (route, self.perception.as_mut()) {
-            (MaskRoute::Perception, Some(perception)) => perception.submit(frame, camera),
+            (MaskRoute::Perception, Some(perception)) => {
+                perception.submit(frame, camera, Task::Find)
+            }
             (MaskRoute::Perception, None) => {
                 let person = self.default_person.clone();
                 self.on_frame(frame, StoreInput::whole_frame(), &person, now)
             }
-            (MaskRoute::Topic | MaskRoute::Whole, perception) => {
+            (MaskRoute::Topic, _) => {
+                let ready = self.masks.frame(frame, now);
+                self.admit(ready, now);
+            }
+            (MaskRoute::Whole, perception) => {
                 if let (PoseSource::Camera, Some(p)) = (self.setup.source, perception) {
-                    p.submit(frame.clone(), camera);
+                    p.submit(frame.clone(), camera, Task::PoseOnly);
                 }
-                if route == MaskRoute::Topic {
-                    let ready = self.masks.frame(frame, now);
-                    self.admit(ready, now);
-                } else {
-                    let person = self.default_person.clone();
-                    self.on_frame(frame, StoreInput::whole_frame(), &person, now);
-                }
+                let person = self.default_person.clone();
+                self.on_frame(frame, StoreInput::whole_frame(), &person, now);
             }
         }
     }
 
-    /// Frames whose mask pairing is settled go on to the configured person.
+    /// Frames whose mask pairing is settled: those with a mask go to perception, which reads
+    /// the person inside it (pose, camera fit, colours) before they go on to the configured
+    /// person cropped by that mask; without perception, or without a mask, they go on at once
+    /// (whole frames when no mask came; with `inputs.pose_source: camera` perception still
+    /// reads their pose).
     pub(super) fn admit(&mut self, ready: Vec<Paired>, now: Duration) {
         let person = self.default_person.clone();
         for (frame, mask) in ready {
             self.stats.masked += u64::from(mask.is_some());
-            let seen = StoreInput {
-                mask,
-                evidence: None,
-                hidden: 0.0,
-            };
-            self.on_frame(frame, seen, &person, now);
+            match (mask, self.perception.as_mut()) {
+                (Some(mask), Some(perception)) => {
+                    perception.submit(frame, None, Task::Within(mask));
+                }
+                (mask, perception) => {
+                    if let (PoseSource::Camera, Some(p)) = (self.setup.source, perception) {
+                        p.submit(frame.clone(), None, Task::PoseOnly);
+                    }
+                    let seen = StoreInput {
+                        mask,
+                        evidence: None,
+                        hidden: 0.0,
+                    };
+                    self.on_frame(frame, seen, &person, now);
+                }
+            }
         }
     }
 }

@@ -3,8 +3,7 @@
 //! their view for the frame store when their camera is routed to perception; cluster
 //! membership hands persons to this node or away from it.
 
-use super::intake::MaskRoute;
-use super::perceive::PerceivedFrame;
+use super::perceive::{PerceivedFrame, Task};
 use super::person::{Person, PosePath};
 use super::Pipeline;
 use crate::node::frame_store::{thumbnail_embedding, InsertOutcome, View};
@@ -55,14 +54,16 @@ impl Pipeline {
     }
 
     /// A perceived frame: the persons' masks are published (together, one camera mask), each
-    /// person's landmarks update their camera pose and body height, and frames routed to
-    /// perception go on to each person's frame store cropped by their mask (or, with nobody in
-    /// them, no further).
+    /// person's landmarks update their camera pose and body height, and frames perceived for
+    /// the store go on to each person's frame store cropped by their mask: perception's, or the
+    /// mask topic's the person was read inside (with nobody found, perception's frames go no
+    /// further; a mask topic's go on without what perception reads).
     fn on_perceived(&mut self, done: PerceivedFrame, now: Duration) {
         let PerceivedFrame {
             frame,
             people,
             tracked,
+            task,
             took,
         } = done;
         self.stats.perceived += 1;
@@ -71,8 +72,22 @@ impl Pipeline {
         if self.tracking {
             self.release_untracked(&tracked);
         }
-        let to_store = self.route(&frame.topic) == MaskRoute::Perception;
+        let to_store = task.stores();
+        let given_mask = matches!(task, Task::Within(_));
         if people.is_empty() && to_store {
+            if let Task::Within(mask) = task {
+                // The mask topic says where the person is: the frame goes on cropped by it,
+                // without what perception would have read.
+                tracing::debug!(topic = %frame.topic, "nobody read inside the given mask");
+                let person = self.default_person.clone();
+                let seen = StoreInput {
+                    mask: Some(mask),
+                    evidence: None,
+                    hidden: 0.0,
+                };
+                self.on_frame(frame, seen, &person, now);
+                return;
+            }
             self.stats.no_person += 1;
             tracing::debug!(topic = %frame.topic, "no person in the frame: not stored");
         }
@@ -91,7 +106,11 @@ impl Pipeline {
             self.on_camera_landmarks(&person, &frame, &seen.world, now);
             self.on_calibrated_landmarks(&person, &frame, &seen.image, now);
             if to_store {
-                self.stats.perception_masked += 1;
+                if given_mask {
+                    self.stats.read_in_given_masks += 1;
+                } else {
+                    self.stats.perception_masked += 1;
+                }
                 let evidence = self.colours_from_views.then(|| {
                     let evidence =
                         ViewEvidence::new(&frame.image, &seen.mask, &seen.image, &seen.world);

@@ -13,11 +13,13 @@
 //! named in one warning that says what looked for people and what to try.
 
 use crate::node::inputs::CameraFrame;
+use crate::perception::follow::PixelBox;
 use crate::perception::nobody::{NobodyStretch, NobodyWatch};
 use crate::perception::{
     Landmark, PeopleConfig, PeopleFinder, PersonDetector, PersonTracker, PoseNetworks,
     TrackerConfig, BODY_LANDMARKS,
 };
+use crate::reconstruct::preprocess::mask_bbox;
 use crate::tracking::{BoxPx, Detection, FloorCamera, PersonTracks, TrackingConfig, TrackingStats};
 use image::GrayImage;
 use std::collections::{BTreeMap, HashMap, VecDeque};
@@ -65,8 +67,29 @@ pub struct PerceivedFrame {
     pub people: Vec<PersonSeen>,
     /// Every person the tracker holds after this frame (empty when one person is followed).
     pub tracked: Vec<String>,
+    /// What perception was asked to do with the frame.
+    pub task: Task,
     /// Time the networks took for this frame.
     pub took: Duration,
+}
+
+/// What perception does with a frame, and where the frame goes after.
+#[derive(Debug, Clone)]
+pub enum Task {
+    /// Find the person (or, tracking, the persons); their mask crops the frame for the store.
+    Find,
+    /// Read the person inside this mask (from a mask topic): their landmarks for the pose,
+    /// the camera fit and the colours; the given mask crops the frame for the store.
+    Within(Arc<GrayImage>),
+    /// Read the person for the pose only: the frame is stored by another route.
+    PoseOnly,
+}
+
+impl Task {
+    /// Whether the frame goes on to the frame store after perception.
+    pub fn stores(&self) -> bool {
+        !matches!(self, Task::PoseOnly)
+    }
 }
 
 /// A frame handed to perception, with its camera's calibration when known.
@@ -76,6 +99,8 @@ pub struct Submitted {
     pub frame: CameraFrame,
     /// The camera, for where tracked persons stand (several people only).
     pub camera: Option<FloorCamera>,
+    /// What to do with it.
+    pub task: Task,
 }
 
 /// How persons are found.
@@ -205,21 +230,36 @@ impl CameraTrackers {
 
     fn find(&mut self, job: Submitted) -> PerceivedFrame {
         let started = Instant::now();
-        let Submitted { frame, camera } = job;
+        let Submitted {
+            frame,
+            camera,
+            task,
+        } = job;
         let people = match &mut self.finders {
             Finders::One { config, trackers } => {
                 let tracker = trackers
                     .entry(frame.topic.clone())
                     .or_insert_with(|| PersonTracker::new(self.networks.clone(), *config));
-                match self
-                    .pool
-                    .install(|| tracker.perceive_at(&frame.image, seconds(&frame)))
-                {
+                let given = match &task {
+                    Task::Within(mask) => Some((mask.clone(), given_box(mask))),
+                    Task::Find | Task::PoseOnly => None,
+                };
+                let found = self.pool.install(|| match &given {
+                    Some((_, None)) => Ok(None),
+                    Some((_, Some(within))) => {
+                        tracker.perceive_within(&frame.image, seconds(&frame), *within)
+                    }
+                    None => tracker.perceive_at(&frame.image, seconds(&frame)),
+                });
+                match found {
                     Ok(found) => found
                         .map(|p| PersonSeen {
-                            mask: Arc::new(
-                                p.mask.to_mask(self.masks.threshold, self.masks.feather),
-                            ),
+                            mask: match &given {
+                                Some((mask, _)) => mask.clone(),
+                                None => Arc::new(
+                                    p.mask.to_mask(self.masks.threshold, self.masks.feather),
+                                ),
+                            },
                             world: p.landmarks.world,
                             image: p.landmarks.image,
                             id: None,
@@ -276,9 +316,19 @@ impl CameraTrackers {
             frame,
             people,
             tracked,
+            task,
             took: started.elapsed(),
         }
     }
+}
+
+/// The box of a given person mask's pixels (≥ 128), `None` for an empty mask.
+fn given_box(mask: &GrayImage) -> Option<PixelBox> {
+    let b = mask_bbox(mask, 128)?;
+    Some(PixelBox::new(
+        glam::Vec2::new(b.x0 as f32, b.y0 as f32),
+        glam::Vec2::new(b.x1 as f32, b.y1 as f32),
+    ))
 }
 
 /// A frame's time in seconds: its stamp, else its arrival.
@@ -430,10 +480,14 @@ impl Perception {
         Self { runner }
     }
 
-    /// Hands a frame to perception (live: it replaces the camera's pending frame); `camera`
-    /// is its calibration, when known.
-    pub fn submit(&mut self, frame: CameraFrame, camera: Option<FloorCamera>) {
-        let job = Submitted { frame, camera };
+    /// Hands a frame to perception for `task` (live: it replaces the camera's pending frame);
+    /// `camera` is its calibration, when known.
+    pub fn submit(&mut self, frame: CameraFrame, camera: Option<FloorCamera>, task: Task) {
+        let job = Submitted {
+            frame,
+            camera,
+            task,
+        };
         match &mut self.runner {
             Runner::Inline { pending, .. } => pending.push_back(job),
             Runner::Worker(worker) => {
@@ -539,7 +593,7 @@ mod tests {
                 .into_iter()
                 .chain(empty_frames("/cam1/image_raw", 3, 0.5))
             {
-                stage.submit(frame, None);
+                stage.submit(frame, None, Task::Find);
                 let done = stage.take_results();
                 assert!(done.iter().all(|d| d.people.is_empty()));
             }
@@ -572,7 +626,7 @@ mod tests {
         // as never interesting for the other test.
         let log = crate::testing::warnings_logged(|| {
             for frame in empty_frames("/cam0/image_raw", 12, 0.5) {
-                stage.submit(frame, None);
+                stage.submit(frame, None, Task::Find);
                 stage.take_results();
             }
         });

@@ -51,7 +51,10 @@ pub struct PipelineStats {
     pub perceived: u64,
     /// Frames cropped by a mask from perception.
     pub perception_masked: u64,
-    /// Of those, views kept with their calibrated camera and the pose topic's pose, whose
+    /// Frames whose person perception read inside the mask a mask topic gave (their pose,
+    /// camera fit and colours as camera-only perception gives them).
+    pub read_in_given_masks: u64,
+    /// Of the views perception read, those kept with their calibrated camera and the pose topic's pose, whose
     /// colours are projected through that camera (`perception.colours_from_views`).
     pub calibrated_views: u64,
     /// Perceived frames that showed nobody (they never reach the frame store).
