@@ -20,6 +20,7 @@ pub mod frame_store;
 pub mod input_errors;
 pub mod input_queue;
 pub mod inputs;
+pub mod memory_trim;
 pub mod names;
 pub mod outputs;
 pub mod pipeline;

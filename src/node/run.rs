@@ -4,6 +4,7 @@
 //! renders run on threads of their own beside it ([`Pipeline::work_beside`]). The tokio
 //! runtime hosts only the DDS endpoint, the live page and the signal handlers.
 
+use super::memory_trim::{MemoryTrimmer, TRIM_PERIOD};
 use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs, WebPublisher};
 use super::pipeline::membership::HEARTBEAT_PERIOD;
 use super::pipeline::{Pipeline, PipelineError, PipelineStats};
@@ -217,6 +218,7 @@ pub fn run_with(
             run_live(&mut pipeline, None, None, &stop, &clock);
         }
     } else {
+        let _trimmer = MemoryTrimmer::start(TRIM_PERIOD);
         run_live(
             &mut pipeline,
             inputs.as_mut(),

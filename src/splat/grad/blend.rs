@@ -43,17 +43,18 @@ impl SplatGrad {
     }
 }
 
-/// A sample of splat `g` at the pixel `d = mean − pixel` away: its power, alpha and whether
-/// the forward blends it (before the transmittance test).
+/// A sample of splat `g` at the pixel `d = mean − pixel` away: its Gaussian falloff
+/// `e^power`, alpha and whether the forward blends it (before the transmittance test).
 #[inline(always)]
 fn sample(g: &Splat2D, dx: f32, dy: f32) -> (f32, f32, bool) {
     let [ca, cb, cc] = g.conic;
     let power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
     if !(power <= 0.0 && power >= g.min_power) {
-        return (power, 0.0, false);
+        return (0.0, 0.0, false);
     }
-    let alpha = MAX_ALPHA.min(g.opacity * fast_exp(power));
-    (power, alpha, alpha >= MIN_ALPHA)
+    let gauss = fast_exp(power);
+    let alpha = MAX_ALPHA.min(g.opacity * gauss);
+    (gauss, alpha, alpha >= MIN_ALPHA)
 }
 
 /// Per splat (indexed like `splats`), the gradients of the loss whose frame gradients are
@@ -88,13 +89,14 @@ pub(super) fn backward(
 }
 
 /// One sample the forward blended at a pixel: the splat's place in the tile list, its offset
-/// from the pixel and its alpha.
+/// from the pixel, its falloff there and its alpha.
 #[derive(Debug, Clone, Copy)]
 struct Sample {
     k: u32,
     dx: f32,
     dy: f32,
-    power: f32,
+    /// `e^power`, the splat's falloff at the pixel.
+    gauss: f32,
     alpha: f32,
 }
 
@@ -240,7 +242,7 @@ fn pixel_samples(
             continue;
         };
         let (dx, dy) = (g.mean[0] - px, g.mean[1] - py);
-        let (power, alpha, sampled) = sample(g, dx, dy);
+        let (gauss, alpha, sampled) = sample(g, dx, dy);
         if !sampled {
             continue;
         }
@@ -253,7 +255,7 @@ fn pixel_samples(
             k,
             dx,
             dy,
-            power,
+            gauss,
             alpha,
         });
     }
@@ -282,12 +284,12 @@ fn pixel_backward(
             .as_ref()
             .expect("a sampled splat is visible");
         let (dx, dy, alpha) = (s.dx, s.dy, s.alpha);
-        let one_minus = 1.0 - alpha;
-        t /= one_minus;
+        let inv_one_minus = 1.0 / (1.0 - alpha);
+        t *= inv_one_minus;
         let weight = alpha * t;
-        let mut d_a = (d_alpha - bg_dot) * t_final / one_minus;
+        let mut d_a = (d_alpha - bg_dot) * t_final * inv_one_minus;
         for c in 0..3 {
-            d_a += d_rgb[c] * (g.rgb[c] * t - behind[c] / one_minus);
+            d_a += d_rgb[c] * (g.rgb[c] * t - behind[c] * inv_one_minus);
         }
         let grad = &mut acc[s.k as usize];
         for c in 0..3 {
@@ -295,7 +297,7 @@ fn pixel_backward(
             behind[c] += g.rgb[c] * weight;
         }
         // α = min(0.99, opacity · e^power): no gradient where the cap holds.
-        let gauss = fast_exp(s.power);
+        let gauss = s.gauss;
         if g.opacity * gauss >= MAX_ALPHA {
             continue;
         }
