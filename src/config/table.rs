@@ -149,8 +149,11 @@ pub fn parameters() -> Vec<Parameter> {
             choice::<PersonMask>(),
             "where each camera's person mask comes from: `auto` = its mask topic if it has \
              one, else perception; `topic` = mask topics only; `perception` = the camera-only \
-             segmentation for every camera; `off` = whole frames. A frame in which perception \
-             finds nobody never reaches the frame store (counted in the run summary)",
+             segmentation for every camera; `off` = whole frames. Inside a topic's mask \
+             perception still reads the person (pose, camera fit, colours, refinement), \
+             without its detector. A frame in which perception finds nobody never reaches the \
+             frame store (counted in the run summary); a topic-masked one goes on without \
+             what perception reads",
         ),
         p(
             "inputs.pose_source",
