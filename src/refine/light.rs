@@ -9,9 +9,10 @@
 //! skinning rotation).
 //!
 //! Albedo and light trade off: only their product is seen. The fit fixes that freedom after
-//! each step: the views' gains average 1 (in logarithm, per channel), and a surface facing the
-//! key light is lit by 1 in luminance (`A + K`), the convention the colours taken from the
-//! photos already follow ([`crate::reconstruct::delight`]).
+//! each step: the views' gains average 1 (in logarithm, per channel), and the brightest-lit
+//! surface is lit by 1 in luminance ([`Light::brightest`]: `A + K` when the fill shines from
+//! elsewhere), the convention the colours taken from the photos already follow
+//! ([`crate::reconstruct::delight`]).
 
 use crate::reconstruct::delight::KeyLight;
 use crate::reconstruct::surface::{in_shadow, occupied_cells};
@@ -224,13 +225,30 @@ impl Light {
         self.log_ambient += mean;
         self.log_key += mean;
         self.log_fill += mean;
-        // A + K = FACING in luminance: the rest goes into the albedo.
-        let facing = (self.log_ambient.exp() + self.log_key.exp()).dot(LUMA);
-        let c = (FACING / facing).ln();
+        // The brightest-lit surface gets FACING in luminance: the rest goes into the albedo.
+        let c = (FACING / self.brightest()).ln();
         self.log_ambient += Vec3::splat(c);
         self.log_key += Vec3::splat(c);
         self.log_fill += Vec3::splat(c);
         Vec3::splat((-c).exp())
+    }
+
+    /// The light (luminance) reaching the brightest-lit surface: the ambient light plus the
+    /// most the key and fill lights give together to one surface. When both shine from nearly
+    /// one side (a fill that is a second key), a surface between them gets both, and counting
+    /// the key alone would darken every albedo by what the fill adds.
+    pub fn brightest(&self) -> f32 {
+        let k = self.log_key.exp().dot(LUMA);
+        let f = self.log_fill.exp().dot(LUMA);
+        let (kd, fd) = (self.key_direction(), self.fill_dir.normalize_or(Vec3::Y));
+        let both = k * kd + f * fd;
+        let n = both.normalize_or_zero();
+        let direct = if n.dot(kd) >= 0.0 && n.dot(fd) >= 0.0 {
+            both.length()
+        } else {
+            k.max(f)
+        };
+        self.log_ambient.exp().dot(LUMA) + direct.max(k).max(f)
     }
 
     fn flat(&self) -> Vec<f32> {
@@ -378,6 +396,37 @@ mod tests {
                 "parameter {k}: analytic {a} numeric {n}"
             );
         }
+    }
+
+    /// The gauge puts the brightest-lit surface at FACING, counting a fill that shines from
+    /// the key's side, so that such a fill does not darken the albedo.
+    #[test]
+    fn the_brightest_lit_surface_is_lit_by_one() {
+        let key = KeyLight {
+            key: Vec3::new(0.0, 0.6, 0.8),
+            strength: Vec3::splat(0.5),
+            ..KeyLight::none()
+        };
+        let mut light = Light::new(&key, &[0.0], vec![Vec3::Z]);
+        // A fill as strong as the key, from the same side: the surface facing both gets
+        // ambient + key + fill.
+        light.fill_dir = light.key_direction();
+        light.log_fill = light.log_key;
+        let (a, k) = (light.log_ambient.exp(), light.log_key.exp());
+        let before = (a + 2.0 * k).dot(LUMA);
+        assert!((light.brightest() - before).abs() < 1e-5);
+        let factor = light.step(&light.zero_grads(), &mut LightAdam::default(), 0.0, &[0]);
+        assert!(
+            (light.brightest() - FACING).abs() < 1e-4,
+            "{}",
+            light.brightest()
+        );
+        // The albedo takes what the light gave up: what the views show is unchanged.
+        assert!((factor.x - before / FACING).abs() < 1e-4, "{factor}");
+        // A fill from behind adds nothing to the surface facing the key.
+        light.fill_dir = -light.key_direction();
+        let (a, k) = (light.log_ambient.exp(), light.log_key.exp());
+        assert!((light.brightest() - (a + k).dot(LUMA)).abs() < 1e-5);
     }
 
     impl Light {
