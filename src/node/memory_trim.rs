@@ -14,6 +14,23 @@ use std::time::Duration;
 /// How often the free pages go back: a minute of creep is about 1 MB.
 pub const TRIM_PERIOD: Duration = Duration::from_secs(30);
 
+/// Environment variable that sets the period in seconds (`0`: no trimming, for comparison).
+pub const TRIM_PERIOD_ENV: &str = "LHMPP_HEAP_TRIM_S";
+
+/// The trimming period: [`TRIM_PERIOD_ENV`] when set to a number of seconds (`None` for 0),
+/// else [`TRIM_PERIOD`].
+pub fn trim_period() -> Option<Duration> {
+    match std::env::var(TRIM_PERIOD_ENV).ok().map(|v| v.trim().parse::<f64>()) {
+        Some(Ok(s)) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
+        Some(Ok(s)) if s == 0.0 => None,
+        Some(_) => {
+            tracing::warn!("{TRIM_PERIOD_ENV}: not a number of seconds; trimming every 30 s");
+            Some(TRIM_PERIOD)
+        }
+        None => Some(TRIM_PERIOD),
+    }
+}
+
 /// The thread that trims the heap every period until dropped.
 pub struct MemoryTrimmer {
     stop: Arc<(Mutex<bool>, Condvar)>,

@@ -4,7 +4,7 @@
 //! renders run on threads of their own beside it ([`Pipeline::work_beside`]). The tokio
 //! runtime hosts only the DDS endpoint, the live page and the signal handlers.
 
-use super::memory_trim::{MemoryTrimmer, TRIM_PERIOD};
+use super::memory_trim::{trim_period, MemoryTrimmer};
 use super::outputs::{Fanout, Publisher, RosPublisher, ShmOutputs, WebPublisher};
 use super::pipeline::membership::HEARTBEAT_PERIOD;
 use super::pipeline::{Pipeline, PipelineError, PipelineStats};
@@ -218,7 +218,7 @@ pub fn run_with(
             run_live(&mut pipeline, None, None, &stop, &clock);
         }
     } else {
-        let _trimmer = MemoryTrimmer::start(TRIM_PERIOD);
+        let _trimmer = trim_period().map(MemoryTrimmer::start);
         run_live(
             &mut pipeline,
             inputs.as_mut(),

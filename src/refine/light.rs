@@ -233,22 +233,25 @@ impl Light {
         Vec3::splat((-c).exp())
     }
 
-    /// The light (luminance) reaching the brightest-lit surface: the ambient light plus the
-    /// most the key and fill lights give together to one surface. When both shine from nearly
-    /// one side (a fill that is a second key), a surface between them gets both, and counting
-    /// the key alone would darken every albedo by what the fill adds.
+    /// The light (luminance) reaching the surface facing the key light best: the ambient light
+    /// plus the most the key and fill lights give together to one surface facing both. When
+    /// both shine from nearly one side (a fill that is a second key), a surface between them
+    /// gets both, and counting the key alone would darken every albedo by what the fill adds;
+    /// a fill from the other side is not counted.
     pub fn brightest(&self) -> f32 {
         let k = self.log_key.exp().dot(LUMA);
         let f = self.log_fill.exp().dot(LUMA);
         let (kd, fd) = (self.key_direction(), self.fill_dir.normalize_or(Vec3::Y));
         let both = k * kd + f * fd;
         let n = both.normalize_or_zero();
+        // A fill from elsewhere (the other side, behind) is not counted: the key's side is
+        // what "facing the light" means.
         let direct = if n.dot(kd) >= 0.0 && n.dot(fd) >= 0.0 {
-            both.length()
+            both.length().max(k)
         } else {
-            k.max(f)
+            k
         };
-        self.log_ambient.exp().dot(LUMA) + direct.max(k).max(f)
+        self.log_ambient.exp().dot(LUMA) + direct
     }
 
     fn flat(&self) -> Vec<f32> {
