@@ -65,7 +65,12 @@ fn without_mask_topics_perception_crops_every_frame_to_the_person() {
 fn refinement_off_publishes_the_networks_avatar_only() {
     let summary = run_perceived_demo(&["refine.enabled=false"]);
     assert_eq!(summary.stats.refinements, 0);
-    assert_eq!(summary.stats.reconstructions, 1);
+    assert_eq!(summary.stats.refine_steps, 0);
+    // One reconstruction of the four views; a loaded machine may let the debounce run one on
+    // the first views too. Either way the last revision is the network's own.
+    let runs = summary.stats.reconstructions;
+    assert!((1..=2).contains(&runs), "{runs} reconstructions");
+    assert_eq!(summary.revision, runs, "every revision is a network avatar");
 }
 
 #[test]

@@ -7,6 +7,7 @@
 
 use lhmpp::config::NodeConfig;
 use lhmpp::msgs::{BodyPose, ReconstructionStatus};
+use lhmpp::node::inputs::InputEvent;
 use lhmpp::node::outputs::{AvatarUpdate, Publisher};
 use lhmpp::node::pipeline::{Pipeline, RenderedFrame};
 use lhmpp::node::replay::{BagReplay, Replayed};
@@ -16,16 +17,19 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// Revisions of the avatars published, and the statuses' messages.
+/// Revisions of the avatars published (with the views each was made from), and the statuses'
+/// messages.
 #[derive(Clone, Default)]
 struct Recorder {
     avatars: Arc<Mutex<Vec<u64>>>,
+    views: Arc<Mutex<Vec<usize>>>,
     statuses: Arc<Mutex<Vec<String>>>,
 }
 
 impl Publisher for Recorder {
     fn avatar(&self, update: &AvatarUpdate<'_>) {
         self.avatars.lock().unwrap().push(update.revision);
+        self.views.lock().unwrap().push(update.views_used);
     }
     fn status(&self, msg: ReconstructionStatus) {
         self.statuses.lock().unwrap().push(msg.message);
@@ -34,8 +38,9 @@ impl Publisher for Recorder {
     fn pose(&self, _: &BodyPose) {}
 }
 
-#[test]
-fn live_jobs_publish_their_refined_avatar_under_a_revision_of_their_own() {
+/// A pipeline running its jobs beside the pose path, fed by the demo bag (no mask topics), and
+/// what it publishes.
+fn live_demo() -> (Pipeline, Recorder, BagReplay) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let bag = root.join("bags/demo.mcap");
     let overrides = [
@@ -52,7 +57,13 @@ fn live_jobs_publish_their_refined_avatar_under_a_revision_of_their_own() {
     let recorder = Recorder::default();
     pipeline.set_publisher(Some(Box::new(recorder.clone()) as Box<dyn Publisher>));
     pipeline.work_beside();
-    let mut replay = BagReplay::open(&bag, topics, config.inputs.max_image_side).unwrap();
+    let replay = BagReplay::open(&bag, topics, config.inputs.max_image_side).unwrap();
+    (pipeline, recorder, replay)
+}
+
+#[test]
+fn live_jobs_publish_their_refined_avatar_under_a_revision_of_their_own() {
+    let (mut pipeline, recorder, mut replay) = live_demo();
     let started = Instant::now();
     let clock = || started.elapsed();
     let mut longest_call = Duration::ZERO;
@@ -101,5 +112,69 @@ fn live_jobs_publish_their_refined_avatar_under_a_revision_of_their_own() {
     assert!(
         longest_call < Duration::from_millis(1000),
         "a pipeline call took {longest_call:?}"
+    );
+}
+
+#[test]
+fn a_new_view_stops_the_fit_in_flight_and_the_next_job_starts_from_the_new_views() {
+    let (mut pipeline, recorder, mut replay) = live_demo();
+    let started = Instant::now();
+    let clock = || started.elapsed();
+    let mut events = Vec::new();
+    while let Some((_, item)) = replay.next(clock) {
+        if let Replayed::Event(event) = item {
+            events.push(event);
+        }
+    }
+    // The bag's last camera frame is held back until a fit of the first three views runs.
+    let last = events
+        .iter()
+        .rposition(|e| matches!(e, InputEvent::Frame(_)))
+        .expect("the bag has frames");
+    let held = events.remove(last);
+    for event in events {
+        pipeline.handle(event, clock());
+        pipeline.step(clock(), clock);
+    }
+    let three_published = |r: &Recorder| r.views.lock().unwrap().contains(&3);
+    while !three_published(&recorder) {
+        assert!(
+            clock() < Duration::from_secs(120),
+            "no avatar of three views"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+        pipeline.step(clock(), clock);
+    }
+    // The fit of those views starts right after their avatar is published, on the jobs lane:
+    // let it run a little, then the fourth view arrives.
+    std::thread::sleep(Duration::from_millis(500));
+    let arrived = clock();
+    pipeline.handle(held, arrived);
+    let mut cancelled_at = None;
+    while !pipeline.idle() || cancelled_at.is_none() {
+        assert!(clock() < Duration::from_secs(300), "the jobs did not end");
+        std::thread::sleep(Duration::from_millis(5));
+        pipeline.step(clock(), clock);
+        let statuses = recorder.statuses.lock().unwrap();
+        if cancelled_at.is_none() && statuses.iter().any(|m| m.contains("(Cancelled)")) {
+            cancelled_at = Some(clock());
+        }
+        if pipeline.idle() && cancelled_at.is_none() {
+            panic!("no fit was stopped: {statuses:?}");
+        }
+    }
+    let stopped_after = cancelled_at.unwrap() - arrived;
+    eprintln!("the fit stopped {stopped_after:?} after the new view arrived");
+    // A check of the held-out view comes every 10 steps (a fraction of a second here); the
+    // budget would have let the fit go on for 10 s.
+    assert!(
+        stopped_after < Duration::from_secs(3),
+        "the fit went on {stopped_after:?} after the new view"
+    );
+    let views = recorder.views.lock().unwrap().clone();
+    assert_eq!(
+        views.last(),
+        Some(&4),
+        "the next job is made from the four views: {views:?}"
     );
 }

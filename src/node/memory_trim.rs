@@ -20,7 +20,10 @@ pub const TRIM_PERIOD_ENV: &str = "LHMPP_HEAP_TRIM_S";
 /// The trimming period: [`TRIM_PERIOD_ENV`] when set to a number of seconds (`None` for 0),
 /// else [`TRIM_PERIOD`].
 pub fn trim_period() -> Option<Duration> {
-    match std::env::var(TRIM_PERIOD_ENV).ok().map(|v| v.trim().parse::<f64>()) {
+    match std::env::var(TRIM_PERIOD_ENV)
+        .ok()
+        .map(|v| v.trim().parse::<f64>())
+    {
         Some(Ok(s)) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
         Some(Ok(s)) if s == 0.0 => None,
         Some(_) => {
