@@ -34,10 +34,19 @@ fn demo_bag_replays_into_an_avatar_and_rendered_frames() {
     assert_eq!(summary.stats.masked, 4);
     assert_eq!(summary.views_held, 4);
     assert_eq!(summary.encoded_views, 4);
-    assert_eq!(summary.stats.reconstructions, 1);
-    assert_eq!(summary.revision, 1);
+    // Perception reads the person inside each mask, so the calibrated views are refined at
+    // the end of the replay: the views are reconstructed once more and the fit, when it beats
+    // the network's avatar on its held-out view, is published as a revision of its own.
+    assert_eq!(summary.stats.read_in_given_masks, 4);
+    assert_eq!(summary.stats.refinements, 1);
+    assert_eq!(
+        summary.stats.reconstructions, 2,
+        "the views, then their rerun to refine"
+    );
+    assert_eq!(summary.revision, 1 + summary.stats.refinements_kept);
     let avatar = read_ply(&dir.path().join("avatar_person_0.ply")).unwrap();
-    assert_eq!(avatar.gaussians.len(), config.model.num_points);
+    // The refinement may grow Gaussians where the silhouettes ask for them.
+    assert!(avatar.gaussians.len() >= config.model.num_points);
     assert!(avatar.skin.is_some(), "the avatar PLY carries its skinning");
     assert!(avatar
         .gaussians
@@ -63,7 +72,9 @@ fn outputs_stay_within_max_disk_mb_and_keep_the_latest_avatar() {
     let on_disk = bytes_under(dir.path());
     assert_eq!(files.held_bytes, on_disk);
     assert!(on_disk <= 1_200_000, "{files}");
-    assert_eq!(files.written_files, 1 + 24 * 4, "{files}");
+    // The network's avatar, the refined one when kept, and the frames.
+    let avatars = 1 + summary.stats.refinements_kept;
+    assert_eq!(files.written_files, avatars + 24 * 4, "{files}");
     assert!(files.removed_files > 0, "{files}");
     assert_eq!(
         files.held_files + files.removed_files,
@@ -71,7 +82,8 @@ fn outputs_stay_within_max_disk_mb_and_keep_the_latest_avatar() {
         "{files}"
     );
     let avatar = read_ply(&dir.path().join("avatar_person_0.ply")).unwrap();
-    assert_eq!(avatar.gaussians.len(), config.model.num_points);
+    // The refinement may grow Gaussians where the silhouettes ask for them.
+    assert!(avatar.gaussians.len() >= config.model.num_points);
     let names: Vec<String> = std::fs::read_dir(dir.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().into_string().unwrap())

@@ -164,6 +164,9 @@ fn node_killed_and_restarted_publishes_again_to_a_subscriber_that_stayed() {
                 ))
                 .args(["--set", &format!("person_id={person}")])
                 .args(["--set", "outputs.shm=true", "--set", "outputs.ros=false"])
+                // The walk cycle animates the frames after the replay, so that their stamps
+                // (those of the poses they show) keep increasing.
+                .args(["--set", "inputs.pose_source=walk"])
                 .args([
                     "--set",
                     "outputs.dir=''",
