@@ -71,6 +71,13 @@ pub struct AvatarArgs {
     /// photos themselves.
     #[arg(long)]
     network_colours: bool,
+    #[command(flatten)]
+    refine: PhotoRefineArgs,
+}
+
+/// The fit to the photos' flags, shared by `lhmpp avatar` and `lhmpp eval-photos`.
+#[derive(Args, Debug)]
+pub struct PhotoRefineArgs {
     /// Fit the avatar to the photos after the network (three photos at least: one is held out
     /// to stop the fit; with fewer the avatar is not fitted).
     #[arg(long, overrides_with = "no_refine")]
@@ -83,12 +90,21 @@ pub struct AvatarArgs {
     refine_budget: f64,
 }
 
+impl PhotoRefineArgs {
+    /// The fit's settings, or `None` when no fit is asked for.
+    pub fn config(&self) -> Result<Option<RefineConfig>> {
+        refine_wanted(self.refine, self.no_refine)
+            .then(|| photo_refine_config(self.refine_budget))
+            .transpose()
+    }
+}
+
 /// Whether `lhmpp avatar` and `lhmpp eval-photos` fit the avatar to the photos without
 /// `--refine` or `--no-refine` (docs/refinement.md says why).
 pub const REFINE_PHOTOS_BY_DEFAULT: bool = false;
 
 /// Whether the flags ask for a fit.
-pub fn refine_wanted(refine: bool, no_refine: bool) -> bool {
+fn refine_wanted(refine: bool, no_refine: bool) -> bool {
     match (refine, no_refine) {
         (true, _) => true,
         (_, true) => false,
@@ -97,7 +113,7 @@ pub fn refine_wanted(refine: bool, no_refine: bool) -> bool {
 }
 
 /// The fit's settings for photos, `budget` seconds at most.
-pub fn photo_refine_config(budget: f64) -> Result<RefineConfig> {
+fn photo_refine_config(budget: f64) -> Result<RefineConfig> {
     if !(budget.is_finite() && budget > 0.0) {
         bail!("--refine-budget {budget}: expected a positive number of seconds");
     }
@@ -121,9 +137,7 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         checkpoint: args.checkpoint.clone(),
         ..ModelConfig::default()
     };
-    let refine = refine_wanted(args.refine, args.no_refine)
-        .then(|| photo_refine_config(args.refine_budget))
-        .transpose()?;
+    let refine = args.refine.config()?;
     let mut recon = Reconstructor::new(&model, args.images.len().max(1))?;
     let prep = preprocess_config(&recon);
     let landmark_model = LandmarkModel::from_name(&args.landmark_model).with_context(|| {

@@ -60,15 +60,8 @@ pub struct EvalPhotosArgs {
     /// Leave out the manifest's masks: every photo is masked by perception.
     #[arg(long)]
     perception_masks: bool,
-    /// Fit each avatar to its input photos, as `lhmpp avatar --refine` does.
-    #[arg(long, overrides_with = "no_refine")]
-    refine: bool,
-    /// Do not fit the avatars to the photos (the default).
-    #[arg(long)]
-    no_refine: bool,
-    /// Seconds each fit may take.
-    #[arg(long, default_value_t = 10.0)]
-    refine_budget: f64,
+    #[command(flatten)]
+    refine: super::avatar::PhotoRefineArgs,
 }
 
 fn opt(v: Option<f64>) -> String {
@@ -93,9 +86,7 @@ pub fn run(args: EvalPhotosArgs) -> Result<()> {
             }
         }
     }
-    let refine = super::avatar::refine_wanted(args.refine, args.no_refine)
-        .then(|| super::avatar::photo_refine_config(args.refine_budget))
-        .transpose()?;
+    let refine = args.refine.config()?;
     let model = ModelConfig {
         preset: args.preset.clone(),
         checkpoint: args.checkpoint.clone(),

@@ -78,15 +78,11 @@ pub fn photo_camera(
     // what it misses.
     let (affine, _) = robust_affine(&mut pairs, person, 2.0 * config.max_fit_error)
         .map_err(PhotoCameraError::Fit)?;
-    let f = config.focal_per_side * width.max(height) as f32;
-    let intrinsics = Intrinsics {
-        fx: f,
-        fy: f,
-        cx: 0.5 * (width as f32 - 1.0),
-        cy: 0.5 * (height as f32 - 1.0),
+    let intrinsics = centred_intrinsics(
         width,
         height,
-    };
+        config.focal_per_side * width.max(height) as f32,
+    );
     let start = from_affine(&affine, &pairs, &intrinsics)
         .ok_or_else(|| PhotoCameraError::Fit("the landmarks span no plane".into()))?;
     let pose = levenberg_marquardt(start, &pairs, &intrinsics);
@@ -103,6 +99,12 @@ pub fn photo_camera(
         rms,
         landmarks: pairs.len(),
     })
+}
+
+/// Intrinsics of a `width` × `height` image with focal length `f` (pixels) and the principal
+/// point at its centre.
+fn centred_intrinsics(width: u32, height: u32, f: f32) -> Intrinsics {
+    Intrinsics::from_fov_y(width, height, 2.0 * (0.5 * height as f32 / f).atan())
 }
 
 /// RMS distance (pixels) between each pair's pixel and its point projected by `camera`
@@ -283,8 +285,9 @@ fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
         b.swap(col, pivot);
         for row in col + 1..6 {
             let f = a[row][col] / a[col][col];
-            for c in col..6 {
-                a[row][c] -= f * a[col][c];
+            let pivot_row = a[col];
+            for (v, p) in a[row].iter_mut().zip(pivot_row).skip(col) {
+                *v -= f * p;
             }
             b[row] -= f * b[col];
         }
@@ -315,6 +318,11 @@ mod tests {
         })
     }
 
+    /// An upright camera at `eye` looking at `target`.
+    fn looking(eye: Vec3, target: Vec3, k: Intrinsics) -> Camera {
+        Camera::look_at(eye, target, Vec3::Y, k)
+    }
+
     fn a_pose() -> Pose {
         let mut pose = Pose::identity();
         pose.rotations
@@ -334,21 +342,8 @@ mod tests {
         let pose = a_pose();
         let posed = template_landmarks(&template, &pose).unwrap();
         let (w, h) = (640, 960);
-        let f = 1.3 * h as f32;
-        let k = Intrinsics {
-            fx: f,
-            fy: f,
-            cx: 0.5 * (w as f32 - 1.0),
-            cy: 0.5 * (h as f32 - 1.0),
-            width: w,
-            height: h,
-        };
-        let truth = Camera::look_at(
-            Vec3::new(0.8, 1.3, 3.2),
-            Vec3::new(0.05, 0.9, 0.0),
-            Vec3::Y,
-            k,
-        );
+        let k = centred_intrinsics(w, h, 1.3 * h as f32);
+        let truth = looking(Vec3::new(0.8, 1.3, 3.2), Vec3::new(0.05, 0.9, 0.0), k);
         let landmarks = seen_by(&truth, &posed);
         let config = PhotoCameraConfig {
             focal_per_side: 1.3,
@@ -381,10 +376,9 @@ mod tests {
         let pose = a_pose();
         let posed = template_landmarks(&template, &pose).unwrap();
         let (w, h) = (1280, 720);
-        let truth = Camera::look_at(
+        let truth = looking(
             Vec3::new(-0.5, 1.0, 4.0),
             Vec3::new(0.0, 1.0, 0.0),
-            Vec3::Y,
             Intrinsics::from_fov_y(w, h, 0.7),
         );
         let mut landmarks = seen_by(&truth, &posed);
