@@ -213,6 +213,32 @@ def one_person(out, target):
                  "person followed, and the avatar the node made of them").save(target)
 
 
+def refined_photo(out, target):
+    """Real photos (the Pose2Sim man's four cameras, BSD-3) beside the avatar in each photo's
+    pose before and after it was fitted to them (lhmpp avatar --no-refine / --refine)."""
+    out = Path(out)
+    rows = []
+    for c in (1, 3):
+        stem = f"single_cam{c}_f040"
+        mask = Image.open(out / f"p2s_plain/masks/{stem}_mask.png")
+        photo = Image.open(out / f"p2s_plain/masks/{stem}_overlay.png")
+        rows.append(row([
+            tile(crop_to_mask(photo, mask), f"photo, camera {c} (with perception)"),
+            tile(crop_to_content(Image.open(out / f"p2s_plain/posed_{stem}.png")),
+                 "avatar, network + photo colours"),
+            tile(crop_to_content(Image.open(out / f"p2s_refined/posed_{stem}.png")),
+                 "avatar, refined to the photos"),
+        ]))
+    rows.append(row([
+        tile(Image.open(out / "p2s_plain/turntable/000.png"), "before: front"),
+        tile(Image.open(out / "p2s_plain/turntable/002.png"), "before: back"),
+        tile(Image.open(out / "p2s_refined/turntable/000.png"), "refined: front"),
+        tile(Image.open(out / "p2s_refined/turntable/002.png"), "refined: back"),
+    ]))
+    column(rows, title="lhmpp avatar on four real photos (Pose2Sim, BSD-3): before and after "
+                       "--refine, each render in the photo's pose from the front").save(target)
+
+
 if __name__ == "__main__":
     kind, out, target = sys.argv[1:4]
     {
@@ -223,4 +249,5 @@ if __name__ == "__main__":
         "tracked": tracked,
         "real-tracked": real_tracked,
         "one-person": one_person,
+        "refined-photo": refined_photo,
     }[kind](out, target)

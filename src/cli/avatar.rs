@@ -8,6 +8,10 @@
 //! * `walk/NNN.png` + `walk.gif`: the avatar walking the built-in cycle, seen from the front;
 //! * `posed_<photo>.png`: the avatar in the pose read from each photo, from the front;
 //! * `masks/<photo>_mask.png` and `masks/<photo>_overlay.png`: what perception used.
+//!
+//! With `--refine` the avatar is then fitted to the photos ([`lhmpp::refine::photos`]): each
+//! photo gets a camera placed from its landmarks, one is held out to stop the fit, so it takes
+//! three photos in which perception finds the person.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -18,12 +22,15 @@ use lhmpp::body::{motion, Pose};
 use lhmpp::config::ModelConfig;
 use lhmpp::perception::overlay::draw_overlay;
 use lhmpp::perception::{LandmarkModel, PoseNetworks};
+use lhmpp::reconstruct::photo_camera::PhotoCameraConfig;
 use lhmpp::reconstruct::photo_colours::PhotoColourConfig;
 use lhmpp::reconstruct::photos::{
     colour_from_views, photo_view, preprocess_config, reconstruct_photos, FrontStage, PersonHint,
     PhotoView,
 };
 use lhmpp::reconstruct::Reconstructor;
+use lhmpp::refine::photos::refine_photos;
+use lhmpp::refine::RefineConfig;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -64,6 +71,56 @@ pub struct AvatarArgs {
     /// photos themselves.
     #[arg(long)]
     network_colours: bool,
+    #[command(flatten)]
+    refine: PhotoRefineArgs,
+}
+
+/// The fit to the photos' flags, shared by `lhmpp avatar` and `lhmpp eval-photos`.
+#[derive(Args, Debug)]
+pub struct PhotoRefineArgs {
+    /// Fit the avatar to the photos after the network (three photos at least: one is held out
+    /// to stop the fit; with fewer the avatar is not fitted).
+    #[arg(long, overrides_with = "no_refine")]
+    refine: bool,
+    /// Do not fit the avatar to the photos (the default).
+    #[arg(long)]
+    no_refine: bool,
+    /// Seconds the fit may take.
+    #[arg(long, default_value_t = 10.0)]
+    refine_budget: f64,
+}
+
+impl PhotoRefineArgs {
+    /// The fit's settings, or `None` when no fit is asked for.
+    pub fn config(&self) -> Result<Option<RefineConfig>> {
+        refine_wanted(self.refine, self.no_refine)
+            .then(|| photo_refine_config(self.refine_budget))
+            .transpose()
+    }
+}
+
+/// Whether `lhmpp avatar` and `lhmpp eval-photos` fit the avatar to the photos without
+/// `--refine` or `--no-refine` (docs/refinement.md says why).
+pub const REFINE_PHOTOS_BY_DEFAULT: bool = false;
+
+/// Whether the flags ask for a fit.
+fn refine_wanted(refine: bool, no_refine: bool) -> bool {
+    match (refine, no_refine) {
+        (true, _) => true,
+        (_, true) => false,
+        _ => REFINE_PHOTOS_BY_DEFAULT,
+    }
+}
+
+/// The fit's settings for photos, `budget` seconds at most.
+fn photo_refine_config(budget: f64) -> Result<RefineConfig> {
+    if !(budget.is_finite() && budget > 0.0) {
+        bail!("--refine-budget {budget}: expected a positive number of seconds");
+    }
+    Ok(RefineConfig {
+        budget: std::time::Duration::from_secs_f64(budget),
+        ..RefineConfig::default()
+    })
 }
 
 /// Masks the photos, reconstructs, writes the avatar and its pictures.
@@ -80,6 +137,7 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         checkpoint: args.checkpoint.clone(),
         ..ModelConfig::default()
     };
+    let refine = args.refine.config()?;
     let mut recon = Reconstructor::new(&model, args.images.len().max(1))?;
     let prep = preprocess_config(&recon);
     let landmark_model = LandmarkModel::from_name(&args.landmark_model).with_context(|| {
@@ -139,6 +197,9 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         ms = format!("{:.0}", started.elapsed().as_secs_f64() * 1e3),
         "avatar reconstructed"
     );
+    if let Some(config) = &refine {
+        avatar = refined(&avatar, recon.template(), &views, config)?;
+    }
     let ply = args.out.join("avatar.ply");
     avatar
         .save_ply(&ply)
@@ -173,6 +234,77 @@ pub fn run(args: AvatarArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// The avatar fitted to the photos, with a progress bar while it runs and a line on what the
+/// fit did; the avatar unchanged when the fit could not run or did not beat it.
+fn refined(
+    avatar: &lhmpp::avatar::Avatar,
+    template: &lhmpp::body::BodyTemplate,
+    views: &[PhotoView],
+    config: &RefineConfig,
+) -> Result<lhmpp::avatar::Avatar> {
+    let bar = ProgressBar::new(config.max_iterations as u64);
+    bar.set_style(
+        ProgressStyle::with_template("refining {bar:30} {pos}/{len} steps {msg}")
+            .expect("valid template"),
+    );
+    let fit = refine_photos(
+        avatar,
+        template,
+        views,
+        config,
+        &PhotoCameraConfig::default(),
+        |p| {
+            bar.set_position(p.iteration as u64);
+            bar.set_message(format!(
+                "loss {:.4}, held-out photo {:.4}, {} Gaussians",
+                p.loss, p.held, p.gaussians
+            ));
+            true
+        },
+    )?;
+    bar.finish_and_clear();
+    for (photo, camera) in &fit.cameras {
+        match camera {
+            Ok(c) => tracing::info!(
+                photo = %photo,
+                miss = format!("{:.1} %", 100.0 * c.rms),
+                "camera placed from the landmarks"
+            ),
+            Err(why) => tracing::warn!(photo = %photo, "no camera: {why}"),
+        }
+    }
+    let Some(done) = fit.refined else {
+        println!(
+            "not refined: {}",
+            fit.skipped.unwrap_or_else(|| "no fit".into())
+        );
+        return Ok(avatar.clone());
+    };
+    let r = &done.report;
+    println!(
+        "refined: {} steps over {} photos in {:.1} s ({:?}), held-out photo `{}` loss {:.4} -> {:.4}, {} -> {} Gaussians, {}",
+        r.iterations,
+        r.views_fitted,
+        r.elapsed.as_secs_f64(),
+        r.stop,
+        r.held_view.as_deref().unwrap_or("-"),
+        r.held.0,
+        r.held.1,
+        r.gaussians.0,
+        r.gaussians.1,
+        if r.improved { "kept" } else { "not better: the network's avatar kept" }
+    );
+    for c in &r.corrections {
+        tracing::info!(
+            photo = %c.view,
+            shift_cm = format!("{:.1} {:.1} {:.1}", 100.0 * c.translation.x, 100.0 * c.translation.y, 100.0 * c.translation.z),
+            degrees = format!("{:.1}", c.degrees),
+            "camera corrected"
+        );
+    }
+    Ok(done.avatar)
 }
 
 /// Writes what perception used for one photo: `<stem>_mask.png` (the mask) and

@@ -15,7 +15,7 @@ use lhmpp::eval::photos::{
     overall_mean, score_person, EvalPhotosConfig, PersonScore, RegionStatus, RenderLandmarks,
 };
 use lhmpp::perception::{LandmarkModel, PoseNetworks};
-use lhmpp::reconstruct::photos::MaskSource;
+use lhmpp::reconstruct::photos::{MaskSource, PersonHint};
 use lhmpp::reconstruct::Reconstructor;
 use serde_json::json;
 use std::path::PathBuf;
@@ -57,6 +57,11 @@ pub struct EvalPhotosArgs {
     /// Keep the network's colours (no recolouring from the photos), to compare.
     #[arg(long)]
     network_colours: bool,
+    /// Leave out the manifest's masks: every photo is masked by perception.
+    #[arg(long)]
+    perception_masks: bool,
+    #[command(flatten)]
+    refine: super::avatar::PhotoRefineArgs,
 }
 
 fn opt(v: Option<f64>) -> String {
@@ -65,11 +70,23 @@ fn opt(v: Option<f64>) -> String {
 
 /// Scores every person and prints the tables.
 pub fn run(args: EvalPhotosArgs) -> Result<()> {
-    let manifest = match (&args.manifest, &args.dir) {
+    let mut manifest = match (&args.manifest, &args.dir) {
         (Some(m), _) => Manifest::load(m)?,
         (None, Some(d)) => Manifest::from_dir(d)?,
         (None, None) => bail!("give a folder of photos or --manifest FILE"),
     };
+    if args.perception_masks {
+        // The person stays the one the mask picked out (the box around it).
+        for view in manifest.people.iter_mut().flat_map(|p| &mut p.views) {
+            if let (None, Some(mask)) = (&view.person, view.mask.take()) {
+                let image = image::open(&mask)
+                    .with_context(|| format!("reading {}", mask.display()))?
+                    .to_luma8();
+                view.person = PersonHint::from_mask(&image);
+            }
+        }
+    }
+    let refine = args.refine.config()?;
     let model = ModelConfig {
         preset: args.preset.clone(),
         checkpoint: args.checkpoint.clone(),
@@ -96,13 +113,23 @@ pub fn run(args: EvalPhotosArgs) -> Result<()> {
     let config = EvalPhotosConfig {
         render_size: args.render_size,
         photo_colours: defaults.photo_colours.filter(|_| !args.network_colours),
+        refine,
         ..defaults
     };
     println!(
-        "weights: {} (preset {}); perception: {}",
+        "weights: {} (preset {}); perception: {}; masks: {}; refinement: {}",
         recon.weights(),
         args.preset,
-        args.landmark_model
+        args.landmark_model,
+        if args.perception_masks {
+            "perception's"
+        } else {
+            "the manifest's where given"
+        },
+        match &config.refine {
+            Some(r) => format!("on (budget {:.1} s)", r.budget.as_secs_f64()),
+            None => "off".into(),
+        }
     );
     let mut people = Vec::new();
     let mut pictures = Vec::new();
@@ -173,6 +200,9 @@ fn print_person(p: &PersonScore) {
             format!(": {}", p.note)
         }
     );
+    if let Some(r) = &p.refinement {
+        println!("refinement: {r}");
+    }
     for (photo, why) in &p.skipped {
         println!("skipped {}: {why}", photo.display());
     }

@@ -14,6 +14,7 @@ pub mod head_fit;
 pub mod image_decode;
 pub mod landmark_warp;
 pub mod part_rules;
+pub mod photo_camera;
 pub mod photo_colours;
 pub mod photos;
 pub mod preprocess;

@@ -144,19 +144,22 @@ const MIN_FIT_LANDMARKS: usize = 6;
 
 /// An affine camera: `pixel = rows · (X, 1)`.
 #[derive(Debug, Clone, Copy)]
-struct AffineCamera {
-    u: Vec4,
-    v: Vec4,
+pub(crate) struct AffineCamera {
+    /// The row giving the pixel's x.
+    pub u: Vec4,
+    /// The row giving the pixel's y.
+    pub v: Vec4,
 }
 
 impl AffineCamera {
-    fn project(&self, p: Vec3) -> Vec2 {
+    /// The pixel of `p`.
+    pub fn project(&self, p: Vec3) -> Vec2 {
         let h = p.extend(1.0);
         Vec2::new(self.u.dot(h), self.v.dot(h))
     }
 
     /// The direction the camera looks along (depth grows along it).
-    fn forward(&self) -> Vec3 {
+    pub fn forward(&self) -> Vec3 {
         self.u
             .truncate()
             .cross(self.v.truncate())
@@ -204,8 +207,28 @@ impl Projection {
     }
 }
 
+/// The camera fit's correspondences: each of [`FIT_LANDMARKS`] seen at `min_visibility`, as
+/// (the posed template's landmark, perception's pixel), and the person's height on the photo
+/// (the pixels' vertical extent, at least 1).
+pub(crate) fn landmark_pairs(
+    posed_landmarks: &[Vec3; BODY_LANDMARKS],
+    landmarks: &[Landmark; BODY_LANDMARKS],
+    min_visibility: f32,
+) -> (Vec<(Vec3, Vec2)>, f32) {
+    let pairs: Vec<(Vec3, Vec2)> = FIT_LANDMARKS
+        .iter()
+        .map(|&id| id as usize)
+        .filter(|&i| landmarks[i].visibility >= min_visibility)
+        .map(|i| (posed_landmarks[i], landmarks[i].position.truncate()))
+        .collect();
+    let (lo, hi) = pairs.iter().fold((f32::MAX, f32::MIN), |(lo, hi), (_, p)| {
+        (lo.min(p.y), hi.max(p.y))
+    });
+    (pairs, (hi - lo).max(1.0))
+}
+
 /// Least-squares affine camera through `(X, pixel)` pairs (at least 4, not coplanar).
-fn fit_camera(pairs: &[(Vec3, Vec2)]) -> Option<AffineCamera> {
+pub(crate) fn fit_camera(pairs: &[(Vec3, Vec2)]) -> Option<AffineCamera> {
     if pairs.len() < 4 {
         return None;
     }
@@ -299,16 +322,7 @@ fn photo_colours(
     } = canonical;
     let posed_landmarks =
         template_landmarks(template, photo.pose).map_err(|e| format!("landmarks: {e}"))?;
-    let mut pairs: Vec<(Vec3, Vec2)> = FIT_LANDMARKS
-        .iter()
-        .map(|&id| id as usize)
-        .filter(|&i| photo.landmarks[i].visibility >= cfg.min_visibility)
-        .map(|i| (posed_landmarks[i], photo.landmarks[i].position.truncate()))
-        .collect();
-    let (lo, hi) = pairs.iter().fold((f32::MAX, f32::MIN), |(lo, hi), (_, p)| {
-        (lo.min(p.y), hi.max(p.y))
-    });
-    let height = (hi - lo).max(1.0);
+    let (mut pairs, height) = landmark_pairs(&posed_landmarks, photo.landmarks, cfg.min_visibility);
     let (projection, rms) = match photo.camera {
         Some(camera) => calibrated_projection(camera, &pairs, height, cfg)?,
         None => fitted_projection(&mut pairs, height, cfg)?,
@@ -467,6 +481,19 @@ fn fitted_projection(
     height: f32,
     cfg: &PhotoColourConfig,
 ) -> Result<(Projection, f32), String> {
+    let (camera, rms) = robust_affine(pairs, height, cfg.max_fit_error)?;
+    let forward = camera.forward();
+    Ok((Projection::Affine { camera, forward }, rms))
+}
+
+/// The affine camera through the landmark pairs and its RMS miss (share of `height`), the
+/// landmark it misses most dropped (from `pairs`) while it misses by more than
+/// `max_fit_error` and two thirds of them remain; refused when it still misses.
+pub(crate) fn robust_affine(
+    pairs: &mut Vec<(Vec3, Vec2)>,
+    height: f32,
+    max_fit_error: f32,
+) -> Result<(AffineCamera, f32), String> {
     let keep = (2 * pairs.len()).div_ceil(3).max(MIN_FIT_LANDMARKS);
     let (camera, rms) = loop {
         let camera = fit_camera(pairs).ok_or("too few visible landmarks to place the camera")?;
@@ -475,7 +502,7 @@ fn fitted_projection(
             .map(|(x, p)| camera.project(*x).distance_squared(*p))
             .collect();
         let rms = (errors.iter().sum::<f32>() / pairs.len() as f32).sqrt() / height;
-        if rms <= cfg.max_fit_error || pairs.len() <= keep {
+        if rms <= max_fit_error || pairs.len() <= keep {
             break (camera, rms);
         }
         let worst = (0..errors.len())
@@ -483,14 +510,13 @@ fn fitted_projection(
             .expect("pairs are not empty");
         pairs.swap_remove(worst);
     };
-    if rms > cfg.max_fit_error {
+    if rms > max_fit_error {
         return Err(format!(
             "the camera fit misses the landmarks by {:.1} % of the person's height",
             rms * 100.0
         ));
     }
-    let forward = camera.forward();
-    Ok((Projection::Affine { camera, forward }, rms))
+    Ok((camera, rms))
 }
 
 /// The calibrated camera's projection, and how far (RMS, share of `height`) the posed

@@ -9,14 +9,20 @@
 //! ([`params`]). Gaussians grow where the silhouettes ask for more than the body template
 //! gives (skirts, coats, hair: [`growth`]).
 //!
+//! Views whose camera and pose were fitted rather than measured (photos) can also have a
+//! rigid correction of the posed body in each view's camera frame fitted alongside
+//! ([`RefineConfig::correct_views`], [`correction`]).
+//!
 //! Never worse than its start: one view is held out of the fit, the fit stops when the held
 //! view's loss stops falling, and the parameters that scored best on it are kept; when none
 //! beat the network's avatar, the network's avatar is returned unchanged.
 
+mod correction;
 mod growth;
 mod light;
 mod loss;
 mod params;
+pub mod photos;
 mod skinning;
 mod smooth;
 mod view;
@@ -76,6 +82,10 @@ pub struct RefineConfig {
     pub grow: bool,
     /// Views rendered per optimiser step (taken in turn).
     pub views_per_step: usize,
+    /// Fit a rigid correction of the posed body in each fitted view's camera frame (image
+    /// shift, scale and a small rotation; for views whose camera and pose were fitted, not
+    /// measured). The held-out view keeps the camera it was given.
+    pub correct_views: bool,
 }
 
 impl Default for RefineConfig {
@@ -93,6 +103,7 @@ impl Default for RefineConfig {
             patience: 6,
             grow: true,
             views_per_step: 1,
+            correct_views: false,
         }
     }
 }
@@ -142,6 +153,20 @@ pub struct RefineReport {
     pub times: StageTimes,
     /// Each check of the held-out view: (seconds since the fit began, its loss).
     pub trace: Vec<(f64, f32)>,
+    /// Per fitted view, the correction fitted at the end (with
+    /// [`RefineConfig::correct_views`]).
+    pub corrections: Vec<CorrectionReport>,
+}
+
+/// The correction fitted to one view ([`RefineConfig::correct_views`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CorrectionReport {
+    /// The view's name.
+    pub view: String,
+    /// Translation of the body in the camera's optical frame (metres: x right, y down, z away).
+    pub translation: Vec3,
+    /// Angle of its rotation, degrees.
+    pub degrees: f32,
 }
 
 impl RefineReport {
@@ -325,6 +350,19 @@ pub fn refine(
     if let Some(l) = &fit.light {
         tracing::debug!(light = ?l.summary(), "fitted light");
     }
+    report.corrections = fit
+        .corrections
+        .iter()
+        .zip(&fit.views)
+        .filter_map(|(c, v)| {
+            let c = c.as_ref()?;
+            Some(CorrectionReport {
+                view: v.name.clone(),
+                translation: c.translation,
+                degrees: c.rotation.to_scaled_axis().length().to_degrees(),
+            })
+        })
+        .collect();
     report.times = fit.times;
     report.elapsed = start.elapsed();
     Ok(Refined { avatar, report })
@@ -406,6 +444,8 @@ struct Fit<'a> {
     cursor: usize,
     /// Each view's latest loss.
     last_loss: Vec<f32>,
+    /// Per view, its correction ([`RefineConfig::correct_views`]; never the held-out view's).
+    corrections: Vec<Option<correction::ViewCorrection>>,
 }
 
 impl<'a> Fit<'a> {
@@ -432,7 +472,27 @@ impl<'a> Fit<'a> {
         };
         let n = params.len();
         let count = views.len();
+        let corrections = views
+            .iter()
+            .zip(&transforms)
+            .enumerate()
+            .map(|(v, (view, t))| {
+                if !config.correct_views || v == held {
+                    return None;
+                }
+                let centre = params
+                    .position
+                    .iter()
+                    .zip(t)
+                    .map(|(x, (a, _))| a.transform_point3(*x))
+                    .sum::<Vec3>()
+                    / n.max(1) as f32;
+                let pivot = view.camera.camera_from_world().transform_point3(centre);
+                Some(correction::ViewCorrection::new(pivot))
+            })
+            .collect();
         Self {
+            corrections,
             last_loss: vec![0.0; count],
             config,
             params,
@@ -523,9 +583,12 @@ impl<'a> Fit<'a> {
                 clock = Instant::now();
             };
             let shading = self.shading(v);
-            let posed = skinning::pose(&self.params, &self.transforms[v], &shading);
-            lap(&mut self.times.pose);
+            let mut posed = skinning::pose(&self.params, &self.transforms[v], &shading);
             let view = &self.views[v];
+            let moved = self.corrections[v]
+                .as_ref()
+                .map(|c| c.apply(&view.camera, &mut posed));
+            lap(&mut self.times.pose);
             grad::forward(
                 &mut self.rasterizer,
                 &posed,
@@ -552,9 +615,14 @@ impl<'a> Fit<'a> {
                 rgb: &self.d_rgb,
                 alpha: &self.d_alpha,
             };
-            let g = grad::backward(&self.rasterizer, &posed, &view.camera, &options, frame)
+            let mut g = grad::backward(&self.rasterizer, &posed, &view.camera, &options, frame)
                 .expect("the frame and Gaussians of the forward just run");
             lap(&mut self.times.backward);
+            if let (Some(c), Some(moved)) = (self.corrections[v].as_mut(), moved) {
+                let d = c.gradient(&view.camera, &posed, &g);
+                c.step(d);
+                correction::pull_back(&moved, &mut g);
+            }
             skinning::accumulate(&self.params, &self.transforms[v], &shading, &g, &mut grads);
             if let Some(l) = &self.light {
                 l.accumulate(

@@ -151,13 +151,14 @@ pub(crate) struct Rates {
 
 /// Adam's moment estimates for one group of scalars.
 #[derive(Debug, Clone, Default)]
-struct Moments {
+pub(crate) struct Moments {
     m: Vec<f32>,
     v: Vec<f32>,
 }
 
 impl Moments {
-    fn step(&mut self, x: &mut [f32], g: &[f32], lr: f32, t: i32) {
+    /// One Adam step of `x` (its `t`-th) along the gradient `g` at learning rate `lr`.
+    pub fn step(&mut self, x: &mut [f32], g: &[f32], lr: f32, t: i32) {
         const B1: f32 = 0.9;
         const B2: f32 = 0.999;
         const EPS: f32 = 1e-15;

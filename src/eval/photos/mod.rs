@@ -6,6 +6,8 @@
 //! 1. each photo is masked (a given mask, else perception's) and posed by camera-only
 //!    perception, and all the person's photos are reconstructed into one avatar, exactly as
 //!    `lhmpp avatar` does ([`crate::reconstruct::photos`]);
+//!    With [`EvalPhotosConfig::refine`] the avatar is then fitted to the input photos
+//!    ([`crate::refine::photos`]), as `lhmpp avatar --refine` does;
 //! 2. per photo, the avatar is rendered from the front in the photo's pose (perception's world
 //!    landmarks through the pose solver; the rest pose where perception found nobody) on white,
 //!    [`EvalPhotosConfig::render_size`] pixels square;
@@ -35,12 +37,15 @@ pub mod sheet;
 use crate::body::{BodyTemplate, Pose};
 use crate::perception::pose::{template_landmarks, PoseSolveError};
 use crate::perception::{Landmark, PerceptionError, PoseNetworks, BODY_LANDMARKS};
+use crate::reconstruct::photo_camera::PhotoCameraConfig;
 use crate::reconstruct::photo_colours::PhotoColourConfig;
 use crate::reconstruct::photos::{
     colour_from_views, perceive_person, photo_view, preprocess_config, reconstruct_photos,
     FrontStage, MaskSource, PersonHint, PhotoError, PhotoView,
 };
 use crate::reconstruct::{ReconstructError, Reconstructor};
+use crate::refine::photos::refine_photos;
+use crate::refine::{RefineConfig, RefineError};
 use crate::splat::{Camera, RenderOutput};
 use colour::{ciede2000, hex, ChannelHistogram, Srgb8};
 use image::{GrayImage, RgbImage};
@@ -68,10 +73,13 @@ pub enum EvalPhotosError {
     /// The network failed.
     #[error(transparent)]
     Reconstruct(#[from] ReconstructError),
+    /// The fit to the photos failed.
+    #[error(transparent)]
+    Refine(#[from] RefineError),
 }
 
 /// Settings of the evaluation.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct EvalPhotosConfig {
     /// Side of the avatar's renders, pixels.
     pub render_size: u32,
@@ -79,6 +87,8 @@ pub struct EvalPhotosConfig {
     pub regions: RegionConfig,
     /// Recolour the avatar from the photos (`None`: the network's colours).
     pub photo_colours: Option<PhotoColourConfig>,
+    /// Fit the avatar to the input photos after the colours (`None`: no fit).
+    pub refine: Option<RefineConfig>,
 }
 
 impl Default for EvalPhotosConfig {
@@ -87,6 +97,7 @@ impl Default for EvalPhotosConfig {
             render_size: 512,
             regions: RegionConfig::default(),
             photo_colours: Some(PhotoColourConfig::default()),
+            refine: None,
         }
     }
 }
@@ -311,6 +322,8 @@ pub struct PersonScore {
     pub views: Vec<ViewScore>,
     /// Photos left out, and why.
     pub skipped: Vec<(PathBuf, String)>,
+    /// What the fit to the photos did (with [`EvalPhotosConfig::refine`]).
+    pub refinement: Option<String>,
 }
 
 impl PersonScore {
@@ -332,6 +345,7 @@ impl PersonScore {
             "views": self.views.iter().map(ViewScore::to_json).collect::<Vec<_>>(),
             "skipped": self.skipped.iter().map(|(p, why)| json!({ "photo": p, "why": why }))
                 .collect::<Vec<_>>(),
+            "refinement": self.refinement,
             "regions_scored": self.scored().len(),
             "mean_delta_e00": self.mean(),
         })
@@ -456,6 +470,7 @@ pub fn score_person(
         note: person.note.clone(),
         views: Vec::new(),
         skipped,
+        refinement: None,
     };
     if views.is_empty() {
         return Ok((score, Vec::new()));
@@ -474,6 +489,39 @@ pub fn score_person(
     let template = recon.template();
     if let Some(colours) = &config.photo_colours {
         colour_from_views(&mut avatar, template, &inputs, colours);
+    }
+    if let Some(refine) = &config.refine {
+        let fit = refine_photos(
+            &avatar,
+            template,
+            &inputs,
+            refine,
+            &PhotoCameraConfig::default(),
+            |p| {
+                tracing::debug!(person = %person.name, ?p, "refining");
+                true
+            },
+        )?;
+        score.refinement = Some(match fit.refined {
+            Some(done) => {
+                let r = &done.report;
+                let summary = format!(
+                    "{} steps over {} photos ({:?}), held-out photo loss {:.4} → {:.4}, {}",
+                    r.iterations,
+                    r.views_fitted,
+                    r.stop,
+                    r.held.0,
+                    r.held.1,
+                    if r.improved { "kept" } else { "not kept" }
+                );
+                avatar = done.avatar;
+                summary
+            }
+            None => format!(
+                "not refined: {}",
+                fit.skipped.unwrap_or_else(|| "no fit".into())
+            ),
+        });
     }
     let stage = FrontStage::new(&avatar, config.render_size);
     let mut pictures = Vec::new();

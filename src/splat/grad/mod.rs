@@ -25,7 +25,7 @@
 mod blend;
 mod project;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use super::camera::Camera;
 use super::gaussians::Gaussians;

@@ -9,7 +9,7 @@ use rand_chacha::ChaCha8Rng;
 /// A few large, overlapping, rotated, half-transparent Gaussians about 2 m in front of a small
 /// camera, centred near its axis: their α = 1/255 edges (steps the derivative does not see)
 /// lie outside the disc [`Loss`] weighs, so finite differences see a smooth function.
-fn scene(seed: u64) -> (Gaussians, Camera) {
+pub(crate) fn scene(seed: u64) -> (Gaussians, Camera) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let n = 8;
     let mut positions = Vec::new();
@@ -59,13 +59,13 @@ const DISC: f32 = 12.0;
 
 /// `L = Σ wᵣ · rgb + Σ wₐ · alpha` with fixed random weights inside the disc (0 outside),
 /// summed in f64.
-struct Loss {
-    rgb: Vec<f32>,
-    alpha: Vec<f32>,
+pub(crate) struct Loss {
+    pub(crate) rgb: Vec<f32>,
+    pub(crate) alpha: Vec<f32>,
 }
 
 impl Loss {
-    fn new(camera: &Camera, seed: u64) -> Self {
+    pub(crate) fn new(camera: &Camera, seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let k = camera.intrinsics;
         let inside: Vec<bool> = (0..k.height)
@@ -93,7 +93,7 @@ impl Loss {
         }
     }
 
-    fn value(&self, g: &Gaussians, camera: &Camera, options: &RenderOptions) -> f64 {
+    pub(crate) fn value(&self, g: &Gaussians, camera: &Camera, options: &RenderOptions) -> f64 {
         let out = crate::splat::render(g, camera, options);
         let a: f64 = out
             .rgb
@@ -111,14 +111,14 @@ impl Loss {
     }
 }
 
-fn options() -> RenderOptions {
+pub(crate) fn options() -> RenderOptions {
     RenderOptions {
         background: Vec3::new(0.2, 0.5, 0.9),
         ..RenderOptions::default()
     }
 }
 
-fn analytic(g: &Gaussians, camera: &Camera, loss: &Loss) -> GaussianGrads {
+pub(crate) fn analytic(g: &Gaussians, camera: &Camera, loss: &Loss) -> GaussianGrads {
     let mut rasterizer = Rasterizer::new();
     let mut out = RenderOutput::default();
     forward(&mut rasterizer, g, camera, &options(), &mut out);
@@ -146,7 +146,7 @@ fn central(
 }
 
 /// Compares analytic and numeric derivatives; returns the failures.
-fn check(name: &str, pairs: &[(f64, f64)], rel: f64) -> Vec<String> {
+pub(crate) fn check(name: &str, pairs: &[(f64, f64)], rel: f64) -> Vec<String> {
     let scale = pairs
         .iter()
         .map(|(a, n)| a.abs().max(n.abs()))
