@@ -43,7 +43,8 @@ fn demo_bag_replays_into_an_avatar_and_rendered_frames() {
         summary.stats.reconstructions, 2,
         "the views, then their rerun to refine"
     );
-    assert_eq!(summary.revision, 1 + summary.stats.refinements_kept);
+    // The refined avatar, when the fit beat the network's, is published under a later revision.
+    assert_eq!(summary.revision > 1, summary.stats.refinements_kept == 1);
     let avatar = read_ply(&dir.path().join("avatar_person_0.ply")).unwrap();
     // The refinement may grow Gaussians where the silhouettes ask for them.
     assert!(avatar.gaussians.len() >= config.model.num_points);
@@ -72,12 +73,16 @@ fn outputs_stay_within_max_disk_mb_and_keep_the_latest_avatar() {
     let on_disk = bytes_under(dir.path());
     assert_eq!(files.held_bytes, on_disk);
     assert!(on_disk <= 1_200_000, "{files}");
-    // The network's avatar, the refined one when kept, and the frames.
-    let avatars = 1 + summary.stats.refinements_kept;
-    assert_eq!(files.written_files, avatars + 24 * 4, "{files}");
+    // The network's avatar, the refined one when the fit beat it, and the frames.
+    assert!(
+        (1 + 24 * 4..=2 + 24 * 4).contains(&files.written_files),
+        "{files}"
+    );
     assert!(files.removed_files > 0, "{files}");
+    // A later avatar replaces the latest file by a rename (counted neither held nor removed).
+    let replaced = files.written_files - 24 * 4 - 1;
     assert_eq!(
-        files.held_files + files.removed_files,
+        files.held_files + files.removed_files + replaced,
         files.written_files,
         "{files}"
     );

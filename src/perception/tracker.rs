@@ -269,6 +269,17 @@ impl PersonTracker {
         }
     }
 
+    /// Starts a frame taken at `seconds` (a stamp before the last frame's counts as
+    /// [`FRAME_SECONDS`] after it): nothing detected in it yet.
+    fn start_frame(&mut self, seconds: f64) {
+        self.clock = if seconds > self.clock {
+            seconds
+        } else {
+            self.clock + FRAME_SECONDS
+        };
+        self.ran_detector = false;
+    }
+
     /// How much `reading` looks like the person followed (`None`: nobody's looks are known,
     /// or the reading shows none).
     fn likeness(&self, reading: &Reading) -> Option<f32> {
@@ -288,12 +299,7 @@ impl PersonTracker {
         image: &RgbImage,
         seconds: f64,
     ) -> Result<Option<Perceived>, PerceptionError> {
-        self.clock = if seconds > self.clock {
-            seconds
-        } else {
-            self.clock + FRAME_SECONDS
-        };
-        self.ran_detector = false;
+        self.start_frame(seconds);
         let mut suspect = None;
         if let Some(roi) = self.roi {
             if let Some(reading) = self.read(image, roi, None)? {
@@ -349,12 +355,7 @@ impl PersonTracker {
         seconds: f64,
         within: PixelBox,
     ) -> Result<Option<Perceived>, PerceptionError> {
-        self.clock = if seconds > self.clock {
-            seconds
-        } else {
-            self.clock + FRAME_SECONDS
-        };
-        self.ran_detector = false;
+        self.start_frame(seconds);
         if let Some(roi) = self.roi {
             if let Some(reading) = self.read(image, roi, None)? {
                 if reads_inside(&reading, &within) {
