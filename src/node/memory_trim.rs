@@ -25,7 +25,7 @@ pub fn trim_period() -> Option<Duration> {
         .map(|v| v.trim().parse::<f64>())
     {
         Some(Ok(s)) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
-        Some(Ok(s)) if s == 0.0 => None,
+        Some(Ok(0.0)) => None,
         Some(_) => {
             tracing::warn!("{TRIM_PERIOD_ENV}: not a number of seconds; trimming every 30 s");
             Some(TRIM_PERIOD)
