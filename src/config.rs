@@ -127,13 +127,18 @@ impl NodeConfig {
             && (!inputs.mask_topic.trim().is_empty() || !inputs.mask_topics.is_empty())
     }
 
-    /// Whether camera-only perception runs: for masks, inside given masks, or for the pose
-    /// (`inputs.pose_source: camera`).
-    pub fn runs_perception(&self) -> bool {
+    /// Whether perception finds people in some camera's frames itself (for masks, tracking or
+    /// the pose, `inputs.pose_source: camera`), making masks of its own.
+    pub fn perception_finds_people(&self) -> bool {
         self.perception_masks()
-            || self.given_masks()
             || self.inputs.pose_source == PoseSource::Camera
             || self.tracking.enabled
+    }
+
+    /// Whether camera-only perception runs: where it finds people itself, or inside given
+    /// masks.
+    pub fn runs_perception(&self) -> bool {
+        self.perception_finds_people() || self.given_masks()
     }
 }
 

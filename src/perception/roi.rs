@@ -5,6 +5,10 @@
 use glam::Vec2;
 use std::f32::consts::PI;
 
+/// How much larger than a person's box the upright crop around it is
+/// ([`RotatedRect::around_box`]).
+pub const BOX_CROP_SCALE: f32 = 1.25;
+
 /// A rectangle in frame pixels, rotated about its centre.
 ///
 /// Pixel coordinates have x to the right and y down, pixel centres at integers (as OpenCV).
@@ -46,6 +50,19 @@ impl RotatedRect {
             size: Vec2::splat(side),
             rotation: 0.0,
         }
+    }
+
+    /// The upright crop around a person known only by a box (`min`–`max`, pixels, e.g. a
+    /// given mask's): a square of the box's longer side, scaled by [`BOX_CROP_SCALE`], as
+    /// large around the person as a detection's crop.
+    pub fn around_box(min: Vec2, max: Vec2) -> Self {
+        let side = (max - min).max_element().max(1.0);
+        Self {
+            center: 0.5 * (min + max),
+            size: Vec2::splat(side),
+            rotation: 0.0,
+        }
+        .square_long_scaled(BOX_CROP_SCALE)
     }
 
     /// MediaPipe's `RectTransformationCalculator` with `square_long`: a square of the longer

@@ -364,13 +364,7 @@ impl PersonTracker {
             }
             self.lose();
         }
-        let side = (within.max - within.min).max_element().max(1.0);
-        let around = RotatedRect {
-            center: within.centre(),
-            size: glam::Vec2::splat(side),
-            rotation: 0.0,
-        }
-        .square_long_scaled(GIVEN_BOX_SCALE);
+        let around = RotatedRect::around_box(within.min, within.max);
         let Some(first) = self.read(image, around, None)? else {
             return Ok(None);
         };
@@ -561,9 +555,6 @@ impl PersonTracker {
     }
 }
 
-/// How much larger than the given mask's box the first crop inside it is (the detector's
-/// crops are this much larger than the person).
-const GIVEN_BOX_SCALE: f32 = 1.25;
 /// The share of the given mask's box a reading's landmark box must overlap (intersection
 /// over union) to be the person of that mask.
 const GIVEN_BOX_IOU: f32 = 0.3;

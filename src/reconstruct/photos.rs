@@ -150,15 +150,10 @@ pub fn perceive_person(
     let detections = networks.detect(image, config.min_detection_score, &mut input)?;
     let (roi, detection) = match (hint.pick(&detections), hint) {
         (Some(d), _) => (d.roi(), Some(d)),
-        (None, PersonHint::Box([x0, y0, x1, y1])) => {
-            let side = (x1 - x0).max(y1 - y0).max(1.0);
-            let rect = RotatedRect {
-                center: Vec2::new(0.5 * (x0 + x1), 0.5 * (y0 + y1)),
-                size: Vec2::splat(side),
-                rotation: 0.0,
-            };
-            (rect.square_long_scaled(1.25), None)
-        }
+        (None, PersonHint::Box([x0, y0, x1, y1])) => (
+            RotatedRect::around_box(Vec2::new(*x0, *y0), Vec2::new(*x1, *y1)),
+            None,
+        ),
         (None, _) => return Ok(None),
     };
     let (mut landmarks, mut mask) = networks.landmarks(image, &roi, &mut input)?;

@@ -68,12 +68,15 @@ impl Pipeline {
         } = done;
         self.stats.perceived += 1;
         self.stats.perception_times.record(took);
-        self.publish_mask(&frame, &people);
+        let given_mask = matches!(task, Task::Within(_));
+        if !given_mask {
+            // A topic's mask is the user's own: it is not published again.
+            self.publish_mask(&frame, &people);
+        }
         if self.tracking {
             self.release_untracked(&tracked);
         }
         let to_store = task.stores();
-        let given_mask = matches!(task, Task::Within(_));
         if people.is_empty() && to_store {
             if let Task::Within(mask) = task {
                 // The mask topic says where the person is: the frame goes on cropped by it,

@@ -185,7 +185,7 @@ impl RosNodeOptions {
                     cfg.outputs.world_frame.clone(),
                 )
             }),
-            person_masks: cfg.outputs.masks && cfg.runs_perception(),
+            person_masks: cfg.outputs.masks && cfg.perception_finds_people(),
             camera_pose: cfg.outputs.camera_pose && cfg.inputs.pose_source != PoseSource::Walk,
             rosout: true,
         })
